@@ -1,0 +1,142 @@
+"""Causal spatial-temporal fusion transformer, xAR-Fuse (paper section 3.2.2, supp. B.2).
+
+At token step t it reads the hidden states h_t^r of the four frozen region eXperts and the audio token a_t:
+
+    h~_t^r = h_t^r + W_r h_t^r + region_embedding_r        (PILOR: per-region residual linear adapter)
+    for each of ``fuse_blocks`` blocks:
+        inter-region spatial attention across the 4 regions at time t
+        causal global temporal attention, per region, over a window of ``fuse_window`` tokens (KV cache)
+        causal audio-motion cross-attention over a_{t-Wa+1..t} (keys shared by the regions)
+        feed-forward
+    logits_t^r = classifier_r(LN(.))        (the region classifiers are shared with the eXperts)
+
+Guided sampling happens outside the graph, in the runtime (``livegesture.sampling``).
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn as nn
+
+from ..config import LiveGestureConfig
+from ..regions import REGION_NAMES
+from .layers import AttnLayer, CacheSpec, FeedForward, WindowedAttention, check_cache, check_shape
+
+
+class SpatialAttention(nn.Module):
+    """Full multi-head attention across the regions of one time step (no mask, no positions:
+    regions are told apart by their learned region embeddings)."""
+
+    def __init__(self, d: int, n_heads: int):
+        super().__init__()
+        self.h, self.hd, self.d = n_heads, d // n_heads, d
+        self.qkv = nn.Linear(d, 3 * d)
+        self.o = nn.Linear(d, d)
+
+    def forward(self, x):  # (N, R, d)
+        N, R, _ = x.shape
+        q, k, v = self.qkv(x).reshape(N, R, 3, self.h, self.hd).permute(2, 0, 3, 1, 4)
+        a = torch.softmax((q @ k.transpose(-1, -2)) / math.sqrt(self.hd), dim=-1)
+        return self.o((a @ v).transpose(1, 2).reshape(N, R, self.d))
+
+
+class FuseBlock(nn.Module):
+    def __init__(self, cfg: LiveGestureConfig):
+        super().__init__()
+        d = cfg.d_model
+        self.ln_s, self.spatial = nn.LayerNorm(d), SpatialAttention(d, cfg.n_heads)
+        self.ln_t, self.temporal = nn.LayerNorm(d), WindowedAttention(d, cfg.n_heads, cfg.fuse_window)
+        self.ln_a, self.cross = nn.LayerNorm(d), WindowedAttention(d, cfg.n_heads, cfg.audio_window, cfg.audio_dim)
+        self.ln_f, self.ffn = nn.LayerNorm(d), FeedForward(d, cfg.ffn_mult)
+
+
+class XARFuse(nn.Module):
+    name = "fusion"
+
+    def __init__(self, cfg: LiveGestureConfig, classifiers: nn.ModuleList | None = None):
+        super().__init__()
+        self.cfg = cfg
+        d, R = cfg.d_model, len(REGION_NAMES)
+        self.R = R
+        self.pilor = nn.ModuleList(nn.Linear(d, d) for _ in range(R))
+        for lin in self.pilor:   # start as the identity adapter: h~ = h
+            nn.init.zeros_(lin.weight)
+            nn.init.zeros_(lin.bias)
+        self.region_embed = nn.Parameter(torch.zeros(R, d))
+        self.null_audio = nn.Parameter(torch.zeros(cfg.audio_dim))
+        self.blocks = nn.ModuleList(FuseBlock(cfg) for _ in range(cfg.fuse_blocks))
+        self.norm = nn.LayerNorm(d)
+        self.classifiers = classifiers if classifiers is not None else \
+            nn.ModuleList(nn.Linear(d, cfg.codebook_size) for _ in range(R))
+
+    def _adapt(self, h):  # h (..., R, d)
+        return torch.stack([h[..., r, :] + self.pilor[r](h[..., r, :]) for r in range(self.R)], dim=-2) \
+            + self.region_embed
+
+    def _audio(self, audio, cond):
+        c = cond.to(audio.dtype)
+        while c.dim() < audio.dim():
+            c = c.unsqueeze(-1)
+        return c * audio + (1 - c) * self.null_audio
+
+    def _classify(self, x):  # (..., R, d) -> (..., R, K)
+        x = self.norm(x)
+        return torch.stack([self.classifiers[r](x[..., r, :]) for r in range(self.R)], dim=-2)
+
+    def forward(self, hidden: torch.Tensor, audio: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
+        """Offline causal forward. hidden (B, T, R, d), audio (B, T, audio_dim), cond (B,) -> logits (B, T, R, K)."""
+        B, T = hidden.shape[:2]
+        d, R = self.cfg.d_model, self.R
+        check_shape(self.name, "hidden", hidden, (B, T, R, d), torch.float32)
+        check_shape(self.name, "audio", audio, (B, T, self.cfg.audio_dim), torch.float32)
+        x = self._adapt(hidden)
+        a = self._audio(audio, cond)
+        a_rep = a[:, None].expand(B, R, T, a.shape[-1]).reshape(B * R, T, -1)
+        for blk in self.blocks:
+            x = x + blk.spatial(blk.ln_s(x).reshape(B * T, R, d)).reshape(B, T, R, d)
+            xt = blk.ln_t(x).permute(0, 2, 1, 3).reshape(B * R, T, d)
+            x = x + blk.temporal(xt, xt).reshape(B, R, T, d).permute(0, 2, 1, 3)
+            xa = blk.ln_a(x).permute(0, 2, 1, 3).reshape(B * R, T, d)
+            x = x + blk.cross(xa, a_rep).reshape(B, R, T, d).permute(0, 2, 1, 3)
+            x = x + blk.ffn(blk.ln_f(x))
+        return self._classify(x)
+
+    def cache_specs(self) -> list[CacheSpec]:
+        specs = [CacheSpec("step", (), "int64")]
+        for i, blk in enumerate(self.blocks):
+            t = blk.temporal
+            specs.append(CacheSpec(f"block{i}.tattn", (self.R, t.w - 1, 2 * t.d)))
+            specs += blk.cross.cache_spec(f"block{i}.xattn")
+        return specs
+
+    def init_cache(self, batch: int, device=None) -> dict:
+        return {s.name: s.zeros(batch, device) for s in self.cache_specs()}
+
+    def step(self, hidden: dict, audio: torch.Tensor, cond: torch.Tensor, cache: dict):
+        """hidden {region: (B, d)}, audio (B, audio_dim), cond (B,) -> ({'logits': (B, R, K)}, new_cache)."""
+        d, R = self.cfg.d_model, self.R
+        B = audio.shape[0]
+        for r in REGION_NAMES:
+            if r not in hidden:
+                raise ValueError(f"{self.name}: input 'hidden_{r}' is missing")
+            check_shape(self.name, f"hidden_{r}", hidden[r], (B, d), torch.float32)
+        check_shape(self.name, "audio", audio, (B, self.cfg.audio_dim), torch.float32)
+        check_shape(self.name, "cond", cond, (B,), torch.float32)
+        check_cache(self.name, self.cache_specs(), cache, B)
+        new_cache: dict = {}
+        step = cache["step"]
+        x = self._adapt(torch.stack([hidden[r] for r in REGION_NAMES], dim=1))   # (B, R, d)
+        a = self._audio(audio, cond)
+        step_r = step[:, None].expand(B, R).reshape(B * R)
+        for i, blk in enumerate(self.blocks):
+            x = x + blk.spatial(blk.ln_s(x))
+            name = f"block{i}.tattn"
+            tc, tn = {name: cache[name].reshape(B * R, blk.temporal.w - 1, 2 * d)}, {}
+            xt = blk.ln_t(x).reshape(B * R, d)
+            x = x + blk.temporal.step(xt, xt, step_r, tc, tn, name).reshape(B, R, d)
+            new_cache[name] = tn[name].reshape(B, R, blk.temporal.w - 1, 2 * d)
+            x = x + blk.cross.step(blk.ln_a(x), a, step, cache, new_cache, f"block{i}.xattn")
+            x = x + blk.ffn(blk.ln_f(x))
+        new_cache["step"] = step + 1
+        return {"logits": self._classify(x)}, new_cache

@@ -1,0 +1,137 @@
+"""The streaming reference loop: audio chunks of any size in, SMPL-X frames out, zero look-ahead.
+
+Per motion token t (133.3 ms of audio), as soon as its audio has arrived:
+
+1. ``StreamingLogMel`` yields the token's ``mel_frames_per_token`` log-mel frames;
+2. ``audio_encoder.step`` -> audio token a_t (computed once, shared by both guidance branches);
+3. every ``expert_<region>.step`` reads x_{t-1}^r and a_t -> hidden h_t^r; the conditional and the
+   unconditional (null-audio) branches are two streams on the batch axis;
+4. ``fusion.step`` -> logits per region for both branches;
+5. classifier-free guidance and the seeded sampler (``livegesture.sampling``) draw x_t^r per region;
+6. ``decoder_<region>.step`` turns x_t^r into frames 4t..4t+3 of region features;
+7. ``livegesture.motion`` assembles SMPL-X frames (rot6d -> axis-angle).
+
+Guidance is disabled (a single conditional branch, no unconditional stream) when gamma == 1.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .frontend import StreamingLogMel
+from .models.model import LiveGesture
+from .motion import features_to_motion
+from .regions import FPS, FRAMES_PER_TOKEN, REGION_NAMES
+from .sampling import SplitMix64, sample_token
+
+
+@dataclass
+class Frame:
+    index: int
+    time_s: float
+    poses: np.ndarray        # (165,)
+    trans: np.ndarray        # (3,)
+    expressions: np.ndarray  # (100,)
+    foot_contact: np.ndarray  # (4,)
+
+
+class LiveGestureStream:
+    """One stream's state: frontend buffer, caches of every component, previous tokens, PRNG.
+
+    ``push(chunk)`` accepts float samples at 16 kHz (any chunk size) and returns the frames completed.
+    """
+
+    def __init__(self, model: LiveGesture, seed: int = 0, guidance: float | None = None,
+                 temperature: float | None = None, top_k: int | None = None):
+        self.model = model.eval()
+        cfg = model.cfg
+        self.cfg = cfg
+        self.gamma = cfg.guidance if guidance is None else float(guidance)
+        self.temperature = cfg.temperature if temperature is None else float(temperature)
+        self.top_k = cfg.top_k if top_k is None else int(top_k)
+        self.seed = seed
+        self.reset()
+
+    @property
+    def guided(self) -> bool:
+        return self.gamma != 1.0
+
+    def reset(self):
+        m, B = self.model, (2 if self.guided else 1)
+        self.frontend = StreamingLogMel(self.cfg.frontend)
+        self.cache = {"audio_encoder": m.audio_encoder.init_cache(1), "fusion": m.fuse.init_cache(B)}
+        for r in REGION_NAMES:
+            self.cache[f"expert_{r}"] = m.experts[r].init_cache(B)
+            self.cache[f"decoder_{r}"] = m.svq[r].init_cache(1)
+        self.prev = {r: self.cfg.bos_token for r in REGION_NAMES}
+        self.rng = SplitMix64(self.seed)
+        self.t = 0
+        self.tokens: list[dict[str, int]] = []
+        self.logits: list[np.ndarray] = []   # guided-branch logits per step (for reference vectors)
+
+    @torch.no_grad()
+    def step_token(self, mel: np.ndarray) -> list[Frame]:
+        """One token step from its mel frames (mel_frames_per_token, n_mels)."""
+        m = self.model
+        B = 2 if self.guided else 1
+        out, self.cache["audio_encoder"] = m.audio_encoder.step(
+            torch.as_tensor(mel, dtype=torch.float32)[None], self.cache["audio_encoder"])
+        audio = out["audio"].expand(B, -1)
+        cond = torch.tensor([1.0, 0.0][:B])
+        hidden = {}
+        for r in REGION_NAMES:
+            prev = torch.full((B,), self.prev[r], dtype=torch.int64)
+            o, self.cache[f"expert_{r}"] = m.experts[r].step(prev, audio, cond, self.cache[f"expert_{r}"])
+            hidden[r] = o["hidden"]
+        o, self.cache["fusion"] = m.fuse.step(hidden, audio, cond, self.cache["fusion"])
+        logits = o["logits"].numpy()                     # (B, R, K)
+        self.logits.append(logits)
+        tokens = {}
+        for i, r in enumerate(REGION_NAMES):
+            tokens[r] = sample_token(logits[0, i], logits[1, i] if self.guided else None, self.rng,
+                                     self.gamma, self.temperature, self.top_k)
+        feats = {}
+        for r in REGION_NAMES:
+            o, self.cache[f"decoder_{r}"] = m.svq[r].step(torch.tensor([tokens[r]]), self.cache[f"decoder_{r}"])
+            feats[r] = o["motion"][0].numpy()
+        self.prev = tokens
+        self.tokens.append(tokens)
+        motion = features_to_motion(feats)
+        frames = []
+        for j in range(FRAMES_PER_TOKEN):
+            k = FRAMES_PER_TOKEN * self.t + j
+            frames.append(Frame(k, k / FPS, motion["poses"][j], motion["trans"][j], motion["expressions"][j],
+                                motion["foot_contact"][j]))
+        self.t += 1
+        return frames
+
+    def push(self, chunk: np.ndarray) -> list[Frame]:
+        frames = []
+        for mel in self.frontend.push(chunk):
+            frames += self.step_token(mel)
+        return frames
+
+
+def frames_to_arrays(frames: list[Frame]) -> dict[str, np.ndarray]:
+    if not frames:
+        return {"poses": np.zeros((0, 165), np.float32), "trans": np.zeros((0, 3), np.float32),
+                "expressions": np.zeros((0, 100), np.float32), "foot_contact": np.zeros((0, 4), np.float32)}
+    return {"poses": np.stack([f.poses for f in frames]), "trans": np.stack([f.trans for f in frames]),
+            "expressions": np.stack([f.expressions for f in frames]),
+            "foot_contact": np.stack([f.foot_contact for f in frames])}
+
+
+def generate_clip(model: LiveGesture, audio_16k: np.ndarray, seed: int = 0, guidance: float | None = None,
+                  chunk: int | None = None, temperature: float | None = None, top_k: int | None = None) -> dict:
+    """Run the streaming loop over a whole clip. Returns dict(poses, trans, expressions, foot_contact, tokens)."""
+    s = LiveGestureStream(model, seed=seed, guidance=guidance, temperature=temperature, top_k=top_k)
+    audio = np.asarray(audio_16k, dtype=np.float32)
+    chunk = chunk or len(audio) or 1
+    frames = []
+    for i in range(0, len(audio), chunk):
+        frames += s.push(audio[i:i + chunk])
+    out = frames_to_arrays(frames)
+    out["tokens"] = np.array([[t[r] for r in REGION_NAMES] for t in s.tokens], dtype=np.int64).reshape(-1, len(REGION_NAMES))
+    return out
