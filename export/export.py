@@ -1,0 +1,293 @@
+#!/usr/bin/env python
+"""Export a LiveGesture checkpoint to a model bundle: stateful step ONNX graphs, manifest.json, reference vectors.
+
+    python export/export.py --checkpoint runs/default/final.pt --out models/default
+    python export/export.py --config tiny --random-seed 0 --out /tmp/tiny-bundle          # random weights
+    python export/export.py --config paper --random-seed 0 --out /tmp/paper-bundle --rollout-tokens 16
+
+The bundle is written to a temporary folder beside ``--out`` and moved into place only after every check
+passed (see verify.py): a failed export leaves no half-written bundle. The format is documented in
+export/BUNDLE.md and described by export/manifest.schema.json.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent / "python"))
+
+import livegesture  # noqa: E402
+from livegesture import checkpoint as ckpt  # noqa: E402
+from livegesture.frontend import logmel  # noqa: E402
+from livegesture.regions import REGION_NAMES, region_layout  # noqa: E402
+from livegesture.sampling import __doc__ as SAMPLER_DOC  # noqa: E402
+from livegesture.stream import generate_clip  # noqa: E402
+
+from graphs import StepGraph, call_step, data_io, random_inputs  # noqa: E402
+from verify import ExportCheckError, check_onnx_structure, check_ort_vs_torch, check_step_vs_offline  # noqa: E402
+
+SCHEMA_VERSION = 1
+OPSET = 17
+REFERENCE_STEPS = 10
+REFERENCE_BATCH = 2
+ROLLOUT_SEED = 1234
+
+
+def sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def cache_entries(comp) -> list[dict]:
+    return [{"name": s.name, "input": f"cache.{s.name}", "output": f"new_cache.{s.name}", "dtype": s.dtype,
+             "shape": ["batch", *s.shape], "init": s.init} for s in comp.cache_specs()]
+
+
+def export_graph(model, graph: str, path: Path):
+    import onnx
+    wrapper = StepGraph(model, graph).eval()
+    g = torch.Generator().manual_seed(0)
+    inputs = random_inputs(model, graph, 2, g)
+    cache = model.components()[graph].init_cache(2)
+    args = tuple(inputs[i["name"]] for i in wrapper.inputs) + tuple(cache[s.name] for s in wrapper.cache_specs)
+    names_in, names_out = wrapper.input_names(), wrapper.output_names()
+    dyn = {n: {0: "batch"} for n in names_in + names_out}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(wrapper, args, str(path), input_names=names_in, output_names=names_out,
+                          dynamic_axes=dyn, opset_version=OPSET, do_constant_folding=True, dynamo=False)
+    m = onnx.load(str(path))
+    got_in = [i.name for i in m.graph.input]
+    if got_in != names_in:
+        raise ExportCheckError(f"graph '{graph}': exported inputs {got_in} differ from {names_in} "
+                               "(an input the step does not use was dropped)")
+    for k, v in {"livegesture.schema_version": str(SCHEMA_VERSION), "livegesture.graph": graph,
+                 "livegesture.component": type(model.components()[graph]).__name__,
+                 "livegesture.config": model.cfg.name, "livegesture.version": livegesture.__version__}.items():
+        p = m.metadata_props.add()
+        p.key, p.value = k, v
+    m.producer_name = "livegesture-export"
+    onnx.save(m, str(path))
+
+
+@torch.no_grad()
+def graph_reference(model, graph: str, seed: int) -> dict[str, np.ndarray]:
+    """Torch inputs, caches and outputs over REFERENCE_STEPS chained steps (batch REFERENCE_BATCH)."""
+    g = torch.Generator().manual_seed(seed)
+    comp = model.components()[graph]
+    cache = comp.init_cache(REFERENCE_BATCH)
+    out = {"n_steps": np.array(REFERENCE_STEPS), "batch": np.array(REFERENCE_BATCH)}
+    for s in range(REFERENCE_STEPS):
+        inp = random_inputs(model, graph, REFERENCE_BATCH, g)
+        if graph.startswith("expert_") and s == 0:
+            inp["prev_token"][:] = model.cfg.bos_token
+        o, new = call_step(model, graph, inp, cache)
+        for k, v in inp.items():
+            out[f"step{s}.input.{k}"] = v.numpy()
+        for k, v in cache.items():
+            out[f"step{s}.cache.{k}"] = v.numpy()
+        for k, v in o.items():
+            out[f"step{s}.output.{k}"] = v.numpy()
+        for k, v in new.items():
+            out[f"step{s}.new_cache.{k}"] = v.numpy()
+        cache = new
+    return out
+
+
+def reference_audio(path: str | None, seconds: float) -> tuple[np.ndarray, str]:
+    """The reference speech clip (16 kHz mono float32) and a description of where it came from."""
+    if path:
+        from scipy.io import wavfile
+        from scipy.signal import resample_poly
+        sr, x = wavfile.read(path)
+        x = x.astype(np.float32) / (32768.0 if x.dtype == np.int16 else 1.0)
+        if x.ndim == 2:
+            x = x.mean(1)
+        if sr != 16000:
+            g = np.gcd(sr, 16000)
+            x = resample_poly(x, 16000 // g, sr // g).astype(np.float32)
+        return x, f"file {Path(path).name}"
+    try:
+        from livegesture.data.synth import speak
+        x = speak("This is the reference clip of the LiveGesture bundle. It checks the runtime against the "
+                  "reference implementation. Every backend must produce the same motion for the same seed. "
+                  "The speaker pauses, then talks again, louder and faster, with rising and falling pitch.",
+                  voice="en-us", rate=150, pitch=50)
+        desc = "espeak-ng (livegesture.data.synth.speak)"
+    except Exception:  # noqa: BLE001 - espeak-ng missing: a deterministic speech-like signal instead
+        rng = np.random.RandomState(0)
+        t = np.arange(int(16000 * seconds)) / 16000
+        env = np.clip(np.sin(2 * np.pi * 2.3 * t), 0, None) * (0.6 + 0.4 * np.sin(2 * np.pi * 0.31 * t))
+        f0 = 140 + 40 * np.sin(2 * np.pi * 0.5 * t)
+        x = env * np.sin(2 * np.pi * np.cumsum(f0) / 16000) + 0.02 * rng.randn(len(t))
+        desc = "synthetic harmonic signal (espeak-ng unavailable)"
+    reps = int(np.ceil(seconds * 16000 / max(len(x), 1)))
+    x = np.tile(x, reps)[: int(seconds * 16000)]
+    return (0.5 * x / (np.abs(x).max() + 1e-9)).astype(np.float32), desc
+
+
+def write_wav(path: Path, x: np.ndarray):
+    from scipy.io import wavfile
+    wavfile.write(str(path), 16000, np.clip(np.round(x * 32767), -32768, 32767).astype(np.int16))
+
+
+def git_commit() -> str:
+    try:
+        return subprocess.check_output(["git", "-C", str(HERE), "rev-parse", "HEAD"], text=True,
+                                       stderr=subprocess.DEVNULL).strip()
+    except Exception:  # noqa: BLE001
+        return "unknown"
+
+
+def build_bundle(model, out: Path, *, provenance: dict, reference_wav: str | None, ref_seconds: float,
+                 rollout_tokens: int, log=print) -> dict:
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    os.chmod(tmp, 0o755)
+    try:
+        manifest = _build(model, tmp, provenance=provenance, reference_wav=reference_wav, ref_seconds=ref_seconds,
+                          rollout_tokens=rollout_tokens, log=log)
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+        return manifest
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_tokens, log) -> dict:
+    cfg = model.cfg
+    (tmp / "reference").mkdir()
+    files, graphs, checks = {}, [], {}
+    for graph, comp in model.components().items():
+        t0 = time.time()
+        e_off = check_step_vs_offline(model, graph)
+        path = tmp / f"{graph}.onnx"
+        export_graph(model, graph, path)
+        check_onnx_structure(str(path), graph, OPSET)
+        e_ort = check_ort_vs_torch(model, graph, str(path))
+        ref = tmp / "reference" / f"{graph}.npz"
+        np.savez(ref, **graph_reference(model, graph, seed=len(graphs)))
+        ins, outs = data_io(model, graph)
+        graphs.append({"name": graph, "file": path.name, "component": type(comp).__name__,
+                       "region": graph.split("_", 1)[1] if "_" in graph and graph != "audio_encoder" else None,
+                       "inputs": ins, "outputs": outs, "caches": cache_entries(comp),
+                       "reference": f"reference/{graph}.npz"})
+        checks[graph] = {"torch_step_vs_offline_max_abs": e_off, "ort_vs_torch_max_abs": e_ort}
+        log(f"  {graph:<16} step-vs-offline {e_off:.2e}  ort-vs-torch {e_ort:.2e}  ({time.time() - t0:.1f}s)")
+
+    # reference clip, its log-mel frames, and a whole seeded rollout of >= rollout_tokens steps
+    clip, clip_desc = reference_audio(reference_wav, ref_seconds)
+    write_wav(tmp / "reference" / "clip.wav", clip)
+    clip = (np.clip(np.round(clip * 32767), -32768, 32767) / 32768.0).astype(np.float32)  # what the wav holds
+    np.save(tmp / "reference" / "logmel.npy", logmel(clip, cfg.frontend))
+    per_token = cfg.frontend.frames_per_token * cfg.frontend.sample_rate / cfg.frontend.fps
+    reps = max(1, int(np.ceil(rollout_tokens * per_token / len(clip))))
+    rollout_audio = np.tile(clip, reps)
+    t0 = time.time()
+    ro = generate_clip(model, rollout_audio, seed=ROLLOUT_SEED)
+    np.savez_compressed(tmp / "reference" / "rollout.npz", tokens=ro["tokens"], poses=ro["poses"],
+                        trans=ro["trans"], expressions=ro["expressions"], foot_contact=ro["foot_contact"],
+                        seed=np.array(ROLLOUT_SEED, dtype=np.uint64), clip_repeats=np.array(reps))
+    log(f"  rollout          {len(ro['tokens'])} tokens in {time.time() - t0:.1f}s")
+
+    for p in sorted(tmp.rglob("*")):
+        if p.is_file():
+            files[str(p.relative_to(tmp))] = {"sha256": sha256(p), "bytes": p.stat().st_size}
+    manifest = {
+        "schema_version": SCHEMA_VERSION,
+        "format": "livegesture-bundle",
+        "model": {"name": "LiveGesture", "config_name": cfg.name, "config": cfg.to_dict(),
+                  "parameters": {g: int(sum(p.numel() for p in c.parameters())) for g, c in model.components().items()}},
+        "rates": {"sample_rate": cfg.frontend.sample_rate, "fps": cfg.frontend.fps,
+                  "frames_per_token": cfg.frontend.frames_per_token,
+                  "mel_frames_per_token": cfg.frontend.mel_frames_per_token,
+                  "tokens_per_second": cfg.frontend.fps / cfg.frontend.frames_per_token,
+                  "frame_start_sample": "k * sample_rate // fps"},
+        "frontend": cfg.frontend.to_dict(),
+        "regions": region_layout(),
+        "vocab": {"codebook_size": cfg.codebook_size, "bos_token": cfg.bos_token, "mask_token": cfg.mask_token},
+        "graphs": graphs,
+        "pipeline": {
+            "order": ["audio_encoder", *[f"expert_{r}" for r in REGION_NAMES], "fusion", "sample",
+                      *[f"decoder_{r}" for r in REGION_NAMES]],
+            "guidance_branches": "expert_* and fusion run both branches on the batch axis: cond=1 (conditional) "
+                                 "and cond=0 (unconditional, null audio); audio_encoder and decoder_* run once per stream",
+            "first_prev_token": "bos_token",
+        },
+        "normalisation": model.normalisation(),
+        "sampling": {"guidance": cfg.guidance, "temperature": cfg.temperature, "top_k": cfg.top_k,
+                     "guidance_disabled_when": "guidance == 1.0 (no unconditional branch)",
+                     "region_order": list(REGION_NAMES), "prng": "splitmix64", "definition": SAMPLER_DOC.strip()},
+        "reference": {"graphs": {g["name"]: g["reference"] for g in graphs}, "steps": REFERENCE_STEPS,
+                      "batch": REFERENCE_BATCH, "clip": "reference/clip.wav", "clip_source": clip_desc,
+                      "clip_seconds": round(len(clip) / 16000, 3), "logmel": "reference/logmel.npy",
+                      "rollout": "reference/rollout.npz", "rollout_seed": ROLLOUT_SEED,
+                      "rollout_audio": f"reference/clip.wav repeated {reps} times",
+                      "rollout_tokens": int(len(ro["tokens"])), "rollout_guidance": cfg.guidance},
+        "checks": checks,
+        "files": files,
+        "provenance": {**provenance,
+                       "export": {"date": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+                                  "git_commit": git_commit(), "torch": torch.__version__,
+                                  "onnx_opset": OPSET, "livegesture": livegesture.__version__}},
+    }
+    with open(tmp / "manifest.json", "w") as f:
+        json.dump(manifest, f, indent=1)
+        f.write("\n")
+    return manifest
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    src = ap.add_mutually_exclusive_group(required=True)
+    src.add_argument("--checkpoint", help="trained checkpoint (.pt) written by livegesture.train")
+    src.add_argument("--config", help="export random weights of this config (tiny, default, paper)")
+    ap.add_argument("--random-seed", type=int, default=0, help="seed of the random weights (with --config)")
+    ap.add_argument("--out", required=True, help="bundle folder to write (replaced atomically)")
+    ap.add_argument("--reference-wav", help="reference speech clip (default: espeak-ng speech)")
+    ap.add_argument("--reference-seconds", type=float, default=30.0)
+    ap.add_argument("--rollout-tokens", type=int, default=1000, help="length of the reference rollout (>= 1000 for CI)")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(1)
+    if args.checkpoint:
+        model = ckpt.load(args.checkpoint)
+        provenance = dict(getattr(model, "provenance", {}))
+        provenance.setdefault("checkpoint", Path(args.checkpoint).name)
+    else:
+        model = ckpt.random_model(args.config, args.random_seed)
+        provenance = {"training": f"none: random weights (config {args.config}, seed {args.random_seed}); "
+                                  "for tests and benchmarks only, produces meaningless motion"}
+    out = Path(args.out).resolve()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    print(f"exporting {model.cfg.name} -> {out}")
+    try:
+        build_bundle(model, out, provenance=provenance, reference_wav=args.reference_wav,
+                     ref_seconds=args.reference_seconds, rollout_tokens=args.rollout_tokens)
+    except ExportCheckError as e:
+        print(f"export failed: {e}", file=sys.stderr)
+        return 1
+    print(f"ok: {out}/manifest.json")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
