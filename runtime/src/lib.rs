@@ -1,0 +1,15 @@
+//! LiveGesture runtime: streaming speech-to-gesture generation from exported ONNX bundles.
+//!
+//! Graph-independent numerics and IO:
+//!
+//! - [`frontend`]: the log-mel audio frontend (the Python training frontend's definition, within 1e-4);
+//! - [`sampling`]: the portable seeded sampler (SplitMix64 + guided top-k sampling);
+//! - [`rotation`]: rot6d / matrix / quaternion / axis-angle conversions;
+//! - [`audio`]: WAV and raw PCM input, converted to 16 kHz mono;
+//! - [`output`]: BEAT2 `.npz` files and per-frame live records (JSON lines and binary).
+
+pub mod audio;
+pub mod frontend;
+pub mod output;
+pub mod rotation;
+pub mod sampling;
