@@ -125,20 +125,13 @@ def reference_audio(path: str | None, seconds: float) -> tuple[np.ndarray, str]:
             g = np.gcd(sr, 16000)
             x = resample_poly(x, 16000 // g, sr // g).astype(np.float32)
         return x, f"file {Path(path).name}"
-    try:
-        from livegesture.data.synth import speak
-        x = speak("This is the reference clip of the LiveGesture bundle. It checks the runtime against the "
-                  "reference implementation. Every backend must produce the same motion for the same seed. "
-                  "The speaker pauses, then talks again, louder and faster, with rising and falling pitch.",
-                  voice="en-us", rate=150, pitch=50)
-        desc = "espeak-ng (livegesture.data.synth.speak)"
-    except Exception:  # noqa: BLE001 - espeak-ng missing: a deterministic speech-like signal instead
-        rng = np.random.RandomState(0)
-        t = np.arange(int(16000 * seconds)) / 16000
-        env = np.clip(np.sin(2 * np.pi * 2.3 * t), 0, None) * (0.6 + 0.4 * np.sin(2 * np.pi * 0.31 * t))
-        f0 = 140 + 40 * np.sin(2 * np.pi * 0.5 * t)
-        x = env * np.sin(2 * np.pi * np.cumsum(f0) / 16000) + 0.02 * rng.randn(len(t))
-        desc = "synthetic harmonic signal (espeak-ng unavailable)"
+    # no clip given: a deterministic speech-like signal (harmonics with a syllabic envelope)
+    rng = np.random.RandomState(0)
+    t = np.arange(int(16000 * seconds)) / 16000
+    env = np.clip(np.sin(2 * np.pi * 2.3 * t), 0, None) * (0.6 + 0.4 * np.sin(2 * np.pi * 0.31 * t))
+    f0 = 140 + 40 * np.sin(2 * np.pi * 0.5 * t)
+    x = env * np.sin(2 * np.pi * np.cumsum(f0) / 16000) + 0.02 * rng.randn(len(t))
+    desc = "synthetic harmonic signal with a syllabic envelope (no --reference-wav given)"
     reps = int(np.ceil(seconds * 16000 / max(len(x), 1)))
     x = np.tile(x, reps)[: int(seconds * 16000)]
     return (0.5 * x / (np.abs(x).max() + 1e-9)).astype(np.float32), desc
@@ -263,7 +256,7 @@ def main(argv=None):
     src.add_argument("--config", help="export random weights of this config (tiny, default, paper)")
     ap.add_argument("--random-seed", type=int, default=0, help="seed of the random weights (with --config)")
     ap.add_argument("--out", required=True, help="bundle folder to write (replaced atomically)")
-    ap.add_argument("--reference-wav", help="reference speech clip (default: espeak-ng speech)")
+    ap.add_argument("--reference-wav", help="reference speech clip (default: a synthetic speech-like signal)")
     ap.add_argument("--reference-seconds", type=float, default=30.0)
     ap.add_argument("--rollout-tokens", type=int, default=1000, help="length of the reference rollout (>= 1000 for CI)")
     args = ap.parse_args(argv)

@@ -1,0 +1,457 @@
+"""The paper's four-stage training pipeline (SPEC section 4, paper section 3.3 and supp. B).
+
+    python -m livegesture.train --config default --data DIR --out runs/NAME              # all stages
+    python -m livegesture.train --config default --data DIR --out runs/NAME --stage svq1 # one stage
+
+Stages (each writes ``OUT/<stage>.pt``; a finished stage is skipped on re-run, an interrupted one resumes
+from its last periodic save):
+
+1. ``svq1``: per-region streamable autoencoder (bidirectional encoder, causal decoder), L1, windows of 16
+   frames;
+2. ``svq2``: encoder and decoder frozen; codebook (EMA, decay ``ema_decay``, dead-code reset) + code-space
+   projection + projection head W^region; L1 + 0.2 x codebook loss, straight-through;
+3. ``experts``: the streamable audio encoder and the four region eXperts, teacher forcing, Gaussian noise
+   (sigma 0.1, p 0.2) on the history embeddings, audio dropped with p 0.1 for classifier-free guidance;
+4. ``fuse``: SVQ, audio encoder and eXperts frozen; PILOR adapters, xAR-Fuse and the (shared) region
+   classifiers trained with uncertainty-guided token masking (ratio on a cosine ramp up to 0.5), random
+   region masking (p_drop ramped up to 0.5), CFG dropout 0.1, loss 0.3 x local + 1.0 x fuse.
+
+``OUT/final.pt`` is the finished checkpoint (``livegesture.checkpoint.load``); ``OUT/train_log.jsonl`` holds
+every logged loss. Runs on CPU or one GPU (``--device``), and data-parallel over several processes with
+``torchrun --nproc_per_node N -m livegesture.train ...`` (gradients and EMA statistics are all-reduced).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+import torch.nn.functional as F
+from tqdm import tqdm
+
+from . import checkpoint as ckpt
+from .config import get_config
+from .data.beat2 import get_corpus
+from .models.model import LiveGesture
+from .regions import REGION_NAMES
+
+STAGES = ("svq1", "svq2", "experts", "fuse")
+
+
+@dataclass
+class TrainConfig:
+    """Training hyper-parameters. Defaults are the paper's (supp. B); ``for_model`` scales step counts."""
+    steps_svq1: int = 20000
+    steps_svq2: int = 20000
+    steps_experts: int = 50000
+    steps_fuse: int = 50000
+    batch_svq: int = 256
+    batch_ar: int = 128
+    lr_svq: float = 2e-4
+    lr_ar: float = 1e-4
+    svq_window_frames: int = 16
+    ar_window_tokens: int = 64
+    cb_weight: float = 0.2
+    dead_code_every: int = 200
+    noise_sigma: float = 0.1
+    noise_p: float = 0.2
+    cfg_dropout: float = 0.1
+    ugm_max_ratio: float = 0.5
+    region_drop_max: float = 0.5
+    local_weight: float = 0.3
+    fuse_weight: float = 1.0
+    grad_clip: float = 1.0
+    save_every: int = 500
+    log_every: int = 25
+    seed: int = 0
+    speakers: tuple[int, ...] | None = (2,)
+
+    @staticmethod
+    def for_model(name: str) -> "TrainConfig":
+        if name == "tiny":
+            return TrainConfig(steps_svq1=30, steps_svq2=30, steps_experts=30, steps_fuse=30, batch_svq=16,
+                               batch_ar=4, lr_svq=2e-3, lr_ar=2e-3, ar_window_tokens=12, save_every=20,
+                               log_every=5, dead_code_every=10)
+        if name == "default":
+            # CPU budget: minutes per stage on 2 cores; larger learning rates than the paper's batch-128 runs
+            return TrainConfig(steps_svq1=1500, steps_svq2=800, steps_experts=1500, steps_fuse=800,
+                               batch_svq=64, batch_ar=16, lr_svq=1e-3, lr_ar=5e-4, ar_window_tokens=48,
+                               save_every=250, log_every=25, dead_code_every=100)
+        return TrainConfig()
+
+
+# ----------------------------------------------------------------------------- distributed helpers
+
+def dist_info():
+    if dist.is_available() and dist.is_initialized():
+        return dist.get_rank(), dist.get_world_size()
+    return 0, 1
+
+
+def all_reduce_mean_(tensors):
+    rank, world = dist_info()
+    if world == 1:
+        return
+    for t in tensors:
+        dist.all_reduce(t, op=dist.ReduceOp.SUM)
+        t.div_(world)
+
+
+def sync_grads(params):
+    all_reduce_mean_([p.grad for p in params if p.grad is not None])
+
+
+# ----------------------------------------------------------------------------- data
+
+class TrainData:
+    """Training clips in memory: normalised region features, log-mel frames, tokens (after svq2)."""
+
+    def __init__(self, root, cfg, speakers, split="train", stats=None):
+        self.corpus = get_corpus(root, cfg.frontend)
+        ids = self.corpus.ids(split, speakers)
+        if not ids:
+            raise SystemExit(f"{root}: no clip in split {split!r} for speakers {speakers}")
+        self.clips = self.corpus.clips(ids, progress=dist_info()[0] == 0)
+        self.stats = stats or self.corpus.stats(split, speakers)
+        self.feats = [self.stats.normalize(c.features) for c in self.clips]
+        self.mel = [c.mel for c in self.clips]
+        self.n_tok = np.array([c.n_tokens for c in self.clips])
+        self.tokens = None
+        all_mel = np.concatenate(self.mel)
+        self.mel_mean = all_mel.mean(0)
+        self.mel_std = np.maximum(all_mel.std(0), 1e-3)
+
+    def _pick(self, rng, n_tokens, batch):
+        ok = np.nonzero(self.n_tok >= n_tokens)[0]
+        if len(ok) == 0:
+            raise SystemExit(f"no training clip is {n_tokens} tokens long")
+        w = self.n_tok[ok] - n_tokens + 1
+        ci = rng.choice(ok, size=batch, p=w / w.sum())
+        return [(c, int(rng.integers(0, self.n_tok[c] - n_tokens + 1))) for c in ci]
+
+    def svq_batch(self, rng, region, frames, batch, device):
+        picks = self._pick(rng, frames // 4, batch)
+        x = np.stack([self.feats[c][region][4 * s:4 * s + frames] for c, s in picks])
+        return torch.from_numpy(x).to(device)
+
+    def ar_batch(self, rng, n_tokens, batch, device):
+        picks = self._pick(rng, n_tokens, batch)
+        mel = np.stack([self.mel[c][8 * s:8 * (s + n_tokens)] for c, s in picks])
+        tok = np.stack([self.tokens[c][s:s + n_tokens] for c, s in picks])       # (B, N, R)
+        return torch.from_numpy(mel).to(device), torch.from_numpy(tok).long().to(device)
+
+
+# ----------------------------------------------------------------------------- stages
+
+class Logger:
+    def __init__(self, out: Path):
+        self.path = out / "train_log.jsonl"
+        self.rank = dist_info()[0]
+
+    def log(self, **kv):
+        if self.rank == 0:
+            with open(self.path, "a") as f:
+                f.write(json.dumps(kv) + "\n")
+
+
+def cosine_ramp(step, total, top):
+    """0 at the start, ``top`` at the end, cosine-shaped."""
+    return top * 0.5 * (1 - math.cos(math.pi * min(step / max(total, 1), 1.0)))
+
+
+def run_stage(name, model, params, total, step_fn, tcfg, out: Path, logger, device, state_fn=None):
+    """Generic loop: Adam, gradient clipping, periodic resumable saves, tqdm progress with the loss."""
+    rank, world = dist_info()
+    opt = torch.optim.Adam(params, lr=tcfg.lr_svq if name.startswith("svq") else tcfg.lr_ar)
+    resume = out / f"{name}.resume.pt"
+    start = 0
+    if resume.exists():
+        st = torch.load(resume, map_location=device, weights_only=False)
+        model.load_state_dict(st["model"])
+        opt.load_state_dict(st["opt"])
+        start = st["step"]
+        if rank == 0:
+            print(f"[{name}] resuming at step {start}")
+    rng = np.random.default_rng(tcfg.seed * 1000 + STAGES.index(name) * 100 + rank + start)
+    torch.manual_seed(tcfg.seed * 1000 + rank + start)
+    bar = tqdm(range(start, total), desc=name, disable=rank != 0, dynamic_ncols=True, mininterval=2.0)
+    t0, ema = time.time(), None
+    for step in bar:
+        loss, parts = step_fn(step, rng)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        sync_grads(params)
+        torch.nn.utils.clip_grad_norm_(params, tcfg.grad_clip)
+        opt.step()
+        if state_fn:
+            state_fn(step, rng)
+        v = float(loss.detach())
+        ema = v if ema is None else 0.95 * ema + 0.05 * v
+        bar.set_postfix(loss=f"{ema:.4f}")
+        if step % tcfg.log_every == 0 or step == total - 1:
+            logger.log(stage=name, step=step, loss=v, **{k: float(x) for k, x in parts.items()},
+                       seconds=round(time.time() - t0, 2))
+        if rank == 0 and ((step + 1) % tcfg.save_every == 0) and step + 1 < total:
+            tmp = resume.with_suffix(".tmp")
+            torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "step": step + 1}, tmp)
+            os.replace(tmp, resume)
+    if resume.exists() and rank == 0:
+        resume.unlink()
+    return ema
+
+
+def stage_svq1(model, data, tcfg, device):
+    params = [p for r in REGION_NAMES for m in (model.svq[r].encoder, model.svq[r].decoder) for p in m.parameters()]
+
+    def step_fn(step, rng):
+        losses = {}
+        for r in REGION_NAMES:
+            x = data.svq_batch(rng, r, tcfg.svq_window_frames, tcfg.batch_svq, device)
+            losses[f"l1_{r}"] = F.l1_loss(model.svq[r].autoencode(x), x)
+        return sum(losses.values()), losses
+    return params, step_fn, None
+
+
+@torch.no_grad()
+def init_codebooks(model, data, tcfg, device, rng):
+    """Start each codebook from encoder outputs of random training windows."""
+    for r in REGION_NAMES:
+        q = model.svq[r].quantizer
+        x = data.svq_batch(rng, r, tcfg.svq_window_frames, max(4 * q.K // 4, 64), device)
+        e = q.pre(model.svq[r].encoder(x.transpose(1, 2)).transpose(1, 2)).reshape(-1, q.codebook.shape[1])
+        pick = e[torch.randperm(len(e))[:q.K]]
+        if len(pick) < q.K:
+            pick = torch.cat([pick, pick[torch.randint(len(pick), (q.K - len(pick),))] + 0.01 * torch.randn(q.K - len(pick), pick.shape[1])])
+        q.codebook.copy_(pick)
+        q.ema_sum.copy_(pick)
+        q.ema_count.fill_(1.0)
+        q.usage.fill_(1.0)
+
+
+def stage_svq2(model, data, tcfg, device):
+    for r in REGION_NAMES:
+        for p in list(model.svq[r].encoder.parameters()) + list(model.svq[r].decoder.parameters()):
+            p.requires_grad_(False)
+    params = [p for r in REGION_NAMES for m in (model.svq[r].quantizer.pre, model.svq[r].head) for p in m.parameters()]
+    recent = {}
+
+    def step_fn(step, rng):
+        losses = {}
+        for r in REGION_NAMES:
+            svq = model.svq[r]
+            x = data.svq_batch(rng, r, tcfg.svq_window_frames, tcfg.batch_svq, device)
+            rec, _, cb = svq.quantize(x, update=True)
+            losses[f"l1_{r}"] = F.l1_loss(rec, x)
+            losses[f"cb_{r}"] = cb
+            with torch.no_grad():
+                recent[r] = svq.quantizer.pre(svq.encoder(x.transpose(1, 2)).transpose(1, 2)).reshape(-1, svq.cfg.code_dim)
+        total = sum(v for k, v in losses.items() if k.startswith("l1")) + \
+            tcfg.cb_weight * sum(v for k, v in losses.items() if k.startswith("cb"))
+        return total, losses
+
+    def state_fn(step, rng):
+        for r in REGION_NAMES:
+            q = model.svq[r].quantizer
+            all_reduce_mean_([q.codebook, q.ema_sum, q.ema_count, q.usage])
+            if (step + 1) % tcfg.dead_code_every == 0 and dist_info()[0] == 0:
+                q.reset_dead_codes(recent[r])
+            if dist_info()[1] > 1:
+                for b in (q.codebook, q.ema_sum, q.ema_count, q.usage):
+                    dist.broadcast(b, 0)
+    return params, step_fn, state_fn
+
+
+@torch.no_grad()
+def tokenize_clips(model, data, device):
+    data.tokens = []
+    for f in data.feats:
+        toks = [model.svq[r].tokenize(torch.from_numpy(f[r][None]).to(device))[0].cpu().numpy() for r in REGION_NAMES]
+        data.tokens.append(np.stack(toks, -1))   # (n_tok, R)
+
+
+def teacher_inputs(model, tok):
+    """Shift tokens right with BOS: the input at t is x_{t-1}."""
+    bos = torch.full_like(tok[:, :1], model.cfg.bos_token)
+    return torch.cat([bos, tok[:, :-1]], 1)
+
+
+def cfg_cond(batch, p, device):
+    return (torch.rand(batch, device=device) >= p).float()
+
+
+def stage_experts(model, data, tcfg, device):
+    params = list(model.audio_encoder.parameters()) + [p for r in REGION_NAMES for p in model.experts[r].parameters()]
+
+    def step_fn(step, rng):
+        mel, tok = data.ar_batch(rng, tcfg.ar_window_tokens, tcfg.batch_ar, device)
+        audio = model.audio_encoder(mel)
+        cond = cfg_cond(len(tok), tcfg.cfg_dropout, device)
+        losses = {}
+        for i, r in enumerate(REGION_NAMES):
+            _, logits = model.experts[r](teacher_inputs(model, tok[..., i]), audio, cond,
+                                         noise_sigma=tcfg.noise_sigma, noise_p=tcfg.noise_p)
+            losses[f"ce_{r}"] = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), tok[..., i].reshape(-1))
+        return sum(losses.values()) / len(REGION_NAMES), losses
+    return params, step_fn, None
+
+
+def stage_fuse(model, data, tcfg, device):
+    frozen = [model.audio_encoder] + [model.svq[r] for r in REGION_NAMES] + \
+        [model.experts[r] for r in REGION_NAMES]
+    for m in frozen:
+        for p in m.parameters():
+            p.requires_grad_(False)
+    classifiers = [model.experts[r].classifier for r in REGION_NAMES]
+    for c in classifiers:
+        for p in c.parameters():
+            p.requires_grad_(True)
+    params = [p for p in model.fuse.parameters() if p.requires_grad]
+    total_steps = tcfg.steps_fuse
+
+    def step_fn(step, rng):
+        mel, tok = data.ar_batch(rng, tcfg.ar_window_tokens, tcfg.batch_ar, device)
+        B, T, R = tok.shape
+        with torch.no_grad():
+            audio = model.audio_encoder(mel)
+            clean_in = torch.stack([teacher_inputs(model, tok[..., i]) for i in range(R)], -1)
+            # uncertainty-guided masking: the least confident ground-truth history tokens are masked
+            ratio_top = cosine_ramp(step, total_steps, tcfg.ugm_max_ratio)
+            ratio = float(rng.uniform(0, ratio_top)) if ratio_top > 0 else 0.0
+            conf = []
+            ones = torch.ones(B, device=device)
+            for i, r in enumerate(REGION_NAMES):
+                _, lg = model.experts[r](clean_in[..., i], audio, ones)
+                conf.append(lg.log_softmax(-1).gather(-1, tok[..., i:i + 1])[..., 0])
+            conf = torch.stack(conf, -1)                     # confidence of x_t, t = 0..T-1
+            corrupted = clean_in.clone()
+            n_mask = int(ratio * T * R)
+            if n_mask > 0:
+                # x_t is the history input at t+1
+                c = conf[:, :-1].reshape(B, -1)
+                idx = c.argsort(dim=1)[:, :n_mask]
+                m = torch.zeros_like(c, dtype=torch.bool).scatter_(1, idx, True).reshape(B, T - 1, R)
+                corrupted[:, 1:][m] = model.cfg.mask_token
+            # random region masking: p_drop ramps up to region_drop_max
+            p_top = cosine_ramp(step, total_steps, tcfg.region_drop_max)
+            p_drop = float(rng.uniform(0, p_top)) if p_top > 0 else 0.0
+            drop = torch.from_numpy(rng.random(B) < p_drop).to(device)
+            which = torch.from_numpy(rng.integers(0, R, B)).to(device)
+            for b in torch.nonzero(drop).flatten().tolist():
+                corrupted[b, 1:, which[b]] = model.cfg.mask_token
+            cond = cfg_cond(B, tcfg.cfg_dropout, device)
+            hidden = torch.stack([model.experts[r](corrupted[..., i], audio, cond)[0]
+                                  for i, r in enumerate(REGION_NAMES)], 2)   # (B, T, R, d)
+        local = sum(F.cross_entropy(classifiers[i](hidden[:, :, i]).reshape(-1, model.cfg.codebook_size),
+                                    tok[..., i].reshape(-1)) for i in range(R)) / R
+        logits = model.fuse(hidden, audio, cond)
+        fuse = F.cross_entropy(logits.reshape(-1, model.cfg.codebook_size), tok.reshape(-1))
+        loss = tcfg.local_weight * local + tcfg.fuse_weight * fuse
+        return loss, {"local": local, "fuse": fuse, "mask_ratio": torch.tensor(ratio), "p_drop": torch.tensor(p_drop)}
+    return params, step_fn, None
+
+
+# ----------------------------------------------------------------------------- driver
+
+def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cpu", tcfg: TrainConfig | None = None,
+          overrides: dict | None = None) -> Path:
+    cfg = get_config(config)
+    tcfg = tcfg or TrainConfig.for_model(cfg.name)
+    if overrides:
+        tcfg = replace(tcfg, **overrides)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rank, world = dist_info()
+    logger = Logger(out)
+    torch.manual_seed(tcfg.seed)
+    model = LiveGesture(cfg).to(device)
+    data = TrainData(data_dir, cfg, tcfg.speakers)
+    stats = data.stats.to_dict()["regions"]
+    stats["mel"] = {"mean": data.mel_mean.tolist(), "std": data.mel_std.tolist()}
+    model.set_normalisation(stats)
+    info = {"config": cfg.name, "train_config": asdict(tcfg), "data": str(Path(data_dir).resolve()),
+            "train_clips": len(data.clips), "train_tokens": int(data.n_tok.sum()),
+            "train_minutes": round(float(data.n_tok.sum()) * 4 / 30 / 60, 2), "world_size": world}
+    prev = None
+    builders = {"svq1": stage_svq1, "svq2": stage_svq2, "experts": stage_experts, "fuse": stage_fuse}
+    steps = {"svq1": tcfg.steps_svq1, "svq2": tcfg.steps_svq2, "experts": tcfg.steps_experts, "fuse": tcfg.steps_fuse}
+    summary = {}
+    for name in STAGES:
+        path = out / f"{name}.pt"
+        if path.exists():
+            model.load_state_dict(ckpt.load_payload(path)["state_dict"])
+            summary[name] = ckpt.load_payload(path)["extra"].get("final_loss")
+            prev = name
+            if rank == 0:
+                print(f"[{name}] done already ({path})")
+            continue
+        if name not in stages:
+            break
+        if name in ("experts", "fuse") and data.tokens is None:
+            tokenize_clips(model, data, device)
+        if name == "svq2":
+            init_codebooks(model, data, tcfg, device, np.random.default_rng(tcfg.seed))
+        model.train()
+        params, step_fn, state_fn = builders[name](model, data, tcfg, device)
+        t0 = time.time()
+        final = run_stage(name, model, params, steps[name], step_fn, tcfg, out, logger, device, state_fn)
+        summary[name] = final
+        model.eval()
+        for p in model.parameters():
+            p.requires_grad_(True)
+        if rank == 0:
+            ckpt.save(model, path, provenance={**info, "stages_done": STAGES[:STAGES.index(name) + 1]},
+                      extra={"final_loss": final, "seconds": round(time.time() - t0, 1)})
+            print(f"[{name}] final loss {final:.4f} in {time.time() - t0:.0f}s -> {path}")
+        prev = name
+    if all((out / f"{s}.pt").exists() for s in STAGES) and rank == 0:
+        if data.tokens is None:
+            tokenize_clips(model, data, device)
+        usage = {r: int(len(np.unique(np.concatenate([t[:, i] for t in data.tokens])))) for i, r in enumerate(REGION_NAMES)}
+        prov = {**info, "stages_done": list(STAGES), "final_losses": summary, "codebook_usage_train": usage,
+                "training_data": f"{info['train_minutes']} minutes, {len(data.clips)} clips of {Path(data_dir).name}"}
+        ckpt.save(model, out / "final.pt", provenance=prov)
+        print(f"done: {out / 'final.pt'}")
+    return out / "final.pt"
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--config", default="default", help="model config: tiny, default or paper")
+    ap.add_argument("--data", required=True, help="BEAT2-layout corpus (real BEAT2 or livegesture.data.synth output)")
+    ap.add_argument("--out", required=True, help="run folder (checkpoints, train_log.jsonl)")
+    ap.add_argument("--stage", default="all", choices=("all",) + STAGES,
+                    help="run the stages up to and including this one (earlier finished stages are reused)")
+    ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    ap.add_argument("--threads", type=int, default=1,
+                    help="CPU threads for torch (default 1: on a shared machine more threads can be far slower)")
+    ap.add_argument("--speakers", default="2", help="comma-separated speaker numbers, or 'all' (BEAT2 benchmark: 2)")
+    for f in ("steps_svq1", "steps_svq2", "steps_experts", "steps_fuse", "batch_svq", "batch_ar", "seed"):
+        ap.add_argument("--" + f.replace("_", "-"), type=int, default=None)
+    for f in ("lr_svq", "lr_ar"):
+        ap.add_argument("--" + f.replace("_", "-"), type=float, default=None)
+    args = ap.parse_args(argv)
+    if "WORLD_SIZE" in os.environ and int(os.environ["WORLD_SIZE"]) > 1:
+        dist.init_process_group("nccl" if args.device.startswith("cuda") else "gloo")
+        if args.device.startswith("cuda"):
+            torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", 0)))
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    ov = {k: getattr(args, k) for k in ("steps_svq1", "steps_svq2", "steps_experts", "steps_fuse", "batch_svq",
+                                          "batch_ar", "seed", "lr_svq", "lr_ar") if getattr(args, k) is not None}
+    ov["speakers"] = None if args.speakers == "all" else tuple(int(s) for s in args.speakers.split(","))
+    stages = STAGES if args.stage == "all" else STAGES[:STAGES.index(args.stage) + 1]
+    train(args.config, args.data, args.out, stages=stages, device=args.device, overrides=ov)
+    if dist.is_initialized():
+        dist.destroy_process_group()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
