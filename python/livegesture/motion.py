@@ -1,41 +1,23 @@
-"""Region features -> BEAT2 motion (SPEC section 8). The Rust runtime (``runtime/src/pipeline.rs``) does the same.
+"""Region features -> output frames (SPEC section 8). The Rust runtime (``runtime/src/pipeline.rs``) does the same.
 
-Each region's decoded features are split by the layout of ``livegesture.regions``: rot6d per joint is
-decoded to axis-angle into the joint's slot of ``poses`` (55 x 3), lower's translation goes to ``trans``,
-face's expressions to ``expressions``; eyes stay at rest (zero axis-angle).
+Each region's decoded features are split by the layout of ``livegesture.regions`` (see
+``livegesture.data.features``): rot6d per joint is decoded to axis-angle into the joint's slot of ``poses``
+(55 x 3), lower's translation goes to ``trans``, face's expressions to ``expressions``; eyes stay at rest.
 """
 from __future__ import annotations
 
 import numpy as np
-import torch
 
-from .regions import N_EXPRESSIONS, N_JOINTS, REGIONS
-from .rotation import rot6d_to_axis_angle
+from .data.features import features_to_motion as _features_to_motion
+from .data.features import region_parts
 
 
-def features_to_motion(feats: dict[str, np.ndarray | torch.Tensor]) -> dict[str, np.ndarray]:
+def features_to_motion(feats: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """feats {region: (T, dim)} de-normalised -> dict(poses (T,165), trans (T,3), expressions (T,100),
     foot_contact (T,4)), float32."""
-    T = next(iter(feats.values())).shape[0]
-    poses = np.zeros((T, N_JOINTS, 3), dtype=np.float32)
-    trans = np.zeros((T, 3), dtype=np.float32)
-    expr = np.zeros((T, N_EXPRESSIONS), dtype=np.float32)
-    contact = np.zeros((T, 4), dtype=np.float32)
-    for r in REGIONS:
-        f = torch.as_tensor(np.asarray(feats[r.name], dtype=np.float32))
-        n = len(r.joints)
-        aa = rot6d_to_axis_angle(f[:, :6 * n].reshape(T, n, 6).double()).float().numpy()
-        poses[:, list(r.joints)] = aa
-        off = 6 * n
-        if r.has_trans:
-            trans[:] = f[:, off:off + 3].numpy()
-            off += 3
-        if r.has_contact:
-            contact[:] = f[:, off:off + 4].numpy()
-            off += 4
-        if r.has_expressions:
-            expr[:] = f[:, off:off + N_EXPRESSIONS].numpy()
-    return {"poses": poses.reshape(T, N_JOINTS * 3), "trans": trans, "expressions": expr, "foot_contact": contact}
+    out = _features_to_motion({k: np.asarray(v, dtype=np.float32) for k, v in feats.items()})
+    out["foot_contact"] = np.asarray(region_parts("lower", np.asarray(feats["lower"]))["contact"], dtype=np.float32)
+    return out
 
 
 def beat2_npz_dict(motion: dict[str, np.ndarray]) -> dict:
