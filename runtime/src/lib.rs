@@ -7,9 +7,18 @@
 //! - [`rotation`]: rot6d / matrix / quaternion / axis-angle conversions;
 //! - [`audio`]: WAV and raw PCM input, converted to 16 kHz mono;
 //! - [`output`]: BEAT2 `.npz` files and per-frame live records (JSON lines and binary).
+//!
+//! Bundles and inference:
+//!
+//! - [`bundle`]: loading and verifying a model bundle (`manifest.json`, sha256 of every file, graph I/O);
+//! - [`backend`]: the `Backend` trait and its two implementations, tract (default) and ort;
+//! - [`pipeline`]: the streaming pipeline (streams, batched token steps, frames).
 
 pub mod audio;
+pub mod backend;
+pub mod bundle;
 pub mod frontend;
 pub mod output;
+pub mod pipeline;
 pub mod rotation;
 pub mod sampling;

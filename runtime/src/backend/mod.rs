@@ -1,0 +1,416 @@
+//! Inference backends: run one step graph on named `f32` / `i64` tensors with a dynamic batch axis.
+//!
+//! A [`Backend`] loads a bundle graph ([`GraphSpec`] + ONNX file) into a [`GraphRunner`]. A runner
+//! takes its inputs **in the graph's order** ([`GraphSpec::input_names`]: data inputs, then
+//! `cache.<name>`) and returns its outputs in the graph's order ([`GraphSpec::output_names`]: data
+//! outputs, then `new_cache.<name>`); the bundle loader has already checked that the ONNX file has
+//! exactly these names in this order. [`GraphRunner::run_named`] takes the inputs by name instead.
+//! Axis 0 of every tensor is the batch; one call may carry any batch size.
+//!
+//! Two implementations:
+//!
+//! - [`tract`](self::tract) (default, pure Rust): one optimised plan per batch size, built on first
+//!   use and cached;
+//! - [`ort`](self::ort) (feature `ort`): ONNX Runtime loaded at run time from `ORT_DYLIB_PATH` or an
+//!   installed `onnxruntime` Python package, with a selectable execution provider.
+
+use std::fmt;
+use std::path::Path;
+use std::str::FromStr;
+
+use anyhow::{bail, ensure, Result};
+use serde::{Deserialize, Serialize};
+
+use crate::bundle::GraphSpec;
+
+#[cfg(feature = "ort")]
+pub mod ort;
+pub mod tract;
+
+/// Element type of a tensor.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum DType {
+    #[serde(rename = "float32")]
+    F32,
+    #[serde(rename = "int64")]
+    I64,
+}
+
+impl DType {
+    /// Bytes per element.
+    pub fn size(self) -> usize {
+        match self {
+            DType::F32 => 4,
+            DType::I64 => 8,
+        }
+    }
+}
+
+impl fmt::Display for DType {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            DType::F32 => "float32",
+            DType::I64 => "int64",
+        })
+    }
+}
+
+/// Tensor elements.
+#[derive(Debug, Clone, PartialEq)]
+pub enum TensorData {
+    F32(Vec<f32>),
+    I64(Vec<i64>),
+}
+
+/// A dense row-major tensor, axis 0 the batch.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Tensor {
+    pub shape: Vec<usize>,
+    pub data: TensorData,
+}
+
+impl Default for Tensor {
+    fn default() -> Self {
+        Tensor {
+            shape: vec![0],
+            data: TensorData::F32(Vec::new()),
+        }
+    }
+}
+
+impl Tensor {
+    /// A float tensor; errors when `data` does not fill `shape`.
+    pub fn f32(shape: Vec<usize>, data: Vec<f32>) -> Result<Self> {
+        ensure!(
+            shape.iter().product::<usize>() == data.len(),
+            "tensor of shape {shape:?} needs {} values, got {}",
+            shape.iter().product::<usize>(),
+            data.len()
+        );
+        Ok(Tensor {
+            shape,
+            data: TensorData::F32(data),
+        })
+    }
+
+    /// An int64 tensor; errors when `data` does not fill `shape`.
+    pub fn i64(shape: Vec<usize>, data: Vec<i64>) -> Result<Self> {
+        ensure!(
+            shape.iter().product::<usize>() == data.len(),
+            "tensor of shape {shape:?} needs {} values, got {}",
+            shape.iter().product::<usize>(),
+            data.len()
+        );
+        Ok(Tensor {
+            shape,
+            data: TensorData::I64(data),
+        })
+    }
+
+    /// Zeros of `dtype` and `shape`.
+    pub fn zeros(dtype: DType, shape: Vec<usize>) -> Self {
+        let n = shape.iter().product();
+        let data = match dtype {
+            DType::F32 => TensorData::F32(vec![0.0; n]),
+            DType::I64 => TensorData::I64(vec![0; n]),
+        };
+        Tensor { shape, data }
+    }
+
+    /// Element type.
+    pub fn dtype(&self) -> DType {
+        match self.data {
+            TensorData::F32(_) => DType::F32,
+            TensorData::I64(_) => DType::I64,
+        }
+    }
+
+    /// Number of elements.
+    pub fn len(&self) -> usize {
+        match &self.data {
+            TensorData::F32(v) => v.len(),
+            TensorData::I64(v) => v.len(),
+        }
+    }
+
+    /// True for a tensor without elements.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Batch size (axis 0).
+    pub fn batch(&self) -> usize {
+        self.shape.first().copied().unwrap_or(1)
+    }
+
+    /// Elements per batch row.
+    pub fn row_len(&self) -> usize {
+        self.shape.iter().skip(1).product()
+    }
+
+    /// The float elements, or an error naming `what`.
+    pub fn as_f32(&self, what: &str) -> Result<&[f32]> {
+        match &self.data {
+            TensorData::F32(v) => Ok(v),
+            TensorData::I64(_) => bail!("{what}: expected a float32 tensor, got int64"),
+        }
+    }
+
+    /// The int64 elements, or an error naming `what`.
+    pub fn as_i64(&self, what: &str) -> Result<&[i64]> {
+        match &self.data {
+            TensorData::I64(v) => Ok(v),
+            TensorData::F32(_) => bail!("{what}: expected an int64 tensor, got float32"),
+        }
+    }
+
+    /// Concatenates tensors along the batch axis (all of the same dtype and row shape).
+    pub fn concat(parts: &[Tensor]) -> Result<Tensor> {
+        ensure!(!parts.is_empty(), "concat of no tensors");
+        let first = &parts[0];
+        let mut shape = first.shape.clone();
+        let mut batch = 0;
+        for p in parts {
+            ensure!(
+                p.shape[1..] == first.shape[1..] && p.dtype() == first.dtype(),
+                "cannot stack tensors of shapes {:?} ({}) and {:?} ({})",
+                first.shape,
+                first.dtype(),
+                p.shape,
+                p.dtype()
+            );
+            batch += p.batch();
+        }
+        shape[0] = batch;
+        let data = match first.dtype() {
+            DType::F32 => {
+                let mut v = Vec::with_capacity(shape.iter().product());
+                for p in parts {
+                    v.extend_from_slice(p.as_f32("concat")?);
+                }
+                TensorData::F32(v)
+            }
+            DType::I64 => {
+                let mut v = Vec::with_capacity(shape.iter().product());
+                for p in parts {
+                    v.extend_from_slice(p.as_i64("concat")?);
+                }
+                TensorData::I64(v)
+            }
+        };
+        Ok(Tensor { shape, data })
+    }
+
+    /// Splits along the batch axis into parts of `rows[i]` rows each (their sum must be the batch).
+    pub fn split(&self, rows: &[usize]) -> Result<Vec<Tensor>> {
+        ensure!(
+            rows.iter().sum::<usize>() == self.batch(),
+            "cannot split a batch of {} into {:?}",
+            self.batch(),
+            rows
+        );
+        let rl = self.row_len();
+        let mut out = Vec::with_capacity(rows.len());
+        let mut start = 0;
+        for &r in rows {
+            let mut shape = self.shape.clone();
+            shape[0] = r;
+            let range = start * rl..(start + r) * rl;
+            let data = match &self.data {
+                TensorData::F32(v) => TensorData::F32(v[range].to_vec()),
+                TensorData::I64(v) => TensorData::I64(v[range].to_vec()),
+            };
+            out.push(Tensor { shape, data });
+            start += r;
+        }
+        Ok(out)
+    }
+}
+
+/// A loaded step graph, ready to run.
+pub trait GraphRunner: Send {
+    /// The graph's manifest entry.
+    fn spec(&self) -> &GraphSpec;
+
+    /// Runs one step. `inputs` are in the graph's input order (data inputs, then caches); the
+    /// outputs come back in the graph's output order (data outputs, then new caches).
+    fn run(&mut self, inputs: &[Tensor]) -> Result<Vec<Tensor>>;
+
+    /// Runs one step with inputs given by name (any order); returns `(name, tensor)` in graph order.
+    fn run_named(&mut self, inputs: &[(&str, &Tensor)]) -> Result<Vec<(String, Tensor)>> {
+        let names: Vec<String> = self.spec().input_names().iter().map(|s| s.to_string()).collect();
+        let mut ordered = Vec::with_capacity(names.len());
+        for n in &names {
+            let t = inputs
+                .iter()
+                .find(|(k, _)| k == n)
+                .map(|(_, t)| (*t).clone())
+                .ok_or_else(|| anyhow::anyhow!("graph '{}': input '{n}' not given", self.spec().name))?;
+            ordered.push(t);
+        }
+        for (k, _) in inputs {
+            ensure!(
+                names.iter().any(|n| n == k),
+                "graph '{}' has no input '{k}' (inputs: {names:?})",
+                self.spec().name
+            );
+        }
+        let out = self.run(&ordered)?;
+        let onames: Vec<String> = self.spec().output_names().iter().map(|s| s.to_string()).collect();
+        Ok(onames.into_iter().zip(out).collect())
+    }
+}
+
+/// Checks inputs against the spec (count, dtypes, shapes with one shared batch size); returns the batch.
+pub fn check_inputs(spec: &GraphSpec, inputs: &[Tensor]) -> Result<usize> {
+    let expected = spec.all_inputs();
+    ensure!(
+        inputs.len() == expected.len(),
+        "graph '{}': {} inputs given, the graph takes {} ({:?})",
+        spec.name,
+        inputs.len(),
+        expected.len(),
+        spec.input_names()
+    );
+    let batch = inputs.first().map(Tensor::batch).unwrap_or(1);
+    for (t, (name, dtype, shape)) in inputs.iter().zip(expected) {
+        let want = crate::bundle::concrete_shape(shape, batch);
+        ensure!(
+            t.dtype() == dtype && t.shape == want,
+            "graph '{}': input '{name}' is {} {:?}, expected {} {:?}",
+            spec.name,
+            t.dtype(),
+            t.shape,
+            dtype,
+            want
+        );
+    }
+    Ok(batch)
+}
+
+/// Checks a run's outputs against the spec (count, dtypes, shapes for batch `batch`).
+pub fn check_outputs(spec: &GraphSpec, outputs: &[Tensor], batch: usize) -> Result<()> {
+    let expected = spec.all_outputs();
+    ensure!(
+        outputs.len() == expected.len(),
+        "graph '{}' returned {} outputs, the manifest lists {} ({:?})",
+        spec.name,
+        outputs.len(),
+        expected.len(),
+        spec.output_names()
+    );
+    for (t, (name, dtype, shape)) in outputs.iter().zip(expected) {
+        let want = crate::bundle::concrete_shape(shape, batch);
+        ensure!(
+            t.dtype() == dtype && t.shape == want,
+            "graph '{}': output '{name}' is {} {:?}, the manifest says {} {:?}",
+            spec.name,
+            t.dtype(),
+            t.shape,
+            dtype,
+            want
+        );
+    }
+    Ok(())
+}
+
+/// Something that loads step graphs.
+pub trait Backend: Send + Sync {
+    /// Short name (`tract`, `ort`).
+    fn name(&self) -> &str;
+
+    /// A description for logs and `info` (library, execution provider).
+    fn describe(&self) -> String {
+        self.name().to_string()
+    }
+
+    /// Loads the graph `spec` from `path`.
+    fn load(&self, spec: &GraphSpec, path: &Path) -> Result<Box<dyn GraphRunner>>;
+}
+
+/// Which backend to use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum BackendKind {
+    /// tract (pure Rust).
+    #[default]
+    Tract,
+    /// ONNX Runtime.
+    Ort,
+}
+
+impl FromStr for BackendKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "tract" => Ok(BackendKind::Tract),
+            "ort" | "onnxruntime" => Ok(BackendKind::Ort),
+            other => Err(format!("unknown backend '{other}'; expected tract or ort")),
+        }
+    }
+}
+
+impl fmt::Display for BackendKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            BackendKind::Tract => "tract",
+            BackendKind::Ort => "ort",
+        })
+    }
+}
+
+/// Backend settings.
+#[derive(Debug, Clone)]
+pub struct BackendOptions {
+    pub kind: BackendKind,
+    /// ort execution provider (`cpu`, `cuda`, ...).
+    pub execution_provider: String,
+    /// Intra-op threads (ort); 1 by default.
+    pub intra_threads: usize,
+    /// Explicit ONNX Runtime library (else `ORT_DYLIB_PATH`, else a search).
+    pub ort_library: Option<std::path::PathBuf>,
+}
+
+impl Default for BackendOptions {
+    fn default() -> Self {
+        Self {
+            kind: BackendKind::Tract,
+            execution_provider: "cpu".into(),
+            intra_threads: 1,
+            ort_library: None,
+        }
+    }
+}
+
+/// Creates the backend described by `opts`.
+pub fn create(opts: &BackendOptions) -> Result<Box<dyn Backend>> {
+    match opts.kind {
+        BackendKind::Tract => {
+            ensure!(
+                opts.execution_provider.eq_ignore_ascii_case("cpu"),
+                "the tract backend runs on the CPU only; execution provider '{}' needs --backend ort",
+                opts.execution_provider
+            );
+            Ok(Box::new(tract::TractBackend::new()))
+        }
+        #[cfg(feature = "ort")]
+        BackendKind::Ort => Ok(Box::new(ort::OrtBackend::new(opts)?)),
+        #[cfg(not(feature = "ort"))]
+        BackendKind::Ort => bail!("this build of livegesture has no ort backend (built without the `ort` feature)"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn concat_split_round_trip() {
+        let a = Tensor::f32(vec![1, 2], vec![1.0, 2.0]).unwrap();
+        let b = Tensor::f32(vec![2, 2], vec![3.0, 4.0, 5.0, 6.0]).unwrap();
+        let c = Tensor::concat(&[a.clone(), b.clone()]).unwrap();
+        assert_eq!(c.shape, vec![3, 2]);
+        let parts = c.split(&[1, 2]).unwrap();
+        assert_eq!(parts, vec![a, b]);
+        assert!(c.split(&[1, 1]).is_err());
+    }
+}

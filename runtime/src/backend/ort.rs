@@ -1,0 +1,402 @@
+//! The ONNX Runtime backend (`ort` 2.0.0-rc.15, loaded dynamically).
+//!
+//! Nothing is downloaded or linked at build time. The shared library is found at run time, in order:
+//!
+//! 1. an explicit path ([`BackendOptions::ort_library`], the CLI's `--ort-lib`);
+//! 2. the environment variable `ORT_DYLIB_PATH` (`scripts/env.sh` sets it);
+//! 3. the `onnxruntime` Python package of the project's virtual environment (`$LIVEGESTURE_VENV`,
+//!    `$VIRTUAL_ENV`, `~/.cache/livegesture/venv-*`), then of common system and user
+//!    `site-packages` / `dist-packages` folders: `onnxruntime/capi/libonnxruntime.so*`.
+//!
+//! One ONNX Runtime environment exists per process; the first backend created fixes the library.
+//!
+//! Execution providers: `cpu` (the default) needs nothing. `cuda` and the providers ONNX Runtime
+//! registers by name (`openvino`, `xnnpack`, `qnn`, `webgpu`, `dml`, `coreml`) are appended to each
+//! session when the loaded library was built with them; otherwise the backend refuses to start,
+//! naming the library and the providers it does have. Sessions use one intra-op thread unless told
+//! otherwise (the step graphs are small; parallelism comes from running streams side by side).
+
+use std::ffi::{c_char, c_int, CStr, CString};
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use anyhow::{anyhow, bail, ensure, Context, Result};
+use ort::environment::Environment;
+use ort::session::builder::GraphOptimizationLevel;
+use ort::session::{Session, SessionInputValue};
+use ort::value::TensorRef;
+use ort::AsPointer;
+
+use super::{check_inputs, check_outputs, Backend, BackendOptions, DType, GraphRunner, Tensor, TensorData};
+use crate::bundle::GraphSpec;
+
+/// Environment variable naming the ONNX Runtime shared library.
+pub const ORT_DYLIB_ENV: &str = "ORT_DYLIB_PATH";
+
+struct OrtEnv {
+    env: Environment,
+    library: PathBuf,
+}
+
+static ENV: OnceLock<std::result::Result<OrtEnv, String>> = OnceLock::new();
+
+fn lib_name_matches(name: &str) -> bool {
+    (name.starts_with("libonnxruntime.so") || (name.starts_with("libonnxruntime.") && name.ends_with(".dylib")))
+        || name.eq_ignore_ascii_case("onnxruntime.dll")
+}
+
+/// Looks for the ONNX Runtime library inside `site` (a `site-packages` folder).
+fn in_site_packages(site: &Path) -> Option<PathBuf> {
+    let capi = site.join("onnxruntime").join("capi");
+    let mut found: Vec<PathBuf> = std::fs::read_dir(&capi)
+        .ok()?
+        .filter_map(|e| e.ok())
+        .filter(|e| lib_name_matches(&e.file_name().to_string_lossy()))
+        .map(|e| e.path())
+        .collect();
+    found.sort();
+    // the most specific name (libonnxruntime.so.1.31.1 over libonnxruntime.so)
+    found.into_iter().max_by_key(|p| p.as_os_str().len())
+}
+
+/// `site-packages` folders of a Python prefix (`<prefix>/lib/python3*/site-packages`, `dist-packages`).
+fn site_dirs(prefix: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for lib in ["lib", "lib64"] {
+        let Ok(rd) = std::fs::read_dir(prefix.join(lib)) else {
+            continue;
+        };
+        let mut pys: Vec<PathBuf> = rd
+            .filter_map(|e| e.ok())
+            .filter(|e| e.file_name().to_string_lossy().starts_with("python3"))
+            .map(|e| e.path())
+            .collect();
+        pys.sort();
+        for py in pys {
+            out.push(py.join("site-packages"));
+            out.push(py.join("dist-packages"));
+        }
+    }
+    out.push(prefix.join("Lib").join("site-packages")); // Windows venv layout
+    out
+}
+
+/// Finds the ONNX Runtime shared library (see the module docs for the search order).
+pub fn find_library(explicit: Option<&Path>) -> Result<PathBuf> {
+    if let Some(p) = explicit {
+        ensure!(p.is_file(), "ort: ONNX Runtime library {} does not exist", p.display());
+        return Ok(p.to_path_buf());
+    }
+    if let Some(v) = std::env::var_os(ORT_DYLIB_ENV).filter(|v| !v.is_empty()) {
+        let p = PathBuf::from(v);
+        ensure!(
+            p.is_file(),
+            "ort: {ORT_DYLIB_ENV}={} does not exist; point it at libonnxruntime.so (e.g. `source scripts/env.sh`)",
+            p.display()
+        );
+        return Ok(p);
+    }
+    let mut prefixes: Vec<PathBuf> = Vec::new();
+    for var in ["LIVEGESTURE_VENV", "VIRTUAL_ENV", "CONDA_PREFIX"] {
+        if let Some(v) = std::env::var_os(var).filter(|v| !v.is_empty()) {
+            prefixes.push(PathBuf::from(v));
+        }
+    }
+    let home = std::env::var_os("HOME").map(PathBuf::from);
+    if let Some(h) = &home {
+        if let Ok(rd) = std::fs::read_dir(h.join(".cache").join("livegesture")) {
+            let mut venvs: Vec<PathBuf> = rd
+                .filter_map(|e| e.ok())
+                .filter(|e| e.file_name().to_string_lossy().starts_with("venv"))
+                .map(|e| e.path())
+                .collect();
+            venvs.sort();
+            prefixes.extend(venvs);
+        }
+        prefixes.push(h.join(".local"));
+    }
+    prefixes.push(PathBuf::from("/usr/local"));
+    prefixes.push(PathBuf::from("/usr"));
+    for prefix in &prefixes {
+        for site in site_dirs(prefix) {
+            if let Some(p) = in_site_packages(&site) {
+                return Ok(p);
+            }
+        }
+    }
+    bail!(
+        "ort: ONNX Runtime library not found: set {ORT_DYLIB_ENV} to libonnxruntime.so (`source scripts/env.sh` does), \
+         or install the onnxruntime Python package (searched $LIVEGESTURE_VENV, $VIRTUAL_ENV, ~/.cache/livegesture/venv-*, \
+         ~/.local, /usr/local, /usr); or use --backend tract"
+    )
+}
+
+fn environment(explicit: Option<&Path>) -> Result<&'static OrtEnv> {
+    let r = ENV.get_or_init(|| {
+        let library = find_library(explicit).map_err(|e| format!("{e:#}"))?;
+        let builder = ort::init_from(&library)
+            .map_err(|e| format!("ort: cannot load ONNX Runtime from {}: {e}", library.display()))?;
+        let env = builder
+            .with_name("livegesture")
+            .with_telemetry(false)
+            .build()
+            .map_err(|e| format!("ort: cannot create the ONNX Runtime environment ({}): {e}", library.display()))?;
+        Ok(OrtEnv { env, library })
+    });
+    let env = r.as_ref().map_err(|e| anyhow!("{e}"))?;
+    if let Some(p) = explicit {
+        ensure!(
+            same_file(p, &env.library),
+            "ort: ONNX Runtime is already loaded from {} in this process; cannot switch to {}",
+            env.library.display(),
+            p.display()
+        );
+    }
+    Ok(env)
+}
+
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => a == b,
+    }
+}
+
+/// Converts a C API status into a result (releasing the status).
+fn check_status(status: ort::sys::OrtStatusPtr, what: &str) -> Result<()> {
+    if status.0.is_null() {
+        return Ok(());
+    }
+    let api = ort::api();
+    // SAFETY: a non-null status from the C API; its message is a NUL-terminated string owned by the
+    // status, copied before the status is released.
+    let msg = unsafe {
+        let p = (api.GetErrorMessage)(status.0);
+        let m = if p.is_null() {
+            "unknown error".to_string()
+        } else {
+            CStr::from_ptr(p).to_string_lossy().into_owned()
+        };
+        (api.ReleaseStatus)(status.0);
+        m
+    };
+    bail!("ort: {what}: {msg}")
+}
+
+/// Execution providers compiled into the loaded library (`CPUExecutionProvider`, ...).
+pub fn available_providers() -> Result<Vec<String>> {
+    let api = ort::api();
+    let mut ptr: *mut *mut c_char = std::ptr::null_mut();
+    let mut n: c_int = 0;
+    // SAFETY: standard C API out-parameters; the list is released below.
+    check_status(unsafe { (api.GetAvailableProviders)(&mut ptr, &mut n) }, "listing execution providers")?;
+    let mut out = Vec::new();
+    if !ptr.is_null() {
+        for i in 0..n.max(0) as usize {
+            // SAFETY: `ptr` holds `n` NUL-terminated strings.
+            let s = unsafe { CStr::from_ptr(*ptr.add(i)) };
+            out.push(s.to_string_lossy().into_owned());
+        }
+        // SAFETY: releasing the list returned above.
+        check_status(unsafe { (api.ReleaseAvailableProviders)(ptr, n) }, "releasing the provider list")?;
+    }
+    Ok(out)
+}
+
+/// An execution provider the backend can append: (`--ep` name, ONNX Runtime provider name, name for
+/// the generic append API).
+const PROVIDERS: &[(&str, &str, &str)] = &[
+    ("cuda", "CUDAExecutionProvider", ""),
+    ("openvino", "OpenVINOExecutionProvider", "OpenVINO"),
+    ("xnnpack", "XnnpackExecutionProvider", "XNNPACK"),
+    ("qnn", "QNNExecutionProvider", "QNN"),
+    ("webgpu", "WebGpuExecutionProvider", "WebGPU"),
+    ("dml", "DmlExecutionProvider", "DML"),
+    ("coreml", "CoreMLExecutionProvider", "CoreML"),
+];
+
+/// The ONNX Runtime backend.
+pub struct OrtBackend {
+    ep: String,
+    intra_threads: usize,
+    env: &'static OrtEnv,
+}
+
+impl std::fmt::Debug for OrtBackend {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("OrtBackend")
+            .field("library", &self.env.library)
+            .field("ep", &self.ep)
+            .finish()
+    }
+}
+
+impl OrtBackend {
+    /// Loads ONNX Runtime (once per process) and checks the execution provider is available.
+    pub fn new(opts: &BackendOptions) -> Result<Self> {
+        let env = environment(opts.ort_library.as_deref())?;
+        let ep = opts.execution_provider.to_ascii_lowercase();
+        if ep != "cpu" {
+            let Some((_, provider, _)) = PROVIDERS.iter().find(|(n, _, _)| *n == ep) else {
+                let names: Vec<&str> = std::iter::once("cpu").chain(PROVIDERS.iter().map(|p| p.0)).collect();
+                bail!("ort: unknown execution provider '{ep}'; expected one of {}", names.join(", "));
+            };
+            let have = available_providers()?;
+            ensure!(
+                have.iter().any(|h| h == provider),
+                "ort: execution provider '{ep}' ({provider}) is not available in {} (it has: {}); \
+                 use a build of ONNX Runtime with it (e.g. the onnxruntime-gpu package for cuda) or --ep cpu",
+                env.library.display(),
+                have.join(", ")
+            );
+        }
+        Ok(Self {
+            ep,
+            intra_threads: opts.intra_threads.max(1),
+            env,
+        })
+    }
+
+    /// The library in use.
+    pub fn library(&self) -> &Path {
+        &self.env.library
+    }
+
+    fn append_provider(&self, builder: &mut ort::session::builder::SessionBuilder) -> Result<()> {
+        if self.ep == "cpu" {
+            return Ok(());
+        }
+        let api = ort::api();
+        let opts = builder.ptr_mut();
+        if self.ep == "cuda" {
+            let mut cuda: *mut ort::sys::OrtCUDAProviderOptionsV2 = std::ptr::null_mut();
+            // SAFETY: C API calls on a live session-options pointer; the CUDA options are created,
+            // used once and released.
+            unsafe {
+                check_status((api.CreateCUDAProviderOptions)(&mut cuda), "creating CUDA options")?;
+                let r = check_status(
+                    (api.SessionOptionsAppendExecutionProvider_CUDA_V2)(opts, cuda),
+                    "enabling the CUDA execution provider",
+                );
+                (api.ReleaseCUDAProviderOptions)(cuda);
+                r?;
+            }
+            return Ok(());
+        }
+        let generic = PROVIDERS
+            .iter()
+            .find(|(n, _, _)| *n == self.ep)
+            .map(|p| p.2)
+            .unwrap_or_default();
+        let name = CString::new(generic)?;
+        // SAFETY: no options (null key/value arrays with length 0), NUL-terminated provider name.
+        check_status(
+            unsafe {
+                (api.SessionOptionsAppendExecutionProvider)(opts, name.as_ptr(), std::ptr::null(), std::ptr::null(), 0)
+            },
+            &format!("enabling execution provider '{}'", self.ep),
+        )
+    }
+}
+
+impl Backend for OrtBackend {
+    fn name(&self) -> &str {
+        "ort"
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "ort (ONNX Runtime from {}, execution provider {}, {} intra-op thread(s))",
+            self.env.library.display(),
+            self.ep,
+            self.intra_threads
+        )
+    }
+
+    fn load(&self, spec: &GraphSpec, path: &Path) -> Result<Box<dyn GraphRunner>> {
+        let what = || format!("ort: loading graph '{}' from {}", spec.name, path.display());
+        let e = |err: ort::Error<ort::session::builder::SessionBuilder>| anyhow!("{err}");
+        let mut builder = Session::builder(&self.env.env)
+            .map_err(|err| anyhow!("{err}"))
+            .with_context(what)?
+            .with_optimization_level(GraphOptimizationLevel::All)
+            .map_err(e)
+            .with_context(what)?
+            .with_intra_threads(self.intra_threads)
+            .map_err(e)
+            .with_context(what)?
+            .with_inter_threads(1)
+            .map_err(e)
+            .with_context(what)?;
+        self.append_provider(&mut builder).with_context(what)?;
+        let session = builder
+            .commit_from_file(path)
+            .map_err(|err| anyhow!("{err}"))
+            .with_context(what)?;
+        let names: Vec<&str> = session.inputs().iter().map(|o| o.name()).collect();
+        ensure!(
+            names == spec.input_names(),
+            "ort: graph '{}' has inputs {names:?}, the manifest lists {:?}",
+            spec.name,
+            spec.input_names()
+        );
+        Ok(Box::new(OrtGraph {
+            spec: spec.clone(),
+            output_names: spec.output_names().iter().map(|s| s.to_string()).collect(),
+            session,
+        }))
+    }
+}
+
+/// A graph loaded into an ONNX Runtime session.
+pub struct OrtGraph {
+    spec: GraphSpec,
+    output_names: Vec<String>,
+    session: Session,
+}
+
+impl GraphRunner for OrtGraph {
+    fn spec(&self) -> &GraphSpec {
+        &self.spec
+    }
+
+    fn run(&mut self, inputs: &[Tensor]) -> Result<Vec<Tensor>> {
+        let batch = check_inputs(&self.spec, inputs)?;
+        let name = &self.spec.name;
+        let mut values: Vec<SessionInputValue<'_>> = Vec::with_capacity(inputs.len());
+        for t in inputs {
+            let v: SessionInputValue<'_> = match &t.data {
+                TensorData::F32(d) => TensorRef::from_array_view((t.shape.as_slice(), d.as_slice()))?.into(),
+                TensorData::I64(d) => TensorRef::from_array_view((t.shape.as_slice(), d.as_slice()))?.into(),
+            };
+            values.push(v);
+        }
+        let outputs = self
+            .session
+            .run(values.as_slice())
+            .with_context(|| format!("ort: running graph '{name}' (batch {batch})"))?;
+        let mut out = Vec::with_capacity(self.output_names.len());
+        for (oname, (_, dtype, _)) in self.output_names.iter().zip(self.spec.all_outputs()) {
+            let v = outputs
+                .get(oname.as_str())
+                .ok_or_else(|| anyhow!("ort: graph '{name}' returned no output '{oname}'"))?;
+            let t = match dtype {
+                DType::F32 => {
+                    let (shape, data) = v
+                        .try_extract_tensor::<f32>()
+                        .with_context(|| format!("ort: graph '{name}' output '{oname}'"))?;
+                    Tensor::f32(shape.iter().map(|&d| d as usize).collect(), data.to_vec())?
+                }
+                DType::I64 => {
+                    let (shape, data) = v
+                        .try_extract_tensor::<i64>()
+                        .with_context(|| format!("ort: graph '{name}' output '{oname}'"))?;
+                    Tensor::i64(shape.iter().map(|&d| d as usize).collect(), data.to_vec())?
+                }
+            };
+            out.push(t);
+        }
+        check_outputs(&self.spec, &out, batch)?;
+        Ok(out)
+    }
+}

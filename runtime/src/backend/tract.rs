@@ -1,0 +1,170 @@
+//! The tract backend (pure Rust, no native dependency; the default).
+//!
+//! A graph is parsed once into a decluttered typed model with a symbolic batch dimension (the ONNX
+//! `batch` dim parameter). The first run with batch size `b` specialises the model to `b`
+//! (`set_symbols`), optimises it (`into_optimized`) and keeps the runnable plan and its state in a
+//! per-batch-size cache, so streaming with a fixed batch optimises once.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use anyhow::{anyhow, ensure, Context, Result};
+use tract_onnx::prelude::*;
+
+use super::{check_inputs, check_outputs, Backend, DType, GraphRunner, Tensor as LgTensor, TensorData};
+use crate::bundle::GraphSpec;
+
+/// The tract backend.
+#[derive(Debug, Default, Clone)]
+pub struct TractBackend;
+
+impl TractBackend {
+    /// A new tract backend.
+    pub fn new() -> Self {
+        TractBackend
+    }
+}
+
+impl Backend for TractBackend {
+    fn name(&self) -> &str {
+        "tract"
+    }
+
+    fn describe(&self) -> String {
+        "tract 0.23 (pure Rust, CPU)".into()
+    }
+
+    fn load(&self, spec: &GraphSpec, path: &Path) -> Result<Box<dyn GraphRunner>> {
+        Ok(Box::new(TractGraph::load(spec, path)?))
+    }
+}
+
+/// A graph loaded with tract.
+pub struct TractGraph {
+    spec: GraphSpec,
+    path: String,
+    /// Decluttered model with a symbolic batch.
+    typed: TypedModel,
+    batch_symbol: Option<Symbol>,
+    plans: HashMap<usize, TypedSimpleState>,
+}
+
+impl std::fmt::Debug for TractGraph {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TractGraph")
+            .field("graph", &self.spec.name)
+            .field("batch_sizes", &self.plans.keys().collect::<Vec<_>>())
+            .finish()
+    }
+}
+
+impl TractGraph {
+    /// Parses and declutters `path` (the graph `spec` of a verified bundle).
+    pub fn load(spec: &GraphSpec, path: &Path) -> Result<Self> {
+        let what = || format!("tract: loading graph '{}' from {}", spec.name, path.display());
+        let model = tract_onnx::onnx().model_for_path(path).with_context(what)?;
+        let typed = model
+            .into_typed()
+            .and_then(|m| m.into_decluttered())
+            .with_context(what)?;
+        // The batch dimension of the first input (a symbol named after the ONNX dim parameter).
+        let batch_symbol = typed
+            .input_fact(0)
+            .ok()
+            .and_then(|f| f.shape.iter().next().cloned())
+            .and_then(|d| match d {
+                TDim::Sym(s) => Some(s),
+                _ => None,
+            });
+        Ok(Self {
+            spec: spec.clone(),
+            path: path.display().to_string(),
+            typed,
+            batch_symbol,
+            plans: HashMap::new(),
+        })
+    }
+
+    fn state_for(&mut self, batch: usize) -> Result<&mut TypedSimpleState> {
+        if !self.plans.contains_key(&batch) {
+            let what = || {
+                format!(
+                    "tract: optimising graph '{}' ({}) for batch {batch}",
+                    self.spec.name, self.path
+                )
+            };
+            let model = match &self.batch_symbol {
+                Some(sym) => {
+                    let subs = HashMap::from([(sym.clone(), TDim::Val(batch as i64))]);
+                    self.typed.set_symbols(&subs).with_context(what)?
+                }
+                None => self.typed.clone(),
+            };
+            let plan = model
+                .into_optimized()
+                .and_then(|m| m.into_runnable())
+                .with_context(what)?;
+            let state = plan.spawn().with_context(what)?;
+            self.plans.insert(batch, state);
+        }
+        self.plans
+            .get_mut(&batch)
+            .ok_or_else(|| anyhow!("tract: no plan for batch {batch}"))
+    }
+}
+
+fn to_tract(t: &LgTensor) -> Result<TValue> {
+    let tensor = match &t.data {
+        TensorData::F32(v) => tract_onnx::prelude::Tensor::from_shape(&t.shape, v)?,
+        TensorData::I64(v) => tract_onnx::prelude::Tensor::from_shape(&t.shape, v)?,
+    };
+    Ok(tensor.into())
+}
+
+fn from_tract(v: &TValue, want: DType, what: &str) -> Result<LgTensor> {
+    let shape = v.shape().to_vec();
+    match want {
+        DType::F32 => {
+            let a = v
+                .to_plain_array_view::<f32>()
+                .with_context(|| format!("{what}: expected float32"))?;
+            LgTensor::f32(shape, a.iter().copied().collect())
+        }
+        DType::I64 => {
+            let a = v
+                .to_plain_array_view::<i64>()
+                .with_context(|| format!("{what}: expected int64"))?;
+            LgTensor::i64(shape, a.iter().copied().collect())
+        }
+    }
+}
+
+impl GraphRunner for TractGraph {
+    fn spec(&self) -> &GraphSpec {
+        &self.spec
+    }
+
+    fn run(&mut self, inputs: &[LgTensor]) -> Result<Vec<LgTensor>> {
+        let batch = check_inputs(&self.spec, inputs)?;
+        let tv: TVec<TValue> = inputs.iter().map(to_tract).collect::<Result<_>>()?;
+        let name = self.spec.name.clone();
+        let outs = self
+            .state_for(batch)?
+            .run(tv)
+            .with_context(|| format!("tract: running graph '{name}' (batch {batch})"))?;
+        let specs = self.spec.all_outputs();
+        ensure!(
+            outs.len() == specs.len(),
+            "tract: graph '{name}' returned {} outputs, expected {}",
+            outs.len(),
+            specs.len()
+        );
+        let out = outs
+            .iter()
+            .zip(specs)
+            .map(|(v, (oname, dtype, _))| from_tract(v, dtype, &format!("graph '{name}' output '{oname}'")))
+            .collect::<Result<Vec<_>>>()?;
+        check_outputs(&self.spec, &out, batch)?;
+        Ok(out)
+    }
+}

@@ -1,0 +1,698 @@
+//! The streaming pipeline: audio chunks in, SMPL-X frames out, zero look-ahead.
+//!
+//! This reproduces `python/livegesture/stream.py` step for step. Per motion token `t`, as soon as its
+//! audio has arrived:
+//!
+//! 1. the stream's [`StreamingLogMel`] yields the token's `mel_frames_per_token` log-mel frames;
+//! 2. `audio_encoder` turns them into the audio token `a_t` (once per stream);
+//! 3. every `expert_<region>` reads the previous token of its region (BOS at `t = 0`) and `a_t`; the
+//!    conditional (`cond = 1`) and unconditional (`cond = 0`) guidance branches are two rows on the
+//!    batch axis;
+//! 4. `fusion` gives per-region logits for both branches;
+//! 5. classifier-free guidance and the seeded SplitMix64 sampler ([`crate::sampling`]) draw one token
+//!    per region, in region order;
+//! 6. `decoder_<region>` turns the token into frames `4t .. 4t+3` of region features;
+//! 7. rot6d is converted to axis-angle and the region features are assembled into [`Frame`]s
+//!    (translation and expressions copied, foot contact from the lower region's contact dims, eyes at
+//!    rest), following the region layout in the manifest.
+//!
+//! With guidance `gamma == 1.0` the unconditional branch is not run at all (one row per stream), as in
+//! Python.
+//!
+//! # State and batching
+//!
+//! A [`Stream`] owns all per-stream state (frontend buffer, every graph's caches, previous tokens, the
+//! PRNG, the token counter). Its size is fixed: it does not grow with the stream's length. A
+//! [`Pipeline`] owns the loaded graphs and is shared by any number of streams.
+//! [`Pipeline::step_batch`] steps several streams at once: their caches are stacked on the batch
+//! axis, every graph runs once for all of them, and the updated caches are split back. Stepping
+//! streams one by one or together gives the same results.
+//!
+//! After an error inside a graph the stream's caches are incomplete; the stream refuses further work
+//! until [`Stream::reset`].
+
+use anyhow::{bail, ensure, Context, Result};
+use ndarray::Array2;
+
+use crate::backend::{Backend, Tensor};
+use crate::bundle::{Bundle, CacheSpec, GraphSpec};
+use crate::frontend::{FrontendConfig, StreamingLogMel};
+use crate::output::{Frame, CONTACT_DIM, EXPR_DIM, POSE_DIM, TRANS_DIM};
+use crate::rotation::rot6d_to_axis_angle;
+use crate::sampling::{sample_token, SplitMix64};
+
+/// Generation settings of one stream; `None` takes the bundle's default.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct StreamOptions {
+    /// Seed of the stream's SplitMix64 generator.
+    pub seed: u64,
+    /// Classifier-free guidance scale gamma (1.0 disables guidance).
+    pub guidance: Option<f64>,
+    /// Sampling temperature (> 0).
+    pub temperature: Option<f64>,
+    /// Top-k (0 = all tokens).
+    pub top_k: Option<usize>,
+    /// Keep each step's logits in [`TokenStep::logits`] (for parity tools).
+    pub record_logits: bool,
+}
+
+/// Logits of one token step, `(regions, codebook_size)` row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepLogits {
+    /// Conditional branch.
+    pub cond: Vec<f32>,
+    /// Unconditional branch (absent without guidance).
+    pub uncond: Option<Vec<f32>>,
+}
+
+/// The result of one token step of one stream.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TokenStep {
+    /// Token index `t` (from 0).
+    pub token_index: u64,
+    /// Sampled token per region, in region order.
+    pub tokens: Vec<i64>,
+    /// The fusion logits (only with [`StreamOptions::record_logits`]).
+    pub logits: Option<StepLogits>,
+    /// Frames `4t .. 4t + 3`.
+    pub frames: Vec<Frame>,
+}
+
+/// The resolved layout of one region's features.
+#[derive(Debug, Clone)]
+struct RegionLayout {
+    name: String,
+    dim: usize,
+    /// (joint, offset of its rot6d) pairs.
+    rot6d: Vec<(usize, usize)>,
+    trans: Option<usize>,
+    contact: Option<usize>,
+    expressions: Option<usize>,
+}
+
+/// Role of a data input of a graph.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Role {
+    Mel,
+    PrevToken,
+    Token,
+    Audio,
+    Cond,
+    Hidden(usize),
+}
+
+/// One loaded graph with the roles of its data inputs.
+struct Stage {
+    spec: GraphSpec,
+    runner: Box<dyn crate::backend::GraphRunner>,
+    roles: Vec<Role>,
+}
+
+impl Stage {
+    fn new(bundle: &Bundle, backend: &dyn Backend, name: &str, regions: &[String]) -> Result<Self> {
+        let spec = bundle.graph(name)?.clone();
+        let runner = backend
+            .load(&spec, &bundle.graph_path(&spec))
+            .with_context(|| format!("loading graph '{name}' with the {} backend", backend.name()))?;
+        let mut roles = Vec::new();
+        for i in &spec.inputs {
+            let role = match i.name.as_str() {
+                "mel" => Role::Mel,
+                "prev_token" => Role::PrevToken,
+                "token" => Role::Token,
+                "audio" => Role::Audio,
+                "cond" => Role::Cond,
+                n => match n.strip_prefix("hidden_").and_then(|r| regions.iter().position(|x| x == r)) {
+                    Some(k) => Role::Hidden(k),
+                    None => bail!("graph '{name}': unknown data input '{n}'"),
+                },
+            };
+            roles.push(role);
+        }
+        Ok(Stage { spec, runner, roles })
+    }
+
+    /// Runs with data inputs built by `data(role)` and the stacked `caches`; returns (data outputs, new caches).
+    fn run(
+        &mut self,
+        mut data: impl FnMut(Role) -> Result<Tensor>,
+        caches: Vec<Tensor>,
+    ) -> Result<(Vec<Tensor>, Vec<Tensor>)> {
+        let mut inputs = Vec::with_capacity(self.roles.len() + caches.len());
+        for &r in &self.roles {
+            inputs.push(data(r)?);
+        }
+        inputs.extend(caches);
+        let mut out = self.runner.run(&inputs)?;
+        let caches = out.split_off(self.spec.outputs.len());
+        Ok((out, caches))
+    }
+}
+
+/// Stacks the per-stream caches of one graph (`per_stream[i][c]`) into one tensor per cache, moving
+/// instead of copying for a single stream.
+fn stack_caches(mut per_stream: Vec<Vec<Tensor>>) -> Result<Vec<Tensor>> {
+    if per_stream.len() == 1 {
+        return Ok(per_stream.pop().unwrap_or_default());
+    }
+    let n = per_stream.first().map(Vec::len).unwrap_or(0);
+    (0..n)
+        .map(|c| {
+            let parts: Vec<Tensor> = per_stream.iter_mut().map(|s| std::mem::take(&mut s[c])).collect();
+            Tensor::concat(&parts)
+        })
+        .collect()
+}
+
+/// Splits stacked caches back into per-stream caches of `rows[i]` rows.
+fn split_caches(stacked: Vec<Tensor>, rows: &[usize]) -> Result<Vec<Vec<Tensor>>> {
+    if rows.len() == 1 {
+        return Ok(vec![stacked]);
+    }
+    let mut out: Vec<Vec<Tensor>> = rows.iter().map(|_| Vec::with_capacity(stacked.len())).collect();
+    for t in stacked {
+        for (i, part) in t.split(rows)?.into_iter().enumerate() {
+            out[i].push(part);
+        }
+    }
+    Ok(out)
+}
+
+fn zeros_for(caches: &[CacheSpec], rows: usize) -> Vec<Tensor> {
+    caches.iter().map(|c| c.zeros(rows)).collect()
+}
+
+/// Per-stream caches of every graph.
+#[derive(Debug, Clone)]
+struct Caches {
+    audio_encoder: Vec<Tensor>,
+    experts: Vec<Vec<Tensor>>,
+    fusion: Vec<Tensor>,
+    decoders: Vec<Vec<Tensor>>,
+}
+
+/// One stream's state (see the module docs).
+#[derive(Debug)]
+pub struct Stream {
+    opts: StreamOptions,
+    gamma: f64,
+    temperature: f64,
+    top_k: usize,
+    frontend: StreamingLogMel,
+    caches: Caches,
+    prev: Vec<i64>,
+    rng: SplitMix64,
+    t: u64,
+    poisoned: bool,
+}
+
+impl Stream {
+    /// True when classifier-free guidance is on (gamma != 1).
+    pub fn guided(&self) -> bool {
+        self.gamma != 1.0
+    }
+
+    /// Rows this stream occupies in the expert and fusion batches (2 with guidance, else 1).
+    pub fn branch_rows(&self) -> usize {
+        if self.guided() {
+            2
+        } else {
+            1
+        }
+    }
+
+    /// Guidance scale in use.
+    pub fn guidance(&self) -> f64 {
+        self.gamma
+    }
+
+    /// Temperature in use.
+    pub fn temperature(&self) -> f64 {
+        self.temperature
+    }
+
+    /// Top-k in use.
+    pub fn top_k(&self) -> usize {
+        self.top_k
+    }
+
+    /// The options the stream was created with.
+    pub fn options(&self) -> &StreamOptions {
+        &self.opts
+    }
+
+    /// Tokens stepped so far.
+    pub fn tokens_done(&self) -> u64 {
+        self.t
+    }
+
+    /// Frames emitted so far (`frames_per_token` per token).
+    pub fn frames_done(&self) -> u64 {
+        self.t * self.frontend.config().frames_per_token
+    }
+
+    /// Audio samples received so far.
+    pub fn samples_received(&self) -> u64 {
+        self.frontend.samples_received()
+    }
+
+    /// The previous token of every region (BOS before the first step).
+    pub fn prev_tokens(&self) -> &[i64] {
+        &self.prev
+    }
+
+    /// Feeds audio to the stream's frontend only, returning the mel frames of each completed token.
+    /// Use with [`Pipeline::step_batch`] to step many streams together.
+    pub fn push_audio(&mut self, chunk: &[f32]) -> Result<Vec<Array2<f32>>> {
+        self.frontend.push(chunk)
+    }
+}
+
+/// The loaded graphs of a bundle, shared by any number of [`Stream`]s.
+pub struct Pipeline {
+    frontend: FrontendConfig,
+    regions: Vec<RegionLayout>,
+    bos: i64,
+    codebook_size: usize,
+    defaults: (f64, f64, usize),
+    frames_per_token: usize,
+    backend: String,
+    audio_encoder: Stage,
+    experts: Vec<Stage>,
+    fusion: Stage,
+    decoders: Vec<Stage>,
+}
+
+impl std::fmt::Debug for Pipeline {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Pipeline")
+            .field("backend", &self.backend)
+            .field("regions", &self.regions.iter().map(|r| &r.name).collect::<Vec<_>>())
+            .finish_non_exhaustive()
+    }
+}
+
+fn resolve_layout(bundle: &Bundle) -> Result<Vec<RegionLayout>> {
+    let mut out = Vec::new();
+    for r in bundle.regions() {
+        let mut l = RegionLayout {
+            name: r.name.clone(),
+            dim: r.dim,
+            rot6d: Vec::new(),
+            trans: None,
+            contact: None,
+            expressions: None,
+        };
+        for p in &r.parts {
+            match p.name.as_str() {
+                "rot6d" => {
+                    let joints = p.joints.clone().unwrap_or_else(|| r.joints.clone());
+                    ensure!(
+                        joints.len() * 6 == p.dim,
+                        "region '{}': rot6d part has {} dims for {} joints",
+                        r.name,
+                        p.dim,
+                        joints.len()
+                    );
+                    for (k, j) in joints.into_iter().enumerate() {
+                        ensure!(j * 3 + 3 <= POSE_DIM, "region '{}': joint {j} out of range", r.name);
+                        l.rot6d.push((j, p.offset + 6 * k));
+                    }
+                }
+                "trans" => {
+                    ensure!(p.dim == TRANS_DIM, "region '{}': trans has {} dims", r.name, p.dim);
+                    l.trans = Some(p.offset);
+                }
+                "foot_contact" | "contact" => {
+                    ensure!(p.dim == CONTACT_DIM, "region '{}': foot contact has {} dims", r.name, p.dim);
+                    l.contact = Some(p.offset);
+                }
+                "expressions" => {
+                    ensure!(p.dim == EXPR_DIM, "region '{}': expressions have {} dims", r.name, p.dim);
+                    l.expressions = Some(p.offset);
+                }
+                other => bail!("region '{}': unknown feature part '{other}'", r.name),
+            }
+        }
+        out.push(l);
+    }
+    Ok(out)
+}
+
+/// Bytes of per-stream state: caches of every graph (expert and fusion caches twice with guidance)
+/// plus the frontend's sample buffer at its largest (one token span and one window of `f64`).
+pub fn state_bytes(bundle: &Bundle, guided: bool) -> usize {
+    let rows = if guided { 2 } else { 1 };
+    let caches: usize = bundle
+        .graphs()
+        .iter()
+        .map(|g| {
+            let r = if g.name.starts_with("expert_") || g.name == "fusion" { rows } else { 1 };
+            g.cache_row_bytes() * r
+        })
+        .sum();
+    let f = bundle.frontend();
+    let span = (f.token_end(0) as usize) + f.win_length + 1;
+    caches + span * std::mem::size_of::<f64>() + bundle.regions().len() * 8
+}
+
+impl Pipeline {
+    /// Loads every graph of `bundle` with `backend`.
+    pub fn new(bundle: &Bundle, backend: &dyn Backend) -> Result<Self> {
+        let names: Vec<String> = bundle.region_names().iter().map(|s| s.to_string()).collect();
+        let regions = resolve_layout(bundle)?;
+        let audio_encoder = Stage::new(bundle, backend, "audio_encoder", &names)?;
+        let fusion = Stage::new(bundle, backend, "fusion", &names)?;
+        let experts = names
+            .iter()
+            .map(|r| Stage::new(bundle, backend, &format!("expert_{r}"), &names))
+            .collect::<Result<Vec<_>>>()?;
+        let decoders = names
+            .iter()
+            .map(|r| Stage::new(bundle, backend, &format!("decoder_{r}"), &names))
+            .collect::<Result<Vec<_>>>()?;
+        let fpt = bundle.frontend().frames_per_token as usize;
+        for (d, l) in decoders.iter().zip(&regions) {
+            let m = d
+                .spec
+                .outputs
+                .first()
+                .with_context(|| format!("graph '{}' has no output", d.spec.name))?;
+            ensure!(
+                m.row_len() == fpt * l.dim,
+                "graph '{}': output '{}' has {} values per stream, expected {fpt} frames x {} dims",
+                d.spec.name,
+                m.name,
+                m.row_len(),
+                l.dim
+            );
+        }
+        let s = bundle.sampling();
+        Ok(Pipeline {
+            frontend: bundle.frontend().clone(),
+            regions,
+            bos: bundle.vocab().bos_token,
+            codebook_size: bundle.vocab().codebook_size,
+            defaults: (s.guidance, s.temperature, s.top_k),
+            frames_per_token: fpt,
+            backend: backend.name().to_string(),
+            audio_encoder,
+            experts,
+            fusion,
+            decoders,
+        })
+    }
+
+    /// The backend the graphs run on.
+    pub fn backend_name(&self) -> &str {
+        &self.backend
+    }
+
+    /// The frontend configuration (sample rate, token grid).
+    pub fn frontend(&self) -> &FrontendConfig {
+        &self.frontend
+    }
+
+    /// Region names in order.
+    pub fn region_names(&self) -> Vec<&str> {
+        self.regions.iter().map(|r| r.name.as_str()).collect()
+    }
+
+    /// Codebook size K.
+    pub fn codebook_size(&self) -> usize {
+        self.codebook_size
+    }
+
+    /// A fresh stream (cold start: zero caches from the manifest, BOS previous tokens, seeded PRNG).
+    pub fn new_stream(&self, opts: &StreamOptions) -> Result<Stream> {
+        let gamma = opts.guidance.unwrap_or(self.defaults.0);
+        let temperature = opts.temperature.unwrap_or(self.defaults.1);
+        let top_k = opts.top_k.unwrap_or(self.defaults.2);
+        ensure!(gamma.is_finite(), "guidance must be a finite number, got {gamma}");
+        ensure!(
+            temperature.is_finite() && temperature > 0.0,
+            "temperature must be > 0, got {temperature}"
+        );
+        Ok(Stream {
+            opts: opts.clone(),
+            gamma,
+            temperature,
+            top_k,
+            frontend: StreamingLogMel::new(&self.frontend)?,
+            caches: self.initial_caches(gamma != 1.0),
+            prev: vec![self.bos; self.regions.len()],
+            rng: SplitMix64::new(opts.seed),
+            t: 0,
+            poisoned: false,
+        })
+    }
+
+    fn initial_caches(&self, guided: bool) -> Caches {
+        let rows = if guided { 2 } else { 1 };
+        Caches {
+            audio_encoder: zeros_for(&self.audio_encoder.spec.caches, 1),
+            experts: self.experts.iter().map(|e| zeros_for(&e.spec.caches, rows)).collect(),
+            fusion: zeros_for(&self.fusion.spec.caches, rows),
+            decoders: self.decoders.iter().map(|d| zeros_for(&d.spec.caches, 1)).collect(),
+        }
+    }
+
+    /// Resets `stream` to a cold start with its original options (and seed).
+    pub fn reset(&self, stream: &mut Stream) -> Result<()> {
+        *stream = self.new_stream(&stream.opts.clone())?;
+        Ok(())
+    }
+
+    /// Pushes audio (16 kHz mono, any chunk size) and returns the frames of every token it completes.
+    pub fn push(&mut self, stream: &mut Stream, chunk: &[f32]) -> Result<Vec<Frame>> {
+        Ok(self
+            .push_steps(stream, chunk)?
+            .into_iter()
+            .flat_map(|s| s.frames)
+            .collect())
+    }
+
+    /// Like [`Pipeline::push`], returning each token step (tokens, optional logits, frames).
+    pub fn push_steps(&mut self, stream: &mut Stream, chunk: &[f32]) -> Result<Vec<TokenStep>> {
+        ensure!(!stream.poisoned, "the stream failed earlier; reset it before pushing more audio");
+        let mels = stream.frontend.push(chunk)?;
+        let mut out = Vec::with_capacity(mels.len());
+        for mel in &mels {
+            out.push(self.step(stream, mel)?);
+        }
+        Ok(out)
+    }
+
+    /// One token step of one stream from its mel frames `(mel_frames_per_token, n_mels)`.
+    pub fn step(&mut self, stream: &mut Stream, mel: &Array2<f32>) -> Result<TokenStep> {
+        let mut v = self.step_batch(&mut [stream], std::slice::from_ref(mel))?;
+        v.pop().context("step_batch returned no result")
+    }
+
+    /// One token step of several streams at once (`mels[i]` for `streams[i]`): every graph runs once
+    /// with the streams' caches stacked on the batch axis. Streams may differ in guidance.
+    pub fn step_batch(&mut self, streams: &mut [&mut Stream], mels: &[Array2<f32>]) -> Result<Vec<TokenStep>> {
+        ensure!(
+            streams.len() == mels.len(),
+            "step_batch: {} streams but {} mel blocks",
+            streams.len(),
+            mels.len()
+        );
+        if streams.is_empty() {
+            return Ok(Vec::new());
+        }
+        for s in streams.iter() {
+            ensure!(!s.poisoned, "the stream failed earlier; reset it before stepping it again");
+        }
+        for s in streams.iter_mut() {
+            s.poisoned = true;
+        }
+        let out = self.step_batch_inner(streams, mels)?;
+        for s in streams.iter_mut() {
+            s.poisoned = false;
+        }
+        Ok(out)
+    }
+
+    fn step_batch_inner(&mut self, streams: &mut [&mut Stream], mels: &[Array2<f32>]) -> Result<Vec<TokenStep>> {
+        let n = streams.len();
+        let n_regions = self.regions.len();
+        let k = self.codebook_size;
+        let mpt = self.frontend.mel_frames_per_token as usize;
+        let n_mels = self.frontend.n_mels;
+
+        // 1-2. audio encoder, one row per stream
+        let mut mel_data = Vec::with_capacity(n * mpt * n_mels);
+        for m in mels {
+            ensure!(
+                m.dim() == (mpt, n_mels),
+                "mel block has shape {:?}, expected ({mpt}, {n_mels})",
+                m.dim()
+            );
+            mel_data.extend(m.iter().copied());
+        }
+        let mel_t = Tensor::f32(vec![n, mpt, n_mels], mel_data)?;
+        let caches = stack_caches(streams.iter_mut().map(|s| std::mem::take(&mut s.caches.audio_encoder)).collect())?;
+        let mut mel_opt = Some(mel_t);
+        let (out, new) = self.audio_encoder.run(
+            |r| match r {
+                Role::Mel => mel_opt.take().context("mel used twice"),
+                other => bail!("audio_encoder: unexpected input {other:?}"),
+            },
+            caches,
+        )?;
+        for (s, c) in streams.iter_mut().zip(split_caches(new, &vec![1; n])?) {
+            s.caches.audio_encoder = c;
+        }
+        let audio = out.into_iter().next().context("audio_encoder returned no output")?;
+        let da = audio.row_len();
+        let audio_v = audio.as_f32("audio_encoder output")?;
+
+        // 3. experts with both guidance branches on the batch axis
+        let rows: Vec<usize> = streams.iter().map(|s| s.branch_rows()).collect();
+        let total: usize = rows.iter().sum();
+        let mut audio_rows = Vec::with_capacity(total * da);
+        let mut cond = Vec::with_capacity(total);
+        for (i, &r) in rows.iter().enumerate() {
+            for b in 0..r {
+                audio_rows.extend_from_slice(&audio_v[i * da..(i + 1) * da]);
+                cond.push(if b == 0 { 1.0 } else { 0.0 });
+            }
+        }
+        let audio_b = Tensor::f32(vec![total, da], audio_rows)?;
+        let cond_b = Tensor::f32(vec![total], cond)?;
+        let mut hidden = Vec::with_capacity(n_regions);
+        for (ri, stage) in self.experts.iter_mut().enumerate() {
+            let mut prev = Vec::with_capacity(total);
+            for (s, &r) in streams.iter().zip(&rows) {
+                prev.extend(std::iter::repeat_n(s.prev[ri], r));
+            }
+            let prev_t = Tensor::i64(vec![total], prev)?;
+            let caches = stack_caches(streams.iter_mut().map(|s| std::mem::take(&mut s.caches.experts[ri])).collect())?;
+            let (out, new) = stage.run(
+                |role| match role {
+                    Role::PrevToken => Ok(prev_t.clone()),
+                    Role::Audio => Ok(audio_b.clone()),
+                    Role::Cond => Ok(cond_b.clone()),
+                    other => bail!("expert: unexpected input {other:?}"),
+                },
+                caches,
+            )?;
+            for (s, c) in streams.iter_mut().zip(split_caches(new, &rows)?) {
+                s.caches.experts[ri] = c;
+            }
+            hidden.push(out.into_iter().next().context("expert returned no output")?);
+        }
+
+        // 4. fusion
+        let caches = stack_caches(streams.iter_mut().map(|s| std::mem::take(&mut s.caches.fusion)).collect())?;
+        let (out, new) = self.fusion.run(
+            |role| match role {
+                Role::Hidden(i) => hidden.get(i).cloned().context("fusion: missing hidden state"),
+                Role::Audio => Ok(audio_b.clone()),
+                Role::Cond => Ok(cond_b.clone()),
+                other => bail!("fusion: unexpected input {other:?}"),
+            },
+            caches,
+        )?;
+        for (s, c) in streams.iter_mut().zip(split_caches(new, &rows)?) {
+            s.caches.fusion = c;
+        }
+        let logits = out.into_iter().next().context("fusion returned no output")?;
+        ensure!(
+            logits.shape == [total, n_regions, k],
+            "fusion: logits have shape {:?}, expected [{total}, {n_regions}, {k}]",
+            logits.shape
+        );
+        let lv = logits.as_f32("fusion logits")?;
+
+        // 5. guided sampling, one uniform per region in region order
+        let row_len = n_regions * k;
+        let mut tokens_all: Vec<Vec<i64>> = Vec::with_capacity(n);
+        let mut logits_all: Vec<Option<StepLogits>> = Vec::with_capacity(n);
+        let mut row = 0;
+        for (s, &r) in streams.iter_mut().zip(&rows) {
+            let c = &lv[row * row_len..(row + 1) * row_len];
+            let u = if r == 2 { Some(&lv[(row + 1) * row_len..(row + 2) * row_len]) } else { None };
+            let mut toks = Vec::with_capacity(n_regions);
+            for ri in 0..n_regions {
+                let cr = &c[ri * k..(ri + 1) * k];
+                let ur = u.map(|u| &u[ri * k..(ri + 1) * k]);
+                let tok = sample_token(cr, ur, &mut s.rng, s.gamma, s.temperature, s.top_k)
+                    .with_context(|| format!("sampling region '{}' at token {}", self.regions[ri].name, s.t))?;
+                toks.push(tok as i64);
+            }
+            logits_all.push(s.opts.record_logits.then(|| StepLogits {
+                cond: c.to_vec(),
+                uncond: u.map(<[f32]>::to_vec),
+            }));
+            tokens_all.push(toks);
+            row += r;
+        }
+
+        // 6. decoders, one row per stream
+        let mut feats: Vec<Tensor> = Vec::with_capacity(n_regions);
+        for (ri, stage) in self.decoders.iter_mut().enumerate() {
+            let tok_t = Tensor::i64(vec![n], tokens_all.iter().map(|t| t[ri]).collect())?;
+            let caches = stack_caches(streams.iter_mut().map(|s| std::mem::take(&mut s.caches.decoders[ri])).collect())?;
+            let (out, new) = stage.run(
+                |role| match role {
+                    Role::Token => Ok(tok_t.clone()),
+                    other => bail!("decoder: unexpected input {other:?}"),
+                },
+                caches,
+            )?;
+            for (s, c) in streams.iter_mut().zip(split_caches(new, &vec![1; n])?) {
+                s.caches.decoders[ri] = c;
+            }
+            feats.push(out.into_iter().next().context("decoder returned no output")?);
+        }
+
+        // 7. frames
+        let mut results = Vec::with_capacity(n);
+        for (i, ((s, toks), lg)) in streams.iter_mut().zip(tokens_all).zip(logits_all).enumerate() {
+            let frames = self.assemble_frames(&feats, i, s.t)?;
+            results.push(TokenStep {
+                token_index: s.t,
+                tokens: toks.clone(),
+                logits: lg,
+                frames,
+            });
+            s.prev = toks;
+            s.t += 1;
+        }
+        Ok(results)
+    }
+
+    /// Builds the frames of stream row `i` from the decoders' `(batch, frames_per_token, dim)` outputs.
+    fn assemble_frames(&self, feats: &[Tensor], i: usize, t: u64) -> Result<Vec<Frame>> {
+        let fpt = self.frames_per_token;
+        let mut frames = Vec::with_capacity(fpt);
+        for j in 0..fpt {
+            let mut poses = [0f32; POSE_DIM];
+            let mut trans = [0f32; TRANS_DIM];
+            let mut expressions = [0f32; EXPR_DIM];
+            let mut contact = [0f32; CONTACT_DIM];
+            for (l, f) in self.regions.iter().zip(feats) {
+                let v = f.as_f32("decoder output")?;
+                let base = (i * fpt + j) * l.dim;
+                let row = &v[base..base + l.dim];
+                for &(joint, off) in &l.rot6d {
+                    let d6 = [row[off], row[off + 1], row[off + 2], row[off + 3], row[off + 4], row[off + 5]];
+                    poses[3 * joint..3 * joint + 3].copy_from_slice(&rot6d_to_axis_angle(d6));
+                }
+                if let Some(o) = l.trans {
+                    trans.copy_from_slice(&row[o..o + TRANS_DIM]);
+                }
+                if let Some(o) = l.expressions {
+                    expressions.copy_from_slice(&row[o..o + EXPR_DIM]);
+                }
+                if let Some(o) = l.contact {
+                    contact.copy_from_slice(&row[o..o + CONTACT_DIM]);
+                }
+            }
+            frames.push(Frame::new(fpt as u64 * t + j as u64, poses, trans, expressions, contact));
+        }
+        Ok(frames)
+    }
+}
