@@ -1,1 +1,22 @@
-fn main() {}
+//! `livegesture`: streaming speech-to-gesture generation from an exported LiveGesture bundle.
+//!
+//! Subcommands live in `src/cli/` (one file each). Exit codes: 0 success, 1 runtime error,
+//! 2 usage error or bad input (unreadable audio, invalid bundle, bad arguments). Errors go to stderr,
+//! data to stdout (or to the file named with `-o`).
+
+mod cli;
+
+use std::process::ExitCode;
+
+use clap::Parser;
+
+fn main() -> ExitCode {
+    let args = cli::Cli::parse();
+    match cli::run(args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("livegesture: error: {e:#}");
+            ExitCode::from(cli::exit_code(&e))
+        }
+    }
+}

@@ -1,0 +1,128 @@
+//! Options shared by the subcommands, and error classification for exit codes.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::ValueEnum;
+
+use livegesture::audio::AudioError;
+use livegesture::backend::{self, BackendKind, BackendOptions};
+use livegesture::bundle::{default_bundle_dir, Bundle, BundleError};
+use livegesture::pipeline::{Pipeline, StreamOptions};
+
+/// An error caused by the user's input or arguments (exit code 2).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct InputError(pub String);
+
+/// Exit code for an error: 2 for bad input (audio, bundle, arguments), 1 otherwise.
+pub fn exit_code(e: &anyhow::Error) -> u8 {
+    let input = e
+        .chain()
+        .any(|c| c.is::<InputError>() || c.is::<AudioError>() || c.is::<BundleError>());
+    if input {
+        2
+    } else {
+        1
+    }
+}
+
+/// Which inference backend runs the graphs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum BackendArg {
+    /// tract: pure Rust, CPU (default).
+    Tract,
+    /// ONNX Runtime, loaded from ORT_DYLIB_PATH or an installed onnxruntime Python package.
+    Ort,
+}
+
+/// Bundle and backend selection.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ModelArgs {
+    /// Model bundle folder (default: $LIVEGESTURE_BUNDLE, else the repository's models/default).
+    #[arg(long, value_name = "DIR")]
+    pub bundle: Option<PathBuf>,
+    /// Inference backend.
+    #[arg(long, value_enum, default_value_t = BackendArg::Tract)]
+    pub backend: BackendArg,
+    /// Execution provider for --backend ort (cpu, cuda, openvino, xnnpack, ...).
+    #[arg(long, value_name = "EP", default_value = "cpu")]
+    pub ep: String,
+    /// Intra-op threads for --backend ort.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub threads: usize,
+    /// ONNX Runtime shared library for --backend ort (default: $ORT_DYLIB_PATH, else searched).
+    #[arg(long, value_name = "PATH")]
+    pub ort_lib: Option<PathBuf>,
+}
+
+/// Generation settings.
+#[derive(Debug, Clone, clap::Args)]
+pub struct GenArgs {
+    /// Seed of the sampler (one seed gives one motion on every backend).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Classifier-free guidance scale gamma (default: the bundle's; 1.0 disables guidance).
+    #[arg(long, value_name = "G")]
+    pub guidance: Option<f64>,
+    /// Sampling temperature, > 0 (default: the bundle's).
+    #[arg(long, value_name = "T")]
+    pub temperature: Option<f64>,
+    /// Keep the K most likely tokens, 0 = all (default: the bundle's).
+    #[arg(long, value_name = "K")]
+    pub top_k: Option<usize>,
+}
+
+impl GenArgs {
+    /// Stream options, with range checks reported as input errors.
+    pub fn stream_options(&self) -> Result<StreamOptions> {
+        if let Some(g) = self.guidance {
+            if !g.is_finite() {
+                return Err(InputError(format!("--guidance must be a finite number, got {g}")).into());
+            }
+        }
+        if let Some(t) = self.temperature {
+            if !(t.is_finite() && t > 0.0) {
+                return Err(InputError(format!("--temperature must be > 0, got {t}")).into());
+            }
+        }
+        Ok(StreamOptions {
+            seed: self.seed,
+            guidance: self.guidance,
+            temperature: self.temperature,
+            top_k: self.top_k,
+            record_logits: false,
+        })
+    }
+}
+
+impl ModelArgs {
+    /// Loads and verifies the bundle.
+    pub fn bundle(&self) -> Result<Bundle> {
+        let dir = default_bundle_dir(self.bundle.as_deref());
+        Ok(Bundle::load(&dir)?)
+    }
+
+    /// Creates the backend and loads the pipeline.
+    pub fn pipeline(&self, bundle: &Bundle) -> Result<Pipeline> {
+        let opts = BackendOptions {
+            kind: match self.backend {
+                BackendArg::Tract => BackendKind::Tract,
+                BackendArg::Ort => BackendKind::Ort,
+            },
+            execution_provider: self.ep.clone(),
+            intra_threads: self.threads.max(1),
+            ort_library: self.ort_lib.clone(),
+        };
+        if opts.kind == BackendKind::Tract && !opts.execution_provider.eq_ignore_ascii_case("cpu") {
+            return Err(InputError(format!(
+                "--ep {} needs --backend ort (tract runs on the CPU only)",
+                opts.execution_provider
+            ))
+            .into());
+        }
+        let be = backend::create(&opts)?;
+        Pipeline::new(bundle, be.as_ref())
+            .with_context(|| format!("loading the bundle {} with {}", bundle.dir().display(), be.describe()))
+    }
+}

@@ -1,0 +1,95 @@
+//! `livegesture generate IN.wav -o OUT.npz`: a whole file, streamed through the pipeline.
+//!
+//! The WAV is read block by block (memory for audio does not grow with its length); frames are
+//! collected and the BEAT2 `.npz` is written atomically at the end, so no partial file is left on any
+//! error. A progress bar is drawn on stderr when it is a terminal.
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use livegesture::audio::WavStream;
+use livegesture::output::{FrameSink, NpzFrameWriter};
+
+use super::common::{GenArgs, InputError, ModelArgs};
+
+#[derive(Debug, clap::Args)]
+#[command(after_help = "Example:\n  livegesture generate speech.wav -o motion.npz --seed 1 --guidance 1.25")]
+pub struct Args {
+    /// Input WAV file (any sample rate and channel count; 8/16/24/32-bit PCM or 32-bit float).
+    #[arg(value_name = "IN.wav")]
+    pub input: PathBuf,
+    /// Output BEAT2 .npz (poses, trans, expressions, betas, model, gender, mocap_frame_rate).
+    #[arg(short, long, value_name = "OUT.npz")]
+    pub output: PathBuf,
+    #[command(flatten)]
+    pub model: ModelArgs,
+    #[command(flatten)]
+    pub gen: GenArgs,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let opts = a.gen.stream_options()?;
+    if let Some(parent) = a.output.parent().filter(|p| !p.as_os_str().is_empty()) {
+        if !parent.is_dir() {
+            return Err(InputError(format!(
+                "{}: the output folder {} does not exist",
+                a.output.display(),
+                parent.display()
+            ))
+            .into());
+        }
+    }
+    if a.output.is_dir() {
+        return Err(InputError(format!("{}: is a folder; expected an output file path", a.output.display())).into());
+    }
+    let mut wav = WavStream::open(&a.input)?;
+    let bundle = a.model.bundle()?;
+    let mut pipeline = a.model.pipeline(&bundle)?;
+    let mut stream = pipeline.new_stream(&opts)?;
+    let total = wav.output_len();
+    let bar = if std::io::stderr().is_terminal() {
+        let b = ProgressBar::new(total);
+        b.set_style(
+            ProgressStyle::with_template("{spinner} [{elapsed_precise}] {wide_bar} {percent:>3}% {msg} (eta {eta})")
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        b
+    } else {
+        ProgressBar::hidden()
+    };
+    let mut writer = NpzFrameWriter::new(&a.output);
+    let input = a.input.display().to_string();
+    while let Some(chunk) = wav.next_chunk()? {
+        let frames = pipeline
+            .push(&mut stream, &chunk)
+            .with_context(|| format!("{input}: generating motion at {:.2} s", stream.samples_received() as f64 / 16000.0))?;
+        for f in &frames {
+            writer.write_frame(f)?;
+        }
+        bar.inc(chunk.len() as u64);
+        bar.set_message(format!("{} frames", writer.frames()));
+    }
+    bar.finish_and_clear();
+    if writer.frames() == 0 {
+        let need = pipeline.frontend().token_end(0);
+        return Err(InputError(format!(
+            "{input}: the audio is too short ({} samples at 16 kHz); at least {need} samples ({:.3} s) make one motion token",
+            stream.samples_received(),
+            need as f64 / 16000.0
+        ))
+        .into());
+    }
+    writer.finish()?;
+    eprintln!(
+        "livegesture: wrote {} frames ({:.2} s at 30 fps, {} tokens, {} backend) to {}",
+        writer.frames(),
+        writer.frames() as f64 / 30.0,
+        stream.tokens_done(),
+        pipeline.backend_name(),
+        a.output.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,180 @@
+//! `livegesture info`: what a bundle is.
+
+use anyhow::Result;
+use serde_json::Value;
+
+use livegesture::bundle::Bundle;
+use livegesture::pipeline::state_bytes;
+
+use super::common::ModelArgs;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    pub model: ModelArgs,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn fmt_count(n: u64) -> String {
+    let s = n.to_string();
+    let mut out = String::new();
+    for (i, c) in s.chars().enumerate() {
+        if i > 0 && (s.len() - i) % 3 == 0 {
+            out.push(',');
+        }
+        out.push(c);
+    }
+    out
+}
+
+fn fmt_bytes(n: usize) -> String {
+    if n >= 1 << 20 {
+        format!("{:.2} MiB", n as f64 / (1u64 << 20) as f64)
+    } else if n >= 1 << 10 {
+        format!("{:.1} KiB", n as f64 / 1024.0)
+    } else {
+        format!("{n} B")
+    }
+}
+
+fn print_value(indent: usize, key: &str, v: &Value) {
+    let pad = " ".repeat(indent);
+    match v {
+        Value::Object(m) => {
+            println!("{pad}{key}:");
+            for (k, v) in m {
+                print_value(indent + 2, k, v);
+            }
+        }
+        Value::String(s) => println!("{pad}{key}: {s}"),
+        other => println!("{pad}{key}: {other}"),
+    }
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let b: Bundle = a.model.bundle()?;
+    let m = b.manifest();
+    let total_params: u64 = m.model.parameters.values().sum();
+    let guided = m.sampling.guidance != 1.0;
+    if a.json {
+        let graphs: Vec<Value> = m
+            .graphs
+            .iter()
+            .map(|g| {
+                serde_json::json!({
+                    "name": g.name, "file": g.file, "parameters": m.model.parameters.get(&g.name),
+                    "caches": g.caches.len(), "cache_bytes_per_row": g.cache_row_bytes(),
+                })
+            })
+            .collect();
+        let v = serde_json::json!({
+            "bundle": b.dir(), "config": m.model.config_name, "parameters": total_params,
+            "regions": b.region_names(), "graphs": graphs,
+            "state_bytes_per_stream": {"guided": state_bytes(&b, true), "unguided": state_bytes(&b, false)},
+            "sampling": m.sampling, "vocab": m.vocab, "frontend": m.frontend,
+            "provenance": m.provenance, "checks": m.checks,
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
+        return Ok(());
+    }
+    println!("bundle        {} (verified: {} files match their sha256)", b.dir().display(), m.files.len());
+    println!(
+        "model         {} (config '{}'), {} parameters",
+        m.model.name.as_deref().unwrap_or("LiveGesture"),
+        m.model.config_name.as_deref().unwrap_or("?"),
+        fmt_count(total_params)
+    );
+    if let Some(t) = m.provenance.get("training") {
+        match t {
+            Value::String(s) => println!("training      {s}"),
+            other => print_value(0, "training     ", other),
+        }
+    }
+    let f = &m.frontend;
+    println!(
+        "audio         {} Hz mono, log-mel {} bands ({} per token), window {} / FFT {}",
+        f.sample_rate, f.n_mels, f.mel_frames_per_token, f.win_length, f.n_fft
+    );
+    println!(
+        "motion        SMPL-X at {} fps, {} frames per token ({:.1} tokens/s, {:.1} ms per token)",
+        f.fps,
+        f.frames_per_token,
+        f.fps as f64 / f.frames_per_token as f64,
+        1000.0 * f.frames_per_token as f64 / f.fps as f64
+    );
+    let regions: Vec<String> = m
+        .regions
+        .iter()
+        .map(|r| format!("{} ({} dims, {} joints)", r.name, r.dim, r.joints.len()))
+        .collect();
+    println!("regions       {}", regions.join(", "));
+    println!("vocabulary    codebook {} per region, BOS token {}", m.vocab.codebook_size, m.vocab.bos_token);
+    println!(
+        "sampling      guidance {}{}, temperature {}, top-k {}, PRNG {}",
+        m.sampling.guidance,
+        if guided { "" } else { " (off)" },
+        m.sampling.temperature,
+        if m.sampling.top_k == 0 { "all".to_string() } else { m.sampling.top_k.to_string() },
+        m.sampling.prng.as_deref().unwrap_or("splitmix64")
+    );
+    println!("graphs");
+    println!(
+        "  {:<16} {:<22} {:>12} {:>7} {:>14} {:>5}",
+        "name", "file", "parameters", "caches", "cache/row", "rows"
+    );
+    for g in &m.graphs {
+        let rows = if g.name.starts_with("expert_") || g.name == "fusion" {
+            if guided {
+                2
+            } else {
+                1
+            }
+        } else {
+            1
+        };
+        println!(
+            "  {:<16} {:<22} {:>12} {:>7} {:>14} {:>5}",
+            g.name,
+            g.file,
+            m.model.parameters.get(&g.name).map(|&p| fmt_count(p)).unwrap_or_default(),
+            g.caches.len(),
+            fmt_bytes(g.cache_row_bytes()),
+            rows
+        );
+    }
+    println!(
+        "state         {} per stream with guidance ({} without): caches, previous tokens, frontend buffer",
+        fmt_bytes(state_bytes(&b, true)),
+        fmt_bytes(state_bytes(&b, false))
+    );
+    if let Some(r) = b.reference() {
+        println!(
+            "reference     rollout of {} tokens, seed {}, audio: {}",
+            r.rollout_tokens.map(|t| t.to_string()).unwrap_or_else(|| "?".into()),
+            r.rollout_seed.map(|t| t.to_string()).unwrap_or_else(|| "?".into()),
+            r.rollout_audio.as_deref().or(r.clip_source.as_deref()).unwrap_or("?")
+        );
+    }
+    if let Value::Object(checks) = &m.checks {
+        let worst = |key: &str| {
+            checks
+                .values()
+                .filter_map(|c| c.get(key).and_then(Value::as_f64))
+                .fold(None, |acc: Option<f64>, x| Some(acc.map_or(x, |a| a.max(x))))
+        };
+        if let (Some(a), Some(o)) = (worst("torch_step_vs_offline_max_abs"), worst("ort_vs_torch_max_abs")) {
+            println!("export checks torch step vs offline max abs {a:.2e}; onnxruntime vs torch max abs {o:.2e}");
+        }
+    }
+    if let Value::Object(p) = &m.provenance {
+        println!("provenance");
+        for (k, v) in p {
+            if k != "training" {
+                print_value(2, k, v);
+            }
+        }
+    }
+    Ok(())
+}

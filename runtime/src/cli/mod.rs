@@ -1,0 +1,44 @@
+//! Command-line interface: argument definitions and dispatch.
+//!
+//! Adding a subcommand: write `src/cli/<name>.rs` with an `Args` struct (clap `Args` derive) and a
+//! `run(args: Args) -> anyhow::Result<()>`, then add its line to [`Command`] and [`run`].
+
+use clap::{Parser, Subcommand};
+
+pub mod common;
+pub mod generate;
+pub mod info;
+pub mod stream;
+
+pub use common::exit_code;
+
+/// Streaming speech-driven full-body gesture generation (LiveGesture ONNX bundles, tract or ONNX Runtime).
+///
+/// Audio goes in (a WAV file or raw PCM on stdin); SMPL-X motion at 30 fps comes out, four frames per
+/// 133.3 ms motion token, with zero look-ahead. Without --bundle the bundle is $LIVEGESTURE_BUNDLE,
+/// else the repository's models/default.
+#[derive(Debug, Parser)]
+#[command(name = "livegesture", version, about, long_about, propagate_version = true)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Generate motion for a WAV file and write a BEAT2 .npz.
+    Generate(generate::Args),
+    /// Generate motion live from raw PCM on stdin; frames on stdout as JSON lines or binary records.
+    Stream(stream::Args),
+    /// Describe a bundle: model, regions, graphs, state size, sampling defaults, provenance.
+    Info(info::Args),
+}
+
+/// Runs the parsed command.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Generate(a) => generate::run(a),
+        Command::Stream(a) => stream::run(a),
+        Command::Info(a) => info::run(a),
+    }
+}
