@@ -90,7 +90,9 @@ def export_graph(model, graph: str, path: Path):
 
 @torch.no_grad()
 def graph_reference(model, graph: str, seed: int) -> dict[str, np.ndarray]:
-    """Torch inputs, caches and outputs over REFERENCE_STEPS chained steps (batch REFERENCE_BATCH)."""
+    """Torch inputs and outputs over REFERENCE_STEPS chained steps (batch REFERENCE_BATCH), starting from the
+    zero caches, and the caches after the last step: ``step{s}.input.<name>``, ``step{s}.output.<name>``,
+    ``step{S-1}.new_cache.<name>``."""
     g = torch.Generator().manual_seed(seed)
     comp = model.components()[graph]
     cache = comp.init_cache(REFERENCE_BATCH)
@@ -102,12 +104,11 @@ def graph_reference(model, graph: str, seed: int) -> dict[str, np.ndarray]:
         o, new = call_step(model, graph, inp, cache)
         for k, v in inp.items():
             out[f"step{s}.input.{k}"] = v.numpy()
-        for k, v in cache.items():
-            out[f"step{s}.cache.{k}"] = v.numpy()
         for k, v in o.items():
             out[f"step{s}.output.{k}"] = v.numpy()
-        for k, v in new.items():
-            out[f"step{s}.new_cache.{k}"] = v.numpy()
+        if s == REFERENCE_STEPS - 1:   # the chained state after the last step (earlier ones are implied)
+            for k, v in new.items():
+                out[f"step{s}.new_cache.{k}"] = v.numpy()
         cache = new
     return out
 
@@ -178,7 +179,7 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
         check_onnx_structure(str(path), graph, OPSET)
         e_ort = check_ort_vs_torch(model, graph, str(path))
         ref = tmp / "reference" / f"{graph}.npz"
-        np.savez(ref, **graph_reference(model, graph, seed=len(graphs)))
+        np.savez_compressed(ref, **graph_reference(model, graph, seed=len(graphs)))
         ins, outs = data_io(model, graph)
         graphs.append({"name": graph, "file": path.name, "component": type(comp).__name__,
                        "region": graph.split("_", 1)[1] if "_" in graph and graph != "audio_encoder" else None,

@@ -80,6 +80,10 @@ def test_reference_vectors_replay_on_onnxruntime(bundle):
                 err = np.abs(res[o["name"]] - ref[f"step{s}.output.{o['name']}"]).max()
                 assert err <= 1e-5, f"{g['name']}.{o['name']} step {s}: {err}"
             cache = {c["input"]: res[c["output"]] for c in g["caches"]}
+        last = int(ref["n_steps"]) - 1
+        for c in g["caches"]:
+            err = np.abs(cache[c["input"]].astype(np.float64) - ref[f"step{last}.new_cache.{c['name']}"]).max()
+            assert err <= 1e-5, f"{g['name']}.{c['output']} after step {last}: {err}"
 
 
 def test_rollout_reference_is_reproducible(bundle):
