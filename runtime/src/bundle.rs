@@ -41,7 +41,10 @@ pub const BUNDLE_ENV: &str = "LIVEGESTURE_BUNDLE";
 /// The repository's default bundle, `<repo>/models/default` (resolved from this crate's source
 /// location at build time).
 pub fn repo_default_bundle() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("models").join("default")
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .join("models")
+        .join("default")
 }
 
 /// The bundle to use: `explicit` if given, else `$LIVEGESTURE_BUNDLE`, else [`repo_default_bundle`].
@@ -458,7 +461,11 @@ impl Bundle {
 
     /// Region names in order.
     pub fn region_names(&self) -> Vec<&str> {
-        self.manifest.regions.iter().map(|r| r.name.as_str()).collect()
+        self.manifest
+            .regions
+            .iter()
+            .map(|r| r.name.as_str())
+            .collect()
     }
 
     /// The vocabulary (BOS token, codebook size).
@@ -523,12 +530,17 @@ impl Bundle {
     /// Checks size and sha256 of every listed file, that graph files are listed, and the ONNX I/O.
     fn verify_files(&self) -> Result<(), BundleError> {
         let mut graph_bytes: BTreeMap<&str, Vec<u8>> = BTreeMap::new();
-        let graph_files: Vec<&str> = self.manifest.graphs.iter().map(|g| g.file.as_str()).collect();
+        let graph_files: Vec<&str> = self
+            .manifest
+            .graphs
+            .iter()
+            .map(|g| g.file.as_str())
+            .collect();
         for (rel, entry) in &self.manifest.files {
             if rel.starts_with('/') || rel.split('/').any(|c| c == "..") {
-                return Err(self.manifest_err(format!(
-                    "file entry '{rel}' points outside the bundle"
-                )));
+                return Err(
+                    self.manifest_err(format!("file entry '{rel}' points outside the bundle"))
+                );
             }
             let path = self.dir.join(rel);
             let bytes = match std::fs::read(&path) {
@@ -618,7 +630,10 @@ impl Bundle {
         if m.vocab.bos_token < 0 {
             return Err(self.manifest_err("vocab.bos_token is negative"));
         }
-        if !(m.sampling.temperature > 0.0) || !m.sampling.guidance.is_finite() {
+        if m.sampling.temperature.is_nan()
+            || m.sampling.temperature <= 0.0
+            || !m.sampling.guidance.is_finite()
+        {
             return Err(self.manifest_err(format!(
                 "sampling defaults out of range (guidance {}, temperature {})",
                 m.sampling.guidance, m.sampling.temperature
@@ -634,9 +649,7 @@ impl Bundle {
                 }
             }
             for (name, _, shape) in g.all_inputs().into_iter().chain(g.all_outputs()) {
-                if shape.first() != Some(&Dim::Batch)
-                    || shape[1..].iter().any(|d| *d == Dim::Batch)
-                {
+                if shape.first() != Some(&Dim::Batch) || shape[1..].contains(&Dim::Batch) {
                     return Err(self.manifest_err(format!(
                         "graph '{}': tensor '{name}' has shape {}; expected the batch axis first and only there",
                         g.name,
@@ -736,7 +749,9 @@ fn check_graph_io(g: &GraphSpec, path: &Path, bytes: &[u8]) -> Result<(), Bundle
             let Some(pb::type_proto::Value::TensorType(t)) =
                 v.r#type.as_ref().and_then(|t| t.value.as_ref())
             else {
-                return Err(mismatch(format!("'{name}' is not a tensor in the ONNX file")));
+                return Err(mismatch(format!(
+                    "'{name}' is not a tensor in the ONNX file"
+                )));
             };
             if onnx_dtype(t.elem_type) != Some(*dtype) {
                 return Err(mismatch(format!(
@@ -798,6 +813,9 @@ mod tests {
         let e = parse_manifest(r#"{"schema_version": 2}"#, Path::new("/b/manifest.json"))
             .unwrap_err()
             .to_string();
-        assert!(e.contains("schema_version 2") && e.contains("manifest.json"), "{e}");
+        assert!(
+            e.contains("schema_version 2") && e.contains("manifest.json"),
+            "{e}"
+        );
     }
 }

@@ -113,7 +113,9 @@ impl Stage {
         let spec = bundle.graph(name)?.clone();
         let runner = backend
             .load(&spec, &bundle.graph_path(&spec))
-            .with_context(|| format!("loading graph '{name}' with the {} backend", backend.name()))?;
+            .with_context(|| {
+                format!("loading graph '{name}' with the {} backend", backend.name())
+            })?;
         let mut roles = Vec::new();
         for i in &spec.inputs {
             let role = match i.name.as_str() {
@@ -122,14 +124,21 @@ impl Stage {
                 "token" => Role::Token,
                 "audio" => Role::Audio,
                 "cond" => Role::Cond,
-                n => match n.strip_prefix("hidden_").and_then(|r| regions.iter().position(|x| x == r)) {
+                n => match n
+                    .strip_prefix("hidden_")
+                    .and_then(|r| regions.iter().position(|x| x == r))
+                {
                     Some(k) => Role::Hidden(k),
                     None => bail!("graph '{name}': unknown data input '{n}'"),
                 },
             };
             roles.push(role);
         }
-        Ok(Stage { spec, runner, roles })
+        Ok(Stage {
+            spec,
+            runner,
+            roles,
+        })
     }
 
     /// Runs with data inputs built by `data(role)` and the stacked `caches`; returns (data outputs, new caches).
@@ -158,7 +167,10 @@ fn stack_caches(mut per_stream: Vec<Vec<Tensor>>) -> Result<Vec<Tensor>> {
     let n = per_stream.first().map(Vec::len).unwrap_or(0);
     (0..n)
         .map(|c| {
-            let parts: Vec<Tensor> = per_stream.iter_mut().map(|s| std::mem::take(&mut s[c])).collect();
+            let parts: Vec<Tensor> = per_stream
+                .iter_mut()
+                .map(|s| std::mem::take(&mut s[c]))
+                .collect();
             Tensor::concat(&parts)
         })
         .collect()
@@ -169,7 +181,10 @@ fn split_caches(stacked: Vec<Tensor>, rows: &[usize]) -> Result<Vec<Vec<Tensor>>
     if rows.len() == 1 {
         return Ok(vec![stacked]);
     }
-    let mut out: Vec<Vec<Tensor>> = rows.iter().map(|_| Vec::with_capacity(stacked.len())).collect();
+    let mut out: Vec<Vec<Tensor>> = rows
+        .iter()
+        .map(|_| Vec::with_capacity(stacked.len()))
+        .collect();
     for t in stacked {
         for (i, part) in t.split(rows)?.into_iter().enumerate() {
             out[i].push(part);
@@ -287,7 +302,10 @@ impl std::fmt::Debug for Pipeline {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Pipeline")
             .field("backend", &self.backend)
-            .field("regions", &self.regions.iter().map(|r| &r.name).collect::<Vec<_>>())
+            .field(
+                "regions",
+                &self.regions.iter().map(|r| &r.name).collect::<Vec<_>>(),
+            )
             .finish_non_exhaustive()
     }
 }
@@ -315,20 +333,39 @@ fn resolve_layout(bundle: &Bundle) -> Result<Vec<RegionLayout>> {
                         joints.len()
                     );
                     for (k, j) in joints.into_iter().enumerate() {
-                        ensure!(j * 3 + 3 <= POSE_DIM, "region '{}': joint {j} out of range", r.name);
+                        ensure!(
+                            j * 3 + 3 <= POSE_DIM,
+                            "region '{}': joint {j} out of range",
+                            r.name
+                        );
                         l.rot6d.push((j, p.offset + 6 * k));
                     }
                 }
                 "trans" => {
-                    ensure!(p.dim == TRANS_DIM, "region '{}': trans has {} dims", r.name, p.dim);
+                    ensure!(
+                        p.dim == TRANS_DIM,
+                        "region '{}': trans has {} dims",
+                        r.name,
+                        p.dim
+                    );
                     l.trans = Some(p.offset);
                 }
                 "foot_contact" | "contact" => {
-                    ensure!(p.dim == CONTACT_DIM, "region '{}': foot contact has {} dims", r.name, p.dim);
+                    ensure!(
+                        p.dim == CONTACT_DIM,
+                        "region '{}': foot contact has {} dims",
+                        r.name,
+                        p.dim
+                    );
                     l.contact = Some(p.offset);
                 }
                 "expressions" => {
-                    ensure!(p.dim == EXPR_DIM, "region '{}': expressions have {} dims", r.name, p.dim);
+                    ensure!(
+                        p.dim == EXPR_DIM,
+                        "region '{}': expressions have {} dims",
+                        r.name,
+                        p.dim
+                    );
                     l.expressions = Some(p.offset);
                 }
                 other => bail!("region '{}': unknown feature part '{other}'", r.name),
@@ -347,7 +384,11 @@ pub fn state_bytes(bundle: &Bundle, guided: bool) -> usize {
         .graphs()
         .iter()
         .map(|g| {
-            let r = if g.name.starts_with("expert_") || g.name == "fusion" { rows } else { 1 };
+            let r = if g.name.starts_with("expert_") || g.name == "fusion" {
+                rows
+            } else {
+                1
+            };
             g.cache_row_bytes() * r
         })
         .sum();
@@ -359,7 +400,11 @@ pub fn state_bytes(bundle: &Bundle, guided: bool) -> usize {
 impl Pipeline {
     /// Loads every graph of `bundle` with `backend`.
     pub fn new(bundle: &Bundle, backend: &dyn Backend) -> Result<Self> {
-        let names: Vec<String> = bundle.region_names().iter().map(|s| s.to_string()).collect();
+        let names: Vec<String> = bundle
+            .region_names()
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
         let regions = resolve_layout(bundle)?;
         let audio_encoder = Stage::new(bundle, backend, "audio_encoder", &names)?;
         let fusion = Stage::new(bundle, backend, "fusion", &names)?;
@@ -428,7 +473,10 @@ impl Pipeline {
         let gamma = opts.guidance.unwrap_or(self.defaults.0);
         let temperature = opts.temperature.unwrap_or(self.defaults.1);
         let top_k = opts.top_k.unwrap_or(self.defaults.2);
-        ensure!(gamma.is_finite(), "guidance must be a finite number, got {gamma}");
+        ensure!(
+            gamma.is_finite(),
+            "guidance must be a finite number, got {gamma}"
+        );
         ensure!(
             temperature.is_finite() && temperature > 0.0,
             "temperature must be > 0, got {temperature}"
@@ -451,9 +499,17 @@ impl Pipeline {
         let rows = if guided { 2 } else { 1 };
         Caches {
             audio_encoder: zeros_for(&self.audio_encoder.spec.caches, 1),
-            experts: self.experts.iter().map(|e| zeros_for(&e.spec.caches, rows)).collect(),
+            experts: self
+                .experts
+                .iter()
+                .map(|e| zeros_for(&e.spec.caches, rows))
+                .collect(),
             fusion: zeros_for(&self.fusion.spec.caches, rows),
-            decoders: self.decoders.iter().map(|d| zeros_for(&d.spec.caches, 1)).collect(),
+            decoders: self
+                .decoders
+                .iter()
+                .map(|d| zeros_for(&d.spec.caches, 1))
+                .collect(),
         }
     }
 
@@ -474,7 +530,10 @@ impl Pipeline {
 
     /// Like [`Pipeline::push`], returning each token step (tokens, optional logits, frames).
     pub fn push_steps(&mut self, stream: &mut Stream, chunk: &[f32]) -> Result<Vec<TokenStep>> {
-        ensure!(!stream.poisoned, "the stream failed earlier; reset it before pushing more audio");
+        ensure!(
+            !stream.poisoned,
+            "the stream failed earlier; reset it before pushing more audio"
+        );
         let mels = stream.frontend.push(chunk)?;
         let mut out = Vec::with_capacity(mels.len());
         for mel in &mels {
@@ -491,7 +550,11 @@ impl Pipeline {
 
     /// One token step of several streams at once (`mels[i]` for `streams[i]`): every graph runs once
     /// with the streams' caches stacked on the batch axis. Streams may differ in guidance.
-    pub fn step_batch(&mut self, streams: &mut [&mut Stream], mels: &[Array2<f32>]) -> Result<Vec<TokenStep>> {
+    pub fn step_batch(
+        &mut self,
+        streams: &mut [&mut Stream],
+        mels: &[Array2<f32>],
+    ) -> Result<Vec<TokenStep>> {
         ensure!(
             streams.len() == mels.len(),
             "step_batch: {} streams but {} mel blocks",
@@ -502,7 +565,10 @@ impl Pipeline {
             return Ok(Vec::new());
         }
         for s in streams.iter() {
-            ensure!(!s.poisoned, "the stream failed earlier; reset it before stepping it again");
+            ensure!(
+                !s.poisoned,
+                "the stream failed earlier; reset it before stepping it again"
+            );
         }
         for s in streams.iter_mut() {
             s.poisoned = true;
@@ -514,7 +580,11 @@ impl Pipeline {
         Ok(out)
     }
 
-    fn step_batch_inner(&mut self, streams: &mut [&mut Stream], mels: &[Array2<f32>]) -> Result<Vec<TokenStep>> {
+    fn step_batch_inner(
+        &mut self,
+        streams: &mut [&mut Stream],
+        mels: &[Array2<f32>],
+    ) -> Result<Vec<TokenStep>> {
         let n = streams.len();
         let n_regions = self.regions.len();
         let k = self.codebook_size;
@@ -532,7 +602,12 @@ impl Pipeline {
             mel_data.extend(m.iter().copied());
         }
         let mel_t = Tensor::f32(vec![n, mpt, n_mels], mel_data)?;
-        let caches = stack_caches(streams.iter_mut().map(|s| std::mem::take(&mut s.caches.audio_encoder)).collect())?;
+        let caches = stack_caches(
+            streams
+                .iter_mut()
+                .map(|s| std::mem::take(&mut s.caches.audio_encoder))
+                .collect(),
+        )?;
         let mut mel_opt = Some(mel_t);
         let (out, new) = self.audio_encoder.run(
             |r| match r {
@@ -544,7 +619,10 @@ impl Pipeline {
         for (s, c) in streams.iter_mut().zip(split_caches(new, &vec![1; n])?) {
             s.caches.audio_encoder = c;
         }
-        let audio = out.into_iter().next().context("audio_encoder returned no output")?;
+        let audio = out
+            .into_iter()
+            .next()
+            .context("audio_encoder returned no output")?;
         let da = audio.row_len();
         let audio_v = audio.as_f32("audio_encoder output")?;
 
@@ -568,7 +646,12 @@ impl Pipeline {
                 prev.extend(std::iter::repeat_n(s.prev[ri], r));
             }
             let prev_t = Tensor::i64(vec![total], prev)?;
-            let caches = stack_caches(streams.iter_mut().map(|s| std::mem::take(&mut s.caches.experts[ri])).collect())?;
+            let caches = stack_caches(
+                streams
+                    .iter_mut()
+                    .map(|s| std::mem::take(&mut s.caches.experts[ri]))
+                    .collect(),
+            )?;
             let (out, new) = stage.run(
                 |role| match role {
                     Role::PrevToken => Ok(prev_t.clone()),
@@ -581,14 +664,26 @@ impl Pipeline {
             for (s, c) in streams.iter_mut().zip(split_caches(new, &rows)?) {
                 s.caches.experts[ri] = c;
             }
-            hidden.push(out.into_iter().next().context("expert returned no output")?);
+            hidden.push(
+                out.into_iter()
+                    .next()
+                    .context("expert returned no output")?,
+            );
         }
 
         // 4. fusion
-        let caches = stack_caches(streams.iter_mut().map(|s| std::mem::take(&mut s.caches.fusion)).collect())?;
+        let caches = stack_caches(
+            streams
+                .iter_mut()
+                .map(|s| std::mem::take(&mut s.caches.fusion))
+                .collect(),
+        )?;
         let (out, new) = self.fusion.run(
             |role| match role {
-                Role::Hidden(i) => hidden.get(i).cloned().context("fusion: missing hidden state"),
+                Role::Hidden(i) => hidden
+                    .get(i)
+                    .cloned()
+                    .context("fusion: missing hidden state"),
                 Role::Audio => Ok(audio_b.clone()),
                 Role::Cond => Ok(cond_b.clone()),
                 other => bail!("fusion: unexpected input {other:?}"),
@@ -598,7 +693,10 @@ impl Pipeline {
         for (s, c) in streams.iter_mut().zip(split_caches(new, &rows)?) {
             s.caches.fusion = c;
         }
-        let logits = out.into_iter().next().context("fusion returned no output")?;
+        let logits = out
+            .into_iter()
+            .next()
+            .context("fusion returned no output")?;
         ensure!(
             logits.shape == [total, n_regions, k],
             "fusion: logits have shape {:?}, expected [{total}, {n_regions}, {k}]",
@@ -613,13 +711,22 @@ impl Pipeline {
         let mut row = 0;
         for (s, &r) in streams.iter_mut().zip(&rows) {
             let c = &lv[row * row_len..(row + 1) * row_len];
-            let u = if r == 2 { Some(&lv[(row + 1) * row_len..(row + 2) * row_len]) } else { None };
+            let u = if r == 2 {
+                Some(&lv[(row + 1) * row_len..(row + 2) * row_len])
+            } else {
+                None
+            };
             let mut toks = Vec::with_capacity(n_regions);
             for ri in 0..n_regions {
                 let cr = &c[ri * k..(ri + 1) * k];
                 let ur = u.map(|u| &u[ri * k..(ri + 1) * k]);
                 let tok = sample_token(cr, ur, &mut s.rng, s.gamma, s.temperature, s.top_k)
-                    .with_context(|| format!("sampling region '{}' at token {}", self.regions[ri].name, s.t))?;
+                    .with_context(|| {
+                        format!(
+                            "sampling region '{}' at token {}",
+                            self.regions[ri].name, s.t
+                        )
+                    })?;
                 toks.push(tok as i64);
             }
             logits_all.push(s.opts.record_logits.then(|| StepLogits {
@@ -634,7 +741,12 @@ impl Pipeline {
         let mut feats: Vec<Tensor> = Vec::with_capacity(n_regions);
         for (ri, stage) in self.decoders.iter_mut().enumerate() {
             let tok_t = Tensor::i64(vec![n], tokens_all.iter().map(|t| t[ri]).collect())?;
-            let caches = stack_caches(streams.iter_mut().map(|s| std::mem::take(&mut s.caches.decoders[ri])).collect())?;
+            let caches = stack_caches(
+                streams
+                    .iter_mut()
+                    .map(|s| std::mem::take(&mut s.caches.decoders[ri]))
+                    .collect(),
+            )?;
             let (out, new) = stage.run(
                 |role| match role {
                     Role::Token => Ok(tok_t.clone()),
@@ -645,12 +757,21 @@ impl Pipeline {
             for (s, c) in streams.iter_mut().zip(split_caches(new, &vec![1; n])?) {
                 s.caches.decoders[ri] = c;
             }
-            feats.push(out.into_iter().next().context("decoder returned no output")?);
+            feats.push(
+                out.into_iter()
+                    .next()
+                    .context("decoder returned no output")?,
+            );
         }
 
         // 7. frames
         let mut results = Vec::with_capacity(n);
-        for (i, ((s, toks), lg)) in streams.iter_mut().zip(tokens_all).zip(logits_all).enumerate() {
+        for (i, ((s, toks), lg)) in streams
+            .iter_mut()
+            .zip(tokens_all)
+            .zip(logits_all)
+            .enumerate()
+        {
             let frames = self.assemble_frames(&feats, i, s.t)?;
             results.push(TokenStep {
                 token_index: s.t,
@@ -678,7 +799,14 @@ impl Pipeline {
                 let base = (i * fpt + j) * l.dim;
                 let row = &v[base..base + l.dim];
                 for &(joint, off) in &l.rot6d {
-                    let d6 = [row[off], row[off + 1], row[off + 2], row[off + 3], row[off + 4], row[off + 5]];
+                    let d6 = [
+                        row[off],
+                        row[off + 1],
+                        row[off + 2],
+                        row[off + 3],
+                        row[off + 4],
+                        row[off + 5],
+                    ];
                     poses[3 * joint..3 * joint + 3].copy_from_slice(&rot6d_to_axis_angle(d6));
                 }
                 if let Some(o) = l.trans {
@@ -691,7 +819,13 @@ impl Pipeline {
                     contact.copy_from_slice(&row[o..o + CONTACT_DIM]);
                 }
             }
-            frames.push(Frame::new(fpt as u64 * t + j as u64, poses, trans, expressions, contact));
+            frames.push(Frame::new(
+                fpt as u64 * t + j as u64,
+                poses,
+                trans,
+                expressions,
+                contact,
+            ));
         }
         Ok(frames)
     }

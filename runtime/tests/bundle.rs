@@ -7,14 +7,18 @@ use livegesture::bundle::{concrete_shape, Bundle, BundleError, Dim};
 
 fn load_err(dir: &std::path::Path) -> String {
     match Bundle::load(dir) {
-        Ok(_) => panic!("bundle {} loaded but should have been refused", dir.display()),
+        Ok(_) => panic!(
+            "bundle {} loaded but should have been refused",
+            dir.display()
+        ),
         Err(e) => e.to_string(),
     }
 }
 
 fn edit_manifest(dir: &std::path::Path, f: impl FnOnce(&mut serde_json::Value)) {
     let p = dir.join("manifest.json");
-    let mut v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
     f(&mut v);
     std::fs::write(&p, serde_json::to_string_pretty(&v).unwrap()).unwrap();
 }
@@ -49,7 +53,10 @@ fn one_changed_byte_in_a_graph_is_refused() {
     bytes[i] ^= 0x01;
     std::fs::write(&p, bytes).unwrap();
     let e = load_err(&dir);
-    assert!(e.contains("fusion.onnx") && e.contains("sha256") && e.contains("expects"), "{e}");
+    assert!(
+        e.contains("fusion.onnx") && e.contains("sha256") && e.contains("expects"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -58,7 +65,10 @@ fn a_missing_file_is_refused() {
     let dir = common::copy_bundle(tmp.path());
     std::fs::remove_file(dir.join("decoder_hands.onnx")).unwrap();
     let e = load_err(&dir);
-    assert!(e.contains("decoder_hands.onnx") && e.contains("missing"), "{e}");
+    assert!(
+        e.contains("decoder_hands.onnx") && e.contains("missing"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -76,7 +86,12 @@ fn schema_version_2_is_refused() {
     let dir = common::copy_bundle(tmp.path());
     edit_manifest(&dir, |v| v["schema_version"] = 2.into());
     let e = load_err(&dir);
-    assert!(e.contains("manifest.json") && e.contains("schema_version 2") && e.contains("reads schema_version 1"), "{e}");
+    assert!(
+        e.contains("manifest.json")
+            && e.contains("schema_version 2")
+            && e.contains("reads schema_version 1"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -84,7 +99,10 @@ fn no_manifest_is_refused() {
     let tmp = tempfile::tempdir().unwrap();
     let e = load_err(tmp.path());
     assert!(e.contains("manifest.json not found"), "{e}");
-    assert!(matches!(Bundle::load(tmp.path()), Err(BundleError::NoManifest { .. })));
+    assert!(matches!(
+        Bundle::load(tmp.path()),
+        Err(BundleError::NoManifest { .. })
+    ));
 }
 
 #[test]
@@ -93,31 +111,58 @@ fn graph_io_is_checked_against_the_onnx_file() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = common::copy_bundle(tmp.path());
     edit_manifest(&dir, |v| {
-        let g = v["graphs"].as_array_mut().unwrap().iter_mut().find(|g| g["name"] == "expert_face").unwrap();
+        let g = v["graphs"]
+            .as_array_mut()
+            .unwrap()
+            .iter_mut()
+            .find(|g| g["name"] == "expert_face")
+            .unwrap();
         g["inputs"][0]["name"] = "previous_token".into();
     });
     let e = load_err(&dir);
-    assert!(e.contains("expert_face.onnx") && e.contains("previous_token"), "{e}");
+    assert!(
+        e.contains("expert_face.onnx") && e.contains("previous_token"),
+        "{e}"
+    );
 
     // a wrong dtype
     let tmp = tempfile::tempdir().unwrap();
     let dir = common::copy_bundle(tmp.path());
     edit_manifest(&dir, |v| {
-        let g = v["graphs"].as_array_mut().unwrap().iter_mut().find(|g| g["name"] == "decoder_lower").unwrap();
+        let g = v["graphs"]
+            .as_array_mut()
+            .unwrap()
+            .iter_mut()
+            .find(|g| g["name"] == "decoder_lower")
+            .unwrap();
         g["inputs"][0]["dtype"] = "float32".into();
     });
     let e = load_err(&dir);
-    assert!(e.contains("decoder_lower.onnx") && e.contains("int64"), "{e}");
+    assert!(
+        e.contains("decoder_lower.onnx") && e.contains("int64"),
+        "{e}"
+    );
 
     // a wrong rank of a cache
     let tmp = tempfile::tempdir().unwrap();
     let dir = common::copy_bundle(tmp.path());
     edit_manifest(&dir, |v| {
-        let g = v["graphs"].as_array_mut().unwrap().iter_mut().find(|g| g["name"] == "audio_encoder").unwrap();
-        g["caches"][0]["shape"].as_array_mut().unwrap().push(1.into());
+        let g = v["graphs"]
+            .as_array_mut()
+            .unwrap()
+            .iter_mut()
+            .find(|g| g["name"] == "audio_encoder")
+            .unwrap();
+        g["caches"][0]["shape"]
+            .as_array_mut()
+            .unwrap()
+            .push(1.into());
     });
     let e = load_err(&dir);
-    assert!(e.contains("audio_encoder.onnx") && e.contains("rank"), "{e}");
+    assert!(
+        e.contains("audio_encoder.onnx") && e.contains("rank"),
+        "{e}"
+    );
 }
 
 #[test]

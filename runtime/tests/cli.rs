@@ -34,7 +34,12 @@ fn short_wav(dir: &Path, seconds: f64) -> (PathBuf, Vec<i16>) {
 }
 
 fn write_wav(p: &Path, samples: &[i16]) {
-    let spec = hound::WavSpec { channels: 1, sample_rate: 16000, bits_per_sample: 16, sample_format: hound::SampleFormat::Int };
+    let spec = hound::WavSpec {
+        channels: 1,
+        sample_rate: 16000,
+        bits_per_sample: 16,
+        sample_format: hound::SampleFormat::Int,
+    };
     let mut w = hound::WavWriter::create(p, spec).unwrap();
     for &s in samples {
         w.write_sample(s).unwrap();
@@ -67,7 +72,10 @@ fn bundle_arg() -> String {
 }
 
 fn frontend() -> FrontendConfig {
-    livegesture::bundle::Bundle::load(common::bundle_dir()).unwrap().frontend().clone()
+    livegesture::bundle::Bundle::load(common::bundle_dir())
+        .unwrap()
+        .frontend()
+        .clone()
 }
 
 /// Keys, dtypes and shapes of an uncompressed .npz (read from the npy headers).
@@ -84,8 +92,23 @@ fn npz_entries(p: &Path) -> Vec<(String, String, String)> {
         let mut h = vec![0u8; hl];
         f.read_exact(&mut h).unwrap();
         let h = String::from_utf8(h).unwrap();
-        let descr = h.split("'descr': '").nth(1).unwrap().split('\'').next().unwrap().to_string();
-        let shape = h.split("'shape': ").nth(1).unwrap().split(')').next().unwrap().to_string() + ")";
+        let descr = h
+            .split("'descr': '")
+            .nth(1)
+            .unwrap()
+            .split('\'')
+            .next()
+            .unwrap()
+            .to_string();
+        let shape = h
+            .split("'shape': ")
+            .nth(1)
+            .unwrap()
+            .split(')')
+            .next()
+            .unwrap()
+            .to_string()
+            + ")";
         out.push((name, descr, shape));
     }
     out.sort();
@@ -94,7 +117,14 @@ fn npz_entries(p: &Path) -> Vec<(String, String, String)> {
 
 fn generate(wav: &Path, out: &Path, extra: &[&str]) -> Output {
     let b = bundle_arg();
-    let mut args = vec!["generate", wav.to_str().unwrap(), "-o", out.to_str().unwrap(), "--bundle", &b];
+    let mut args = vec![
+        "generate",
+        wav.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--bundle",
+        &b,
+    ];
     args.extend_from_slice(extra);
     run(&args)
 }
@@ -131,7 +161,10 @@ fn generate_writes_a_beat2_npz_with_both_backends() {
     eprintln!("generate: tract vs ort poses max abs {e:.2e} over {n_frames} frames");
     assert!(e <= 1e-4);
     // no temporary files left beside the outputs
-    let names: Vec<String> = std::fs::read_dir(tmp.path()).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    let names: Vec<String> = std::fs::read_dir(tmp.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
     assert!(names.iter().all(|n| !n.ends_with(".tmp")), "{names:?}");
 }
 
@@ -147,7 +180,21 @@ fn stream_and_generate_give_the_same_frames() {
     let b = bundle_arg();
     let stream = |fmt: &str| -> Vec<u8> {
         let mut child = bin()
-            .args(["stream", "--rate", "16000", "--format", "s16le", "--output", fmt, "--bundle", &b, "--seed", "5", "--guidance", "1.5"])
+            .args([
+                "stream",
+                "--rate",
+                "16000",
+                "--format",
+                "s16le",
+                "--output",
+                fmt,
+                "--bundle",
+                &b,
+                "--seed",
+                "5",
+                "--guidance",
+                "1.5",
+            ])
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
@@ -167,27 +214,59 @@ fn stream_and_generate_give_the_same_frames() {
         o.stdout
     };
     let jsonl = stream("jsonl");
-    let frames: Vec<Frame> = String::from_utf8(jsonl).unwrap().lines().map(|l| Frame::from_json_line(l).unwrap()).collect();
+    let frames: Vec<Frame> = String::from_utf8(jsonl)
+        .unwrap()
+        .lines()
+        .map(|l| Frame::from_json_line(l).unwrap())
+        .collect();
     assert_eq!(frames.len(), m.len());
     for (i, f) in frames.iter().enumerate() {
         assert_eq!(f.index, i as u64);
         // JSON numbers go through decimal text: compare within the text round trip
         assert!((f.time_s - i as f64 / 30.0).abs() < 1e-12);
-        let close = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-6 * (1.0 + y.abs()));
-        assert!(close(&f.poses, m.poses.row(i).as_slice().unwrap()), "frame {i} poses");
-        assert!(close(&f.trans, m.trans.row(i).as_slice().unwrap()), "frame {i} trans");
-        assert!(close(&f.expressions, m.expressions.row(i).as_slice().unwrap()), "frame {i} expressions");
+        let close = |a: &[f32], b: &[f32]| {
+            a.iter()
+                .zip(b)
+                .all(|(x, y)| (x - y).abs() <= 1e-6 * (1.0 + y.abs()))
+        };
+        assert!(
+            close(&f.poses, m.poses.row(i).as_slice().unwrap()),
+            "frame {i} poses"
+        );
+        assert!(
+            close(&f.trans, m.trans.row(i).as_slice().unwrap()),
+            "frame {i} trans"
+        );
+        assert!(
+            close(&f.expressions, m.expressions.row(i).as_slice().unwrap()),
+            "frame {i} expressions"
+        );
     }
     // binary records are exact
     let binary = stream("binary");
-    let bframes: Vec<Frame> = BinaryFrameReader::new(&binary[..]).unwrap().map(|f| f.unwrap()).collect();
+    let bframes: Vec<Frame> = BinaryFrameReader::new(&binary[..])
+        .unwrap()
+        .map(|f| f.unwrap())
+        .collect();
     assert_eq!(bframes.len(), m.len());
     for (i, f) in bframes.iter().enumerate() {
         assert_eq!(f.index, i as u64);
         assert_eq!(f.time_s, i as f64 / 30.0);
-        assert_eq!(&f.poses[..], m.poses.row(i).as_slice().unwrap(), "frame {i} poses");
-        assert_eq!(&f.trans[..], m.trans.row(i).as_slice().unwrap(), "frame {i} trans");
-        assert_eq!(&f.expressions[..], m.expressions.row(i).as_slice().unwrap(), "frame {i} expressions");
+        assert_eq!(
+            &f.poses[..],
+            m.poses.row(i).as_slice().unwrap(),
+            "frame {i} poses"
+        );
+        assert_eq!(
+            &f.trans[..],
+            m.trans.row(i).as_slice().unwrap(),
+            "frame {i} trans"
+        );
+        assert_eq!(
+            &f.expressions[..],
+            m.expressions.row(i).as_slice().unwrap(),
+            "frame {i} expressions"
+        );
     }
 }
 
@@ -206,7 +285,17 @@ fn stream_resamples_and_mixes_any_input() {
     }
     let b = bundle_arg();
     let mut child = bin()
-        .args(["stream", "--rate", "48000", "--channels", "2", "--format", "f32le", "--bundle", &b])
+        .args([
+            "stream",
+            "--rate",
+            "48000",
+            "--channels",
+            "2",
+            "--format",
+            "f32le",
+            "--bundle",
+            &b,
+        ])
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -230,7 +319,15 @@ fn info_describes_the_bundle() {
     let o = run(&["info", "--bundle", &bundle_arg()]);
     assert!(o.status.success(), "{}", stderr(&o));
     let s = String::from_utf8(o.stdout).unwrap();
-    for needle in ["config 'tiny'", "upper", "fusion", "state", "guidance", "provenance", "random weights"] {
+    for needle in [
+        "config 'tiny'",
+        "upper",
+        "fusion",
+        "state",
+        "guidance",
+        "provenance",
+        "random weights",
+    ] {
         assert!(s.contains(needle), "info output lacks '{needle}':\n{s}");
     }
     let o = run(&["info", "--json", "--bundle", &bundle_arg()]);
@@ -243,7 +340,10 @@ fn assert_bad_input(what: &str, wav: &Path, out: &Path) {
     let o = generate(wav, out, &[]);
     let err = stderr(&o);
     assert_eq!(o.status.code(), Some(2), "{what}: exit code, stderr: {err}");
-    assert!(err.contains(&*wav.file_name().unwrap().to_string_lossy()), "{what}: error does not name the file: {err}");
+    assert!(
+        err.contains(&*wav.file_name().unwrap().to_string_lossy()),
+        "{what}: error does not name the file: {err}"
+    );
     assert!(!out.exists(), "{what}: an output file was left");
     let leftovers: Vec<_> = std::fs::read_dir(out.parent().unwrap())
         .unwrap()
@@ -324,7 +424,11 @@ fn usage_errors_exit_2() {
     let tmp = tempfile::tempdir().unwrap();
     let (wav, _) = short_wav(tmp.path(), 1.0);
     let out = tmp.path().join("o.npz");
-    for extra in [&["--temperature", "0"][..], &["--backend", "nope"], &["--ep", "cuda"]] {
+    for extra in [
+        &["--temperature", "0"][..],
+        &["--backend", "nope"],
+        &["--ep", "cuda"],
+    ] {
         let o = generate(&wav, &out, extra);
         assert_eq!(o.status.code(), Some(2), "{extra:?}: {}", stderr(&o));
         assert!(!out.exists());
@@ -344,12 +448,30 @@ fn a_corrupted_bundle_is_refused_by_the_cli() {
     std::fs::write(&p, bytes).unwrap();
     let (wav, _) = short_wav(tmp.path(), 1.0);
     let out = tmp.path().join("o.npz");
-    let o = bin().args(["generate", wav.to_str().unwrap(), "-o", out.to_str().unwrap(), "--bundle", dir.to_str().unwrap()]).output().unwrap();
+    let o = bin()
+        .args([
+            "generate",
+            wav.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--bundle",
+            dir.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
     assert_eq!(o.status.code(), Some(2));
-    assert!(stderr(&o).contains("expert_lower.onnx") && stderr(&o).contains("sha256"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("expert_lower.onnx") && stderr(&o).contains("sha256"),
+        "{}",
+        stderr(&o)
+    );
     assert!(!out.exists());
     // the same bundle through the environment variable, with info
-    let o = bin().args(["info"]).env("LIVEGESTURE_BUNDLE", &dir).output().unwrap();
+    let o = bin()
+        .args(["info"])
+        .env("LIVEGESTURE_BUNDLE", &dir)
+        .output()
+        .unwrap();
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("expert_lower.onnx"));
 }

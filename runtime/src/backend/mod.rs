@@ -238,14 +238,21 @@ pub trait GraphRunner: Send {
 
     /// Runs one step with inputs given by name (any order); returns `(name, tensor)` in graph order.
     fn run_named(&mut self, inputs: &[(&str, &Tensor)]) -> Result<Vec<(String, Tensor)>> {
-        let names: Vec<String> = self.spec().input_names().iter().map(|s| s.to_string()).collect();
+        let names: Vec<String> = self
+            .spec()
+            .input_names()
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
         let mut ordered = Vec::with_capacity(names.len());
         for n in &names {
             let t = inputs
                 .iter()
                 .find(|(k, _)| k == n)
                 .map(|(_, t)| (*t).clone())
-                .ok_or_else(|| anyhow::anyhow!("graph '{}': input '{n}' not given", self.spec().name))?;
+                .ok_or_else(|| {
+                    anyhow::anyhow!("graph '{}': input '{n}' not given", self.spec().name)
+                })?;
             ordered.push(t);
         }
         for (k, _) in inputs {
@@ -256,7 +263,12 @@ pub trait GraphRunner: Send {
             );
         }
         let out = self.run(&ordered)?;
-        let onames: Vec<String> = self.spec().output_names().iter().map(|s| s.to_string()).collect();
+        let onames: Vec<String> = self
+            .spec()
+            .output_names()
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
         Ok(onames.into_iter().zip(out).collect())
     }
 }
@@ -395,7 +407,9 @@ pub fn create(opts: &BackendOptions) -> Result<Box<dyn Backend>> {
         #[cfg(feature = "ort")]
         BackendKind::Ort => Ok(Box::new(ort::OrtBackend::new(opts)?)),
         #[cfg(not(feature = "ort"))]
-        BackendKind::Ort => bail!("this build of livegesture has no ort backend (built without the `ort` feature)"),
+        BackendKind::Ort => {
+            bail!("this build of livegesture has no ort backend (built without the `ort` feature)")
+        }
     }
 }
 

@@ -27,7 +27,9 @@ use ort::session::{Session, SessionInputValue};
 use ort::value::TensorRef;
 use ort::AsPointer;
 
-use super::{check_inputs, check_outputs, Backend, BackendOptions, DType, GraphRunner, Tensor, TensorData};
+use super::{
+    check_inputs, check_outputs, Backend, BackendOptions, DType, GraphRunner, Tensor, TensorData,
+};
 use crate::bundle::GraphSpec;
 
 /// Environment variable naming the ONNX Runtime shared library.
@@ -41,7 +43,8 @@ struct OrtEnv {
 static ENV: OnceLock<std::result::Result<OrtEnv, String>> = OnceLock::new();
 
 fn lib_name_matches(name: &str) -> bool {
-    (name.starts_with("libonnxruntime.so") || (name.starts_with("libonnxruntime.") && name.ends_with(".dylib")))
+    (name.starts_with("libonnxruntime.so")
+        || (name.starts_with("libonnxruntime.") && name.ends_with(".dylib")))
         || name.eq_ignore_ascii_case("onnxruntime.dll")
 }
 
@@ -84,7 +87,11 @@ fn site_dirs(prefix: &Path) -> Vec<PathBuf> {
 /// Finds the ONNX Runtime shared library (see the module docs for the search order).
 pub fn find_library(explicit: Option<&Path>) -> Result<PathBuf> {
     if let Some(p) = explicit {
-        ensure!(p.is_file(), "ort: ONNX Runtime library {} does not exist", p.display());
+        ensure!(
+            p.is_file(),
+            "ort: ONNX Runtime library {} does not exist",
+            p.display()
+        );
         return Ok(p.to_path_buf());
     }
     if let Some(v) = std::env::var_os(ORT_DYLIB_ENV).filter(|v| !v.is_empty()) {
@@ -134,13 +141,22 @@ pub fn find_library(explicit: Option<&Path>) -> Result<PathBuf> {
 fn environment(explicit: Option<&Path>) -> Result<&'static OrtEnv> {
     let r = ENV.get_or_init(|| {
         let library = find_library(explicit).map_err(|e| format!("{e:#}"))?;
-        let builder = ort::init_from(&library)
-            .map_err(|e| format!("ort: cannot load ONNX Runtime from {}: {e}", library.display()))?;
+        let builder = ort::init_from(&library).map_err(|e| {
+            format!(
+                "ort: cannot load ONNX Runtime from {}: {e}",
+                library.display()
+            )
+        })?;
         let env = builder
             .with_name("livegesture")
             .with_telemetry(false)
             .build()
-            .map_err(|e| format!("ort: cannot create the ONNX Runtime environment ({}): {e}", library.display()))?;
+            .map_err(|e| {
+                format!(
+                    "ort: cannot create the ONNX Runtime environment ({}): {e}",
+                    library.display()
+                )
+            })?;
         Ok(OrtEnv { env, library })
     });
     let env = r.as_ref().map_err(|e| anyhow!("{e}"))?;
@@ -189,7 +205,10 @@ pub fn available_providers() -> Result<Vec<String>> {
     let mut ptr: *mut *mut c_char = std::ptr::null_mut();
     let mut n: c_int = 0;
     // SAFETY: standard C API out-parameters; the list is released below.
-    check_status(unsafe { (api.GetAvailableProviders)(&mut ptr, &mut n) }, "listing execution providers")?;
+    check_status(
+        unsafe { (api.GetAvailableProviders)(&mut ptr, &mut n) },
+        "listing execution providers",
+    )?;
     let mut out = Vec::new();
     if !ptr.is_null() {
         for i in 0..n.max(0) as usize {
@@ -198,7 +217,10 @@ pub fn available_providers() -> Result<Vec<String>> {
             out.push(s.to_string_lossy().into_owned());
         }
         // SAFETY: releasing the list returned above.
-        check_status(unsafe { (api.ReleaseAvailableProviders)(ptr, n) }, "releasing the provider list")?;
+        check_status(
+            unsafe { (api.ReleaseAvailableProviders)(ptr, n) },
+            "releasing the provider list",
+        )?;
     }
     Ok(out)
 }
@@ -238,8 +260,13 @@ impl OrtBackend {
         let ep = opts.execution_provider.to_ascii_lowercase();
         if ep != "cpu" {
             let Some((_, provider, _)) = PROVIDERS.iter().find(|(n, _, _)| *n == ep) else {
-                let names: Vec<&str> = std::iter::once("cpu").chain(PROVIDERS.iter().map(|p| p.0)).collect();
-                bail!("ort: unknown execution provider '{ep}'; expected one of {}", names.join(", "));
+                let names: Vec<&str> = std::iter::once("cpu")
+                    .chain(PROVIDERS.iter().map(|p| p.0))
+                    .collect();
+                bail!(
+                    "ort: unknown execution provider '{ep}'; expected one of {}",
+                    names.join(", ")
+                );
             };
             let have = available_providers()?;
             ensure!(
@@ -273,7 +300,10 @@ impl OrtBackend {
             // SAFETY: C API calls on a live session-options pointer; the CUDA options are created,
             // used once and released.
             unsafe {
-                check_status((api.CreateCUDAProviderOptions)(&mut cuda), "creating CUDA options")?;
+                check_status(
+                    (api.CreateCUDAProviderOptions)(&mut cuda),
+                    "creating CUDA options",
+                )?;
                 let r = check_status(
                     (api.SessionOptionsAppendExecutionProvider_CUDA_V2)(opts, cuda),
                     "enabling the CUDA execution provider",
@@ -292,7 +322,13 @@ impl OrtBackend {
         // SAFETY: no options (null key/value arrays with length 0), NUL-terminated provider name.
         check_status(
             unsafe {
-                (api.SessionOptionsAppendExecutionProvider)(opts, name.as_ptr(), std::ptr::null(), std::ptr::null(), 0)
+                (api.SessionOptionsAppendExecutionProvider)(
+                    opts,
+                    name.as_ptr(),
+                    std::ptr::null(),
+                    std::ptr::null(),
+                    0,
+                )
             },
             &format!("enabling execution provider '{}'", self.ep),
         )
@@ -366,8 +402,12 @@ impl GraphRunner for OrtGraph {
         let mut values: Vec<SessionInputValue<'_>> = Vec::with_capacity(inputs.len());
         for t in inputs {
             let v: SessionInputValue<'_> = match &t.data {
-                TensorData::F32(d) => TensorRef::from_array_view((t.shape.as_slice(), d.as_slice()))?.into(),
-                TensorData::I64(d) => TensorRef::from_array_view((t.shape.as_slice(), d.as_slice()))?.into(),
+                TensorData::F32(d) => {
+                    TensorRef::from_array_view((t.shape.as_slice(), d.as_slice()))?.into()
+                }
+                TensorData::I64(d) => {
+                    TensorRef::from_array_view((t.shape.as_slice(), d.as_slice()))?.into()
+                }
             };
             values.push(v);
         }

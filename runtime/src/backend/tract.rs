@@ -11,7 +11,9 @@ use std::path::Path;
 use anyhow::{anyhow, ensure, Context, Result};
 use tract_onnx::prelude::*;
 
-use super::{check_inputs, check_outputs, Backend, DType, GraphRunner, Tensor as LgTensor, TensorData};
+use super::{
+    check_inputs, check_outputs, Backend, DType, GraphRunner, Tensor as LgTensor, TensorData,
+};
 use crate::bundle::GraphSpec;
 
 /// The tract backend.
@@ -61,7 +63,13 @@ impl std::fmt::Debug for TractGraph {
 impl TractGraph {
     /// Parses and declutters `path` (the graph `spec` of a verified bundle).
     pub fn load(spec: &GraphSpec, path: &Path) -> Result<Self> {
-        let what = || format!("tract: loading graph '{}' from {}", spec.name, path.display());
+        let what = || {
+            format!(
+                "tract: loading graph '{}' from {}",
+                spec.name,
+                path.display()
+            )
+        };
         let model = tract_onnx::onnx().model_for_path(path).with_context(what)?;
         let typed = model
             .into_typed()
@@ -162,7 +170,9 @@ impl GraphRunner for TractGraph {
         let out = outs
             .iter()
             .zip(specs)
-            .map(|(v, (oname, dtype, _))| from_tract(v, dtype, &format!("graph '{name}' output '{oname}'")))
+            .map(|(v, (oname, dtype, _))| {
+                from_tract(v, dtype, &format!("graph '{name}' output '{oname}'"))
+            })
             .collect::<Result<Vec<_>>>()?;
         check_outputs(&self.spec, &out, batch)?;
         Ok(out)

@@ -78,7 +78,9 @@ impl GenArgs {
     pub fn stream_options(&self) -> Result<StreamOptions> {
         if let Some(g) = self.guidance {
             if !g.is_finite() {
-                return Err(InputError(format!("--guidance must be a finite number, got {g}")).into());
+                return Err(
+                    InputError(format!("--guidance must be a finite number, got {g}")).into(),
+                );
             }
         }
         if let Some(t) = self.temperature {
@@ -122,7 +124,12 @@ impl ModelArgs {
             .into());
         }
         let be = backend::create(&opts)?;
-        Pipeline::new(bundle, be.as_ref())
-            .with_context(|| format!("loading the bundle {} with {}", bundle.dir().display(), be.describe()))
+        Pipeline::new(bundle, be.as_ref()).with_context(|| {
+            format!(
+                "loading the bundle {} with {}",
+                bundle.dir().display(),
+                be.describe()
+            )
+        })
     }
 }

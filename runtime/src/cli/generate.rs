@@ -16,7 +16,9 @@ use livegesture::output::{FrameSink, NpzFrameWriter};
 use super::common::{GenArgs, InputError, ModelArgs};
 
 #[derive(Debug, clap::Args)]
-#[command(after_help = "Example:\n  livegesture generate speech.wav -o motion.npz --seed 1 --guidance 1.25")]
+#[command(
+    after_help = "Example:\n  livegesture generate speech.wav -o motion.npz --seed 1 --guidance 1.25"
+)]
 pub struct Args {
     /// Input WAV file (any sample rate and channel count; 8/16/24/32-bit PCM or 32-bit float).
     #[arg(value_name = "IN.wav")]
@@ -43,7 +45,11 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     if a.output.is_dir() {
-        return Err(InputError(format!("{}: is a folder; expected an output file path", a.output.display())).into());
+        return Err(InputError(format!(
+            "{}: is a folder; expected an output file path",
+            a.output.display()
+        ))
+        .into());
     }
     let mut wav = WavStream::open(&a.input)?;
     let bundle = a.model.bundle()?;
@@ -53,8 +59,10 @@ pub fn run(a: Args) -> Result<()> {
     let bar = if std::io::stderr().is_terminal() {
         let b = ProgressBar::new(total);
         b.set_style(
-            ProgressStyle::with_template("{spinner} [{elapsed_precise}] {wide_bar} {percent:>3}% {msg} (eta {eta})")
-                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+            ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {wide_bar} {percent:>3}% {msg} (eta {eta})",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
         );
         b
     } else {
@@ -63,9 +71,12 @@ pub fn run(a: Args) -> Result<()> {
     let mut writer = NpzFrameWriter::new(&a.output);
     let input = a.input.display().to_string();
     while let Some(chunk) = wav.next_chunk()? {
-        let frames = pipeline
-            .push(&mut stream, &chunk)
-            .with_context(|| format!("{input}: generating motion at {:.2} s", stream.samples_received() as f64 / 16000.0))?;
+        let frames = pipeline.push(&mut stream, &chunk).with_context(|| {
+            format!(
+                "{input}: generating motion at {:.2} s",
+                stream.samples_received() as f64 / 16000.0
+            )
+        })?;
         for f in &frames {
             writer.write_frame(f)?;
         }

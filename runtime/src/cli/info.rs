@@ -21,7 +21,7 @@ fn fmt_count(n: u64) -> String {
     let s = n.to_string();
     let mut out = String::new();
     for (i, c) in s.chars().enumerate() {
-        if i > 0 && (s.len() - i) % 3 == 0 {
+        if i > 0 && (s.len() - i).is_multiple_of(3) {
             out.push(',');
         }
         out.push(c);
@@ -79,7 +79,11 @@ pub fn run(a: Args) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
-    println!("bundle        {} (verified: {} files match their sha256)", b.dir().display(), m.files.len());
+    println!(
+        "bundle        {} (verified: {} files match their sha256)",
+        b.dir().display(),
+        m.files.len()
+    );
     println!(
         "model         {} (config '{}'), {} parameters",
         m.model.name.as_deref().unwrap_or("LiveGesture"),
@@ -110,13 +114,20 @@ pub fn run(a: Args) -> Result<()> {
         .map(|r| format!("{} ({} dims, {} joints)", r.name, r.dim, r.joints.len()))
         .collect();
     println!("regions       {}", regions.join(", "));
-    println!("vocabulary    codebook {} per region, BOS token {}", m.vocab.codebook_size, m.vocab.bos_token);
+    println!(
+        "vocabulary    codebook {} per region, BOS token {}",
+        m.vocab.codebook_size, m.vocab.bos_token
+    );
     println!(
         "sampling      guidance {}{}, temperature {}, top-k {}, PRNG {}",
         m.sampling.guidance,
         if guided { "" } else { " (off)" },
         m.sampling.temperature,
-        if m.sampling.top_k == 0 { "all".to_string() } else { m.sampling.top_k.to_string() },
+        if m.sampling.top_k == 0 {
+            "all".to_string()
+        } else {
+            m.sampling.top_k.to_string()
+        },
         m.sampling.prng.as_deref().unwrap_or("splitmix64")
     );
     println!("graphs");
@@ -138,7 +149,11 @@ pub fn run(a: Args) -> Result<()> {
             "  {:<16} {:<22} {:>12} {:>7} {:>14} {:>5}",
             g.name,
             g.file,
-            m.model.parameters.get(&g.name).map(|&p| fmt_count(p)).unwrap_or_default(),
+            m.model
+                .parameters
+                .get(&g.name)
+                .map(|&p| fmt_count(p))
+                .unwrap_or_default(),
             g.caches.len(),
             fmt_bytes(g.cache_row_bytes()),
             rows
@@ -152,9 +167,16 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(r) = b.reference() {
         println!(
             "reference     rollout of {} tokens, seed {}, audio: {}",
-            r.rollout_tokens.map(|t| t.to_string()).unwrap_or_else(|| "?".into()),
-            r.rollout_seed.map(|t| t.to_string()).unwrap_or_else(|| "?".into()),
-            r.rollout_audio.as_deref().or(r.clip_source.as_deref()).unwrap_or("?")
+            r.rollout_tokens
+                .map(|t| t.to_string())
+                .unwrap_or_else(|| "?".into()),
+            r.rollout_seed
+                .map(|t| t.to_string())
+                .unwrap_or_else(|| "?".into()),
+            r.rollout_audio
+                .as_deref()
+                .or(r.clip_source.as_deref())
+                .unwrap_or("?")
         );
     }
     if let Value::Object(checks) = &m.checks {
@@ -162,9 +184,14 @@ pub fn run(a: Args) -> Result<()> {
             checks
                 .values()
                 .filter_map(|c| c.get(key).and_then(Value::as_f64))
-                .fold(None, |acc: Option<f64>, x| Some(acc.map_or(x, |a| a.max(x))))
+                .fold(None, |acc: Option<f64>, x| {
+                    Some(acc.map_or(x, |a| a.max(x)))
+                })
         };
-        if let (Some(a), Some(o)) = (worst("torch_step_vs_offline_max_abs"), worst("ort_vs_torch_max_abs")) {
+        if let (Some(a), Some(o)) = (
+            worst("torch_step_vs_offline_max_abs"),
+            worst("ort_vs_torch_max_abs"),
+        ) {
             println!("export checks torch step vs offline max abs {a:.2e}; onnxruntime vs torch max abs {o:.2e}");
         }
     }

@@ -18,7 +18,13 @@ pub use common::exit_code;
 /// 133.3 ms motion token, with zero look-ahead. Without --bundle the bundle is $LIVEGESTURE_BUNDLE,
 /// else the repository's models/default.
 #[derive(Debug, Parser)]
-#[command(name = "livegesture", version, about, long_about, propagate_version = true)]
+#[command(
+    name = "livegesture",
+    version,
+    about,
+    long_about,
+    propagate_version = true
+)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,

@@ -24,7 +24,9 @@ fn parse_format(s: &str) -> Result<RawFormat, String> {
 }
 
 #[derive(Debug, clap::Args)]
-#[command(after_help = "Example:\n  arecord -f S16_LE -r 16000 -c 1 -t raw | livegesture stream --rate 16000 --format s16le")]
+#[command(
+    after_help = "Example:\n  arecord -f S16_LE -r 16000 -c 1 -t raw | livegesture stream --rate 16000 --format s16le"
+)]
 pub struct Args {
     /// Sample rate of the input in Hz (resampled to 16 kHz when different).
     #[arg(long, default_value_t = 16000)]

@@ -31,7 +31,10 @@ use ndarray_npy::NpzReader;
 use sha2::{Digest, Sha256};
 
 pub fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").canonicalize().expect("repo root")
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .canonicalize()
+        .expect("repo root")
 }
 
 fn tmp_root() -> PathBuf {
@@ -43,17 +46,19 @@ pub fn python() -> Option<PathBuf> {
     if let Some(p) = std::env::var_os("LIVEGESTURE_PY").filter(|v| !v.is_empty()) {
         return Some(PathBuf::from(p));
     }
-    let venv = std::env::var_os("LIVEGESTURE_VENV").map(PathBuf::from).or_else(|| {
-        let home = PathBuf::from(std::env::var_os("HOME")?);
-        let mut v: Vec<PathBuf> = std::fs::read_dir(home.join(".cache/livegesture"))
-            .ok()?
-            .filter_map(|e| e.ok())
-            .map(|e| e.path())
-            .filter(|p| p.join(".complete").exists())
-            .collect();
-        v.sort();
-        v.pop()
-    })?;
+    let venv = std::env::var_os("LIVEGESTURE_VENV")
+        .map(PathBuf::from)
+        .or_else(|| {
+            let home = PathBuf::from(std::env::var_os("HOME")?);
+            let mut v: Vec<PathBuf> = std::fs::read_dir(home.join(".cache/livegesture"))
+                .ok()?
+                .filter_map(|e| e.ok())
+                .map(|e| e.path())
+                .filter(|p| p.join(".complete").exists())
+                .collect();
+            v.sort();
+            v.pop()
+        })?;
     let py = venv.join("bin/python");
     py.exists().then_some(py)
 }
@@ -66,7 +71,10 @@ fn hash_sources(h: &mut Sha256, dir: &Path) {
     entries.sort();
     for p in entries {
         if p.is_dir() {
-            if !p.file_name().is_some_and(|n| n.to_string_lossy().starts_with('_') || n == "tests") {
+            if !p
+                .file_name()
+                .is_some_and(|n| n.to_string_lossy().starts_with('_') || n == "tests")
+            {
                 hash_sources(h, &p);
             }
         } else if p.extension().is_some_and(|e| e == "py") {
@@ -76,7 +84,14 @@ fn hash_sources(h: &mut Sha256, dir: &Path) {
     }
 }
 
-const EXPORT_ARGS: &[&str] = &["--config", "tiny", "--rollout-tokens", "8", "--reference-seconds", "3"];
+const EXPORT_ARGS: &[&str] = &[
+    "--config",
+    "tiny",
+    "--rollout-tokens",
+    "8",
+    "--reference-seconds",
+    "3",
+];
 
 fn export_bundle() -> PathBuf {
     let root = repo_root();
@@ -121,17 +136,19 @@ fn export_bundle() -> PathBuf {
 /// The test bundle folder (see the module docs).
 pub fn bundle_dir() -> PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| match std::env::var_os("LIVEGESTURE_TEST_BUNDLE").filter(|v| !v.is_empty()) {
-        Some(p) => {
-            let p = PathBuf::from(p);
-            assert!(
-                p.join("manifest.json").exists(),
-                "LIVEGESTURE_TEST_BUNDLE={} has no manifest.json",
-                p.display()
-            );
-            p
+    DIR.get_or_init(|| {
+        match std::env::var_os("LIVEGESTURE_TEST_BUNDLE").filter(|v| !v.is_empty()) {
+            Some(p) => {
+                let p = PathBuf::from(p);
+                assert!(
+                    p.join("manifest.json").exists(),
+                    "LIVEGESTURE_TEST_BUNDLE={} has no manifest.json",
+                    p.display()
+                );
+                p
+            }
+            None => export_bundle(),
         }
-        None => export_bundle(),
     })
     .clone()
 }
@@ -175,8 +192,14 @@ pub fn rollout(bundle: &Path) -> Rollout {
     std::fs::create_dir_all(&dir).unwrap();
     let plain = dir.join(format!("rollout-{}.npz", &key[..16]));
     if !plain.exists() {
-        let py = python().expect("reading the compressed rollout.npz needs LIVEGESTURE_PY (source scripts/env.sh)");
-        let tmp = dir.join(format!("rollout-{}.{}.tmp.npz", &key[..16], std::process::id()));
+        let py = python().expect(
+            "reading the compressed rollout.npz needs LIVEGESTURE_PY (source scripts/env.sh)",
+        );
+        let tmp = dir.join(format!(
+            "rollout-{}.{}.tmp.npz",
+            &key[..16],
+            std::process::id()
+        ));
         let st = Command::new(&py)
             .args(["-c", "import sys, numpy as np; d = dict(np.load(sys.argv[1])); np.savez(sys.argv[2], **d)"])
             .arg(&src)
@@ -212,5 +235,8 @@ pub fn require_ort() {
 /// Max abs difference of two equally shaped arrays.
 pub fn max_abs(a: &Array2<f32>, b: &Array2<f32>) -> f32 {
     assert_eq!(a.dim(), b.dim(), "shapes differ");
-    a.iter().zip(b.iter()).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+    a.iter()
+        .zip(b.iter())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
 }
