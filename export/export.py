@@ -260,6 +260,8 @@ def main(argv=None):
     ap.add_argument("--reference-wav", help="reference speech clip (default: a synthetic speech-like signal)")
     ap.add_argument("--reference-seconds", type=float, default=30.0)
     ap.add_argument("--rollout-tokens", type=int, default=1000, help="length of the reference rollout (>= 1000 for CI)")
+    ap.add_argument("--provenance", help="JSON file merged into the manifest's provenance (training data "
+                                         "description, evaluation figures, commands)")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     if args.checkpoint:
@@ -270,6 +272,12 @@ def main(argv=None):
         model = ckpt.random_model(args.config, args.random_seed)
         provenance = {"training": f"none: random weights (config {args.config}, seed {args.random_seed}); "
                                   "for tests and benchmarks only, produces meaningless motion"}
+    if args.provenance:
+        try:
+            provenance.update(json.loads(Path(args.provenance).read_text()))
+        except (OSError, ValueError) as e:
+            print(f"export failed: --provenance {args.provenance}: {e}", file=sys.stderr)
+            return 2
     out = Path(args.out).resolve()
     out.parent.mkdir(parents=True, exist_ok=True)
     print(f"exporting {model.cfg.name} -> {out}")
