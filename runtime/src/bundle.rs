@@ -41,8 +41,10 @@ pub const BUNDLE_ENV: &str = "LIVEGESTURE_BUNDLE";
 /// The repository's default bundle, `<repo>/models/default` (resolved from this crate's source
 /// location at build time).
 pub fn repo_default_bundle() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("..")
+    let crate_dir = Path::new(env!("CARGO_MANIFEST_DIR"));
+    crate_dir
+        .parent()
+        .unwrap_or(crate_dir)
         .join("models")
         .join("default")
 }
@@ -806,6 +808,17 @@ mod tests {
         assert_eq!(d, vec![Dim::Batch, Dim::Fixed(4), Dim::Fixed(32)]);
         assert!(serde_json::from_str::<Vec<Dim>>(r#"["time"]"#).is_err());
         assert_eq!(concrete_shape(&d, 3), vec![3, 4, 32]);
+    }
+
+    #[test]
+    fn default_bundle_location() {
+        let d = repo_default_bundle();
+        assert!(d.ends_with("models/default"), "{}", d.display());
+        assert!(!d.to_string_lossy().contains(".."));
+        assert_eq!(
+            default_bundle_dir(Some(Path::new("/x"))),
+            PathBuf::from("/x")
+        );
     }
 
     #[test]

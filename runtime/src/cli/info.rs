@@ -49,6 +49,18 @@ fn print_value(indent: usize, key: &str, v: &Value) {
             }
         }
         Value::String(s) => println!("{pad}{key}: {s}"),
+        Value::Number(n) if n.is_f64() => match n.as_f64() {
+            Some(x) if x != 0.0 && (x.abs() < 1e-3 || x.abs() >= 1e6) => {
+                println!("{pad}{key}: {x:.4e}")
+            }
+            Some(x) => println!(
+                "{pad}{key}: {}",
+                format!("{x:.4}")
+                    .trim_end_matches('0')
+                    .trim_end_matches('.')
+            ),
+            None => println!("{pad}{key}: {n}"),
+        },
         other => println!("{pad}{key}: {other}"),
     }
 }
