@@ -197,7 +197,7 @@ def run_stage(name, model, params, total, step_fn, tcfg, out: Path, logger, devi
         ema = v if ema is None else 0.95 * ema + 0.05 * v
         bar.set_postfix(loss=f"{ema:.4f}")
         if step % tcfg.log_every == 0 or step == total - 1:
-            logger.log(stage=name, step=step, loss=v, **{k: float(x) for k, x in parts.items()},
+            logger.log(stage=name, step=step, loss=v, **{k: float(x.detach()) for k, x in parts.items()},
                        seconds=round(time.time() - t0, 2))
         if rank == 0 and ((step + 1) % tcfg.save_every == 0) and step + 1 < total:
             tmp = resume.with_suffix(".tmp")
