@@ -15,10 +15,6 @@
 //! `scripts/env.sh`; `scripts/test.sh` sources it) into `target/tmp/test-bundles/tiny-<hash of the
 //! export sources>`, under a file lock so parallel test processes (nextest) export it once; later
 //! runs reuse it. Without either variable the tests fail with a message saying so.
-//!
-//! The reference rollout (`reference/rollout.npz`) is written with `np.savez_compressed`, which the
-//! runtime's npz reader (zip without deflate) cannot open, so the helper rewrites it uncompressed with
-//! the same Python.
 #![allow(dead_code)]
 
 use std::fs::File;
@@ -183,33 +179,11 @@ pub struct Rollout {
     pub clip_repeats: usize,
 }
 
-/// Reads `reference/rollout.npz` (rewritten uncompressed by Python, cached beside the test bundles).
+/// Reads `reference/rollout.npz` (written with `np.savez_compressed`).
 pub fn rollout(bundle: &Path) -> Rollout {
     let src = bundle.join("reference/rollout.npz");
-    let bytes = std::fs::read(&src).unwrap_or_else(|e| panic!("{}: {e}", src.display()));
-    let key = hex::encode(Sha256::digest(&bytes));
-    let dir = tmp_root().join("test-bundles");
-    std::fs::create_dir_all(&dir).unwrap();
-    let plain = dir.join(format!("rollout-{}.npz", &key[..16]));
-    if !plain.exists() {
-        let py = python().expect(
-            "reading the compressed rollout.npz needs LIVEGESTURE_PY (source scripts/env.sh)",
-        );
-        let tmp = dir.join(format!(
-            "rollout-{}.{}.tmp.npz",
-            &key[..16],
-            std::process::id()
-        ));
-        let st = Command::new(&py)
-            .args(["-c", "import sys, numpy as np; d = dict(np.load(sys.argv[1])); np.savez(sys.argv[2], **d)"])
-            .arg(&src)
-            .arg(&tmp)
-            .status()
-            .expect("run python");
-        assert!(st.success(), "converting {} failed", src.display());
-        std::fs::rename(&tmp, &plain).unwrap();
-    }
-    let mut npz = NpzReader::new(File::open(&plain).unwrap()).unwrap();
+    let f = File::open(&src).unwrap_or_else(|e| panic!("{}: {e}", src.display()));
+    let mut npz = NpzReader::new(f).unwrap_or_else(|e| panic!("{}: {e}", src.display()));
     let seed: Array0<u64> = npz.by_name("seed").expect("rollout seed");
     let reps: Array0<i64> = npz.by_name("clip_repeats").expect("rollout clip_repeats");
     Rollout {
