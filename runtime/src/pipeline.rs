@@ -830,3 +830,34 @@ impl Pipeline {
         Ok(frames)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn assert_send<T: Send>() {}
+
+    #[test]
+    fn streams_and_pipelines_move_between_threads() {
+        assert_send::<Stream>();
+        assert_send::<Pipeline>();
+    }
+
+    #[test]
+    fn cache_stacking_round_trips() {
+        let a = vec![
+            Tensor::f32(vec![2, 3], vec![1.0; 6]).unwrap(),
+            Tensor::i64(vec![2], vec![4, 4]).unwrap(),
+        ];
+        let b = vec![
+            Tensor::f32(vec![1, 3], vec![2.0; 3]).unwrap(),
+            Tensor::i64(vec![1], vec![7]).unwrap(),
+        ];
+        let stacked = stack_caches(vec![a.clone(), b.clone()]).unwrap();
+        assert_eq!(stacked[0].shape, vec![3, 3]);
+        assert_eq!(stacked[1].as_i64("step").unwrap(), &[4, 4, 7]);
+        assert_eq!(split_caches(stacked, &[2, 1]).unwrap(), vec![a.clone(), b]);
+        // a single stream moves without copying and comes back unchanged
+        assert_eq!(stack_caches(vec![a.clone()]).unwrap(), a);
+    }
+}
