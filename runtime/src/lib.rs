@@ -16,9 +16,11 @@
 
 pub mod audio;
 pub mod backend;
+pub mod bench;
 pub mod bundle;
 pub mod frontend;
 pub mod output;
+pub mod parity;
 pub mod pipeline;
 pub mod rotation;
 pub mod sampling;

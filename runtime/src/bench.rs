@@ -1,0 +1,721 @@
+//! Benchmarks of the streaming pipeline (SPEC section 11; speed is measured here, never by timed tests).
+//!
+//! [`run`] loads a bundle on one backend and measures, on the calling thread:
+//!
+//! - **single stream**: whole-chain per-token step time ([`Pipeline::step`]: every graph, both guidance
+//!   branches, sampling, frames) and each graph's share (a [`TimingBackend`] wraps the real backend and
+//!   times every graph run, conversions into and out of the backend included); the log-mel frontend
+//!   per token; the real-time factor;
+//! - **first-frame latency**: audio pushed in 10 ms chunks at wall-clock pace from sample 0; the time
+//!   from the first sample's arrival until the first frame comes back, and the compute part after the
+//!   chunk completing token 0's audio arrived;
+//! - **state bytes per stream** ([`crate::pipeline::state_bytes`]) and **peak RSS** (`VmHWM`);
+//! - **batched stepping**: [`Pipeline::step_batch`] over N streams (caches stacked on the batch axis,
+//!   optionally with one stream leaving and a fresh one joining at every step), and the streams one
+//!   core sustains in real time.
+//!
+//! Warm-up steps (which also build tract's per-batch-size plans) are excluded from every figure.
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{ensure, Context, Result};
+use ndarray::Array2;
+use serde::Serialize;
+
+use crate::backend::{Backend, GraphRunner, Tensor};
+use crate::bundle::{Bundle, GraphSpec};
+use crate::frontend::StreamingLogMel;
+use crate::pipeline::{state_bytes, Pipeline, StreamOptions};
+
+/// Times of the graph runs since the last [`Recorder::drain`]: `(graph index, seconds)`.
+#[derive(Debug, Default)]
+pub struct Recorder {
+    names: Mutex<Vec<String>>,
+    events: Mutex<Vec<(usize, f64)>>,
+}
+
+impl Recorder {
+    fn register(&self, name: &str) -> usize {
+        let mut n = self.names.lock().unwrap_or_else(|e| e.into_inner());
+        n.push(name.to_string());
+        n.len() - 1
+    }
+
+    fn record(&self, id: usize, secs: f64) {
+        self.events
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push((id, secs));
+    }
+
+    /// Graph names by index.
+    pub fn names(&self) -> Vec<String> {
+        self.names.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    /// Takes the recorded events.
+    pub fn drain(&self) -> Vec<(usize, f64)> {
+        std::mem::take(&mut *self.events.lock().unwrap_or_else(|e| e.into_inner()))
+    }
+}
+
+/// A backend that times every graph run of the backend it wraps.
+pub struct TimingBackend<'a> {
+    inner: &'a dyn Backend,
+    rec: Arc<Recorder>,
+}
+
+impl<'a> TimingBackend<'a> {
+    /// Wraps `inner`; run times go to `rec`.
+    pub fn new(inner: &'a dyn Backend, rec: Arc<Recorder>) -> Self {
+        Self { inner, rec }
+    }
+}
+
+struct TimedRunner {
+    inner: Box<dyn GraphRunner>,
+    id: usize,
+    rec: Arc<Recorder>,
+}
+
+impl GraphRunner for TimedRunner {
+    fn spec(&self) -> &GraphSpec {
+        self.inner.spec()
+    }
+
+    fn run(&mut self, inputs: &[Tensor]) -> Result<Vec<Tensor>> {
+        let t0 = Instant::now();
+        let out = self.inner.run(inputs);
+        self.rec.record(self.id, t0.elapsed().as_secs_f64());
+        out
+    }
+}
+
+impl Backend for TimingBackend<'_> {
+    fn name(&self) -> &str {
+        self.inner.name()
+    }
+
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+
+    fn load(&self, spec: &GraphSpec, path: &Path) -> Result<Box<dyn GraphRunner>> {
+        let inner = self.inner.load(spec, path)?;
+        Ok(Box::new(TimedRunner {
+            inner,
+            id: self.rec.register(&spec.name),
+            rec: self.rec.clone(),
+        }))
+    }
+}
+
+/// Order statistics of a sample of times, in milliseconds.
+#[derive(Debug, Clone, Serialize)]
+pub struct Stats {
+    pub n: usize,
+    pub median: f64,
+    pub p95: f64,
+    pub p99: f64,
+    pub mean: f64,
+    pub min: f64,
+    pub max: f64,
+}
+
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    // linear interpolation between closest ranks (numpy's default)
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let x = p / 100.0 * (sorted.len() - 1) as f64;
+    let lo = x.floor() as usize;
+    let hi = x.ceil() as usize;
+    sorted[lo] + (sorted[hi] - sorted[lo]) * (x - lo as f64)
+}
+
+impl Stats {
+    /// Statistics of `ms` (milliseconds).
+    pub fn of(ms: &[f64]) -> Stats {
+        let mut s = ms.to_vec();
+        s.sort_by(f64::total_cmp);
+        Stats {
+            n: s.len(),
+            median: percentile(&s, 50.0),
+            p95: percentile(&s, 95.0),
+            p99: percentile(&s, 99.0),
+            mean: if s.is_empty() {
+                f64::NAN
+            } else {
+                s.iter().sum::<f64>() / s.len() as f64
+            },
+            min: s.first().copied().unwrap_or(f64::NAN),
+            max: s.last().copied().unwrap_or(f64::NAN),
+        }
+    }
+}
+
+/// What to measure.
+#[derive(Debug, Clone)]
+pub struct BenchConfig {
+    /// Audio fed to the streams (16 kHz mono after conversion), repeated as needed.
+    pub audio: PathBuf,
+    /// Guidance scale (None: the bundle's default).
+    pub guidance: Option<f64>,
+    pub seed: u64,
+    /// Untimed steps before the single-stream measurement.
+    pub warmup: usize,
+    /// Timed single-stream steps.
+    pub steps: usize,
+    /// First-frame latency trials (each a fresh stream).
+    pub latency_trials: usize,
+    /// Chunk length of the paced first-frame feed, in milliseconds.
+    pub chunk_ms: f64,
+    /// Stream counts for batched stepping (empty: skip).
+    pub streams: Vec<usize>,
+    /// Untimed batched steps per N.
+    pub batch_warmup: usize,
+    /// Most timed batched steps per N.
+    pub batch_steps: usize,
+    /// Fewest timed batched steps per N (even past the time cap).
+    pub batch_min_steps: usize,
+    /// Time cap per N for the timed batched steps, in seconds.
+    pub batch_seconds: f64,
+    /// Batched stepping with churn: at every step one stream leaves and a fresh one joins.
+    pub churn: bool,
+}
+
+impl Default for BenchConfig {
+    fn default() -> Self {
+        Self {
+            audio: PathBuf::new(),
+            guidance: None,
+            seed: 0,
+            warmup: 20,
+            steps: 300,
+            latency_trials: 5,
+            chunk_ms: 10.0,
+            streams: vec![1, 8, 32, 128],
+            batch_warmup: 3,
+            batch_steps: 100,
+            batch_min_steps: 5,
+            batch_seconds: 15.0,
+            churn: true,
+        }
+    }
+}
+
+/// Per-graph timings of single-stream steps.
+#[derive(Debug, Clone, Serialize)]
+pub struct GraphTiming {
+    pub graph: String,
+    pub ms: Stats,
+}
+
+/// Single-stream results.
+#[derive(Debug, Clone, Serialize)]
+pub struct SingleStream {
+    pub warmup_steps: usize,
+    /// Whole chain per token step (all graphs, both guidance branches, sampling, frames).
+    pub chain_ms: Stats,
+    /// Each graph's run per token step.
+    pub graphs: Vec<GraphTiming>,
+    /// Sum of the graph runs per step.
+    pub graphs_sum_ms: Stats,
+    /// Chain minus graph runs (stacking, sampling, frame assembly), median.
+    pub overhead_ms_median: f64,
+    /// Log-mel frontend per token (median over tokens).
+    pub frontend_ms_per_token: f64,
+    /// (median chain + frontend) / token duration.
+    pub real_time_factor: f64,
+    /// Every timed whole-chain step, in order (for the latency distribution plot).
+    pub chain_samples_ms: Vec<f64>,
+}
+
+/// First-frame latency with audio arriving at real-time pace.
+#[derive(Debug, Clone, Serialize)]
+pub struct FirstFrame {
+    pub chunk_ms: f64,
+    /// When token 0's audio is complete (its span), after the first sample.
+    pub token0_audio_ms: f64,
+    /// When the chunk completing token 0 arrives (token 0's span rounded up to the chunk grid).
+    pub token0_chunk_arrival_ms: f64,
+    /// First sample's arrival to first frame returned (fresh stream on a warmed-up pipeline).
+    pub total_ms: Stats,
+    /// First frame returned minus the arrival of the chunk completing token 0.
+    pub compute_ms: Stats,
+    /// The first stream of a freshly loaded pipeline (tract builds its plans on first use).
+    pub cold_pipeline_total_ms: f64,
+    pub cold_pipeline_compute_ms: f64,
+}
+
+/// Batched stepping of N streams.
+#[derive(Debug, Clone, Serialize)]
+pub struct Batched {
+    pub streams: usize,
+    pub churn: bool,
+    pub warmup_steps: usize,
+    pub timed_steps: usize,
+    /// True when the time cap ended the timed steps before `batch_steps`.
+    pub capped: bool,
+    /// One batched token step of all N streams (graphs, stacking, sampling, frames).
+    pub step_ms: Stats,
+    /// Median step / N.
+    pub per_stream_ms: f64,
+    /// N * token duration / median step: streams one core keeps in real time (graphs only).
+    pub realtime_streams: f64,
+    /// Same with each stream's log-mel frontend added: N * token / (step + N * frontend).
+    pub realtime_streams_with_frontend: f64,
+}
+
+/// Everything one `bench` run measures.
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchReport {
+    pub bundle: String,
+    pub config: Option<String>,
+    pub parameters: u64,
+    pub backend: String,
+    pub backend_description: String,
+    pub guidance: f64,
+    pub audio: String,
+    pub token_ms: f64,
+    pub machine: Machine,
+    pub load_seconds: f64,
+    pub single: SingleStream,
+    pub first_frame: FirstFrame,
+    pub state_bytes_per_stream: usize,
+    pub state_bytes_per_stream_unguided: usize,
+    /// VmHWM after loading, the single-stream and latency runs (before batched stepping).
+    pub peak_rss_single_bytes: Option<u64>,
+    pub batched: Vec<Batched>,
+    /// VmHWM at the end of the run.
+    pub peak_rss_bytes: Option<u64>,
+    pub wall_seconds: f64,
+}
+
+/// The machine the benchmark ran on.
+#[derive(Debug, Clone, Serialize)]
+pub struct Machine {
+    pub cpu: String,
+    pub cores: usize,
+    pub loadavg_start: String,
+    pub loadavg_end: String,
+}
+
+/// CPU model name from `/proc/cpuinfo`.
+pub fn cpu_name() -> String {
+    std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split_once(':'))
+                .map(|(_, v)| v.trim().to_string())
+        })
+        .unwrap_or_else(|| std::env::consts::ARCH.to_string())
+}
+
+/// `/proc/loadavg` (first three fields).
+pub fn loadavg() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+        .unwrap_or_default()
+}
+
+/// Peak resident set size (`VmHWM` of `/proc/self/status`) in bytes.
+pub fn peak_rss_bytes() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// The mel blocks of `samples`, one per complete token.
+fn mel_blocks(bundle: &Bundle, samples: &[f32]) -> Result<(Vec<Array2<f32>>, f64)> {
+    let mut fe = StreamingLogMel::new(bundle.frontend())?;
+    let t0 = Instant::now();
+    let mut out = Vec::new();
+    // token-sized pushes, as a live stream would see them
+    let per = (bundle.frontend().token_end(1) - bundle.frontend().token_end(0)) as usize;
+    for c in samples.chunks(per.max(1)) {
+        out.extend(fe.push(c)?);
+    }
+    let ms_per_token = t0.elapsed().as_secs_f64() * 1e3 / out.len().max(1) as f64;
+    Ok((out, ms_per_token))
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+/// Paced first-frame measurement on a fresh stream: returns (total ms, compute ms).
+fn first_frame_once(
+    pipe: &mut Pipeline,
+    opts: &StreamOptions,
+    audio: &[f32],
+    chunk: usize,
+    sr: f64,
+) -> Result<(f64, f64)> {
+    let mut s = pipe.new_stream(opts)?;
+    let start = Instant::now(); // the first sample arrives
+    let mut sent = 0usize;
+    loop {
+        ensure!(sent < audio.len(), "no frame before the audio ran out");
+        let end = (sent + chunk).min(audio.len());
+        // the chunk is available once its last sample has arrived
+        let arrival = Duration::from_secs_f64(end as f64 / sr);
+        let now = start.elapsed();
+        if arrival > now {
+            std::thread::sleep(arrival - now);
+        }
+        let frames = pipe.push(&mut s, &audio[sent..end])?;
+        if !frames.is_empty() {
+            let done = start.elapsed();
+            return Ok((ms(done), ms(done.saturating_sub(arrival))));
+        }
+        sent = end;
+    }
+}
+
+/// Runs the whole benchmark for `bundle` on `backend` (one thread).
+pub fn run(
+    bundle: &Bundle,
+    backend: &dyn Backend,
+    cfg: &BenchConfig,
+    mut progress: impl FnMut(&str),
+) -> Result<BenchReport> {
+    let wall = Instant::now();
+    let load_start = loadavg();
+    let rec = Arc::new(Recorder::default());
+    let timing = TimingBackend::new(backend, rec.clone());
+    let t0 = Instant::now();
+    let mut pipe = Pipeline::new(bundle, &timing)?;
+    let load_seconds = t0.elapsed().as_secs_f64();
+    let fe = bundle.frontend().clone();
+    let sr = fe.sample_rate as f64;
+    let token_ms = 1e3 * fe.frames_per_token as f64 / fe.fps as f64;
+
+    let clip = crate::audio::read_wav_16k_mono(&cfg.audio)
+        .with_context(|| format!("reading {}", cfg.audio.display()))?;
+    ensure!(
+        !clip.is_empty(),
+        "{}: the audio has no samples",
+        cfg.audio.display()
+    );
+    // enough audio for the longest single stream run, the clip repeated
+    let need_tokens = cfg.warmup + cfg.steps + 2;
+    let need = fe.token_end(need_tokens as u64) as usize + fe.win_length;
+    let mut audio = Vec::with_capacity(need);
+    while audio.len() < need {
+        audio.extend_from_slice(&clip);
+    }
+    audio.truncate(need);
+    let (mels, frontend_ms) = mel_blocks(bundle, &audio)?;
+    ensure!(mels.len() > cfg.warmup + cfg.steps, "not enough mel blocks");
+
+    let opts = StreamOptions {
+        seed: cfg.seed,
+        guidance: cfg.guidance,
+        ..Default::default()
+    };
+
+    // first frame on the freshly loaded pipeline (tract optimises its plans here)
+    progress("first frame, cold pipeline");
+    let chunk = ((cfg.chunk_ms / 1e3) * sr).round().max(1.0) as usize;
+    let (cold_total, cold_compute) = first_frame_once(&mut pipe, &opts, &audio, chunk, sr)?;
+    rec.drain();
+
+    // single stream
+    progress("single stream");
+    let names = rec.names();
+    let mut s = pipe.new_stream(&opts)?;
+    let guidance = s.guidance();
+    let mut chain = Vec::with_capacity(cfg.steps);
+    let mut per_graph: Vec<Vec<f64>> = vec![Vec::with_capacity(cfg.steps); names.len()];
+    let mut sums = Vec::with_capacity(cfg.steps);
+    for (i, mel) in mels.iter().take(cfg.warmup + cfg.steps).enumerate() {
+        let t = Instant::now();
+        let step = pipe.step(&mut s, mel)?;
+        let dt = ms(t.elapsed());
+        std::hint::black_box(&step);
+        let ev = rec.drain();
+        if i >= cfg.warmup {
+            chain.push(dt);
+            let mut step_graph = vec![0.0; names.len()];
+            for (id, secs) in ev {
+                step_graph[id] += secs * 1e3;
+            }
+            sums.push(step_graph.iter().sum::<f64>());
+            for (v, x) in per_graph.iter_mut().zip(step_graph) {
+                v.push(x);
+            }
+        }
+    }
+    let chain_stats = Stats::of(&chain);
+    let sum_stats = Stats::of(&sums);
+    let overhead: Vec<f64> = chain.iter().zip(&sums).map(|(c, g)| c - g).collect();
+    let single = SingleStream {
+        warmup_steps: cfg.warmup,
+        real_time_factor: (chain_stats.median + frontend_ms) / token_ms,
+        overhead_ms_median: Stats::of(&overhead).median,
+        chain_ms: chain_stats,
+        graphs: names
+            .iter()
+            .zip(&per_graph)
+            .map(|(n, v)| GraphTiming {
+                graph: n.clone(),
+                ms: Stats::of(v),
+            })
+            .collect(),
+        graphs_sum_ms: sum_stats,
+        frontend_ms_per_token: frontend_ms,
+        chain_samples_ms: chain,
+    };
+
+    // first frame on the warm pipeline
+    progress("first-frame latency");
+    let mut totals = Vec::new();
+    let mut computes = Vec::new();
+    for _ in 0..cfg.latency_trials.max(1) {
+        let (a, b) = first_frame_once(&mut pipe, &opts, &audio, chunk, sr)?;
+        totals.push(a);
+        computes.push(b);
+    }
+    rec.drain();
+    let t0_end = fe.token_end(0) as f64;
+    let first_frame = FirstFrame {
+        chunk_ms: chunk as f64 / sr * 1e3,
+        token0_audio_ms: t0_end / sr * 1e3,
+        token0_chunk_arrival_ms: (t0_end / chunk as f64).ceil() * chunk as f64 / sr * 1e3,
+        total_ms: Stats::of(&totals),
+        compute_ms: Stats::of(&computes),
+        cold_pipeline_total_ms: cold_total,
+        cold_pipeline_compute_ms: cold_compute,
+    };
+    let peak_rss_single_bytes = peak_rss_bytes();
+
+    // batched stepping
+    let mut batched = Vec::new();
+    for &n in &cfg.streams {
+        progress(&format!("batched, {n} streams"));
+        batched.push(run_batched(
+            &mut pipe, &opts, &mels, n, cfg, token_ms, frontend_ms,
+        )?);
+        rec.drain();
+    }
+
+    let model = &bundle.manifest().model;
+    Ok(BenchReport {
+        bundle: bundle.dir().display().to_string(),
+        config: model.config_name.clone().or_else(|| model.name.clone()),
+        parameters: model.parameters.values().sum(),
+        backend: backend.name().to_string(),
+        backend_description: backend.describe(),
+        guidance,
+        audio: cfg.audio.display().to_string(),
+        token_ms,
+        machine: Machine {
+            cpu: cpu_name(),
+            cores: std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1),
+            loadavg_start: load_start,
+            loadavg_end: loadavg(),
+        },
+        load_seconds,
+        single,
+        first_frame,
+        state_bytes_per_stream: state_bytes(bundle, guidance != 1.0),
+        state_bytes_per_stream_unguided: state_bytes(bundle, false),
+        peak_rss_single_bytes,
+        batched,
+        peak_rss_bytes: peak_rss_bytes(),
+        wall_seconds: wall.elapsed().as_secs_f64(),
+    })
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run_batched(
+    pipe: &mut Pipeline,
+    opts: &StreamOptions,
+    mels: &[Array2<f32>],
+    n: usize,
+    cfg: &BenchConfig,
+    token_ms: f64,
+    frontend_ms: f64,
+) -> Result<Batched> {
+    // each stream starts at its own place in the audio and has its own seed
+    let mut streams = Vec::with_capacity(n);
+    let mut pos = Vec::with_capacity(n);
+    for i in 0..n {
+        streams.push(pipe.new_stream(&StreamOptions {
+            seed: opts.seed.wrapping_add(i as u64),
+            ..opts.clone()
+        })?);
+        pos.push((i * 7) % mels.len());
+    }
+    let mut next_seed = opts.seed.wrapping_add(n as u64);
+    let mut times = Vec::new();
+    let total = cfg.batch_warmup + cfg.batch_steps;
+    let cap = Duration::from_secs_f64(cfg.batch_seconds);
+    let mut timed_start: Option<Instant> = None;
+    let mut capped = false;
+    for step in 0..total {
+        if step == cfg.batch_warmup {
+            timed_start = Some(Instant::now());
+        }
+        if let Some(ts) = timed_start {
+            if times.len() >= cfg.batch_min_steps && ts.elapsed() > cap {
+                capped = true;
+                break;
+            }
+        }
+        if cfg.churn && step > 0 && n > 1 {
+            // one stream leaves, a fresh one (cold start) joins in its place
+            let j = step % n;
+            streams[j] = pipe.new_stream(&StreamOptions {
+                seed: next_seed,
+                ..opts.clone()
+            })?;
+            next_seed = next_seed.wrapping_add(1);
+            pos[j] = 0;
+        }
+        let block: Vec<Array2<f32>> = pos.iter().map(|&p| mels[p].clone()).collect();
+        let mut refs: Vec<&mut crate::pipeline::Stream> = streams.iter_mut().collect();
+        let t = Instant::now();
+        let out = pipe.step_batch(&mut refs, &block)?;
+        let dt = ms(t.elapsed());
+        std::hint::black_box(&out);
+        if step >= cfg.batch_warmup {
+            times.push(dt);
+        }
+        for p in pos.iter_mut() {
+            *p = (*p + 1) % mels.len();
+        }
+    }
+    let st = Stats::of(&times);
+    let nf = n as f64;
+    Ok(Batched {
+        streams: n,
+        churn: cfg.churn && n > 1,
+        warmup_steps: cfg.batch_warmup,
+        timed_steps: times.len(),
+        capped,
+        per_stream_ms: st.median / nf,
+        realtime_streams: nf * token_ms / st.median,
+        realtime_streams_with_frontend: nf * token_ms / (st.median + nf * frontend_ms),
+        step_ms: st,
+    })
+}
+
+/// A human-readable table of `r`.
+pub fn format_table(r: &BenchReport) -> String {
+    use std::fmt::Write;
+    let mut o = String::new();
+    let _ = writeln!(
+        o,
+        "bundle {} (config {}, {:.1} M parameters), backend {}, guidance {}",
+        r.bundle,
+        r.config.as_deref().unwrap_or("?"),
+        r.parameters as f64 / 1e6,
+        r.backend_description,
+        r.guidance
+    );
+    let _ = writeln!(
+        o,
+        "machine: {}, {} cores, load {} -> {}",
+        r.machine.cpu, r.machine.cores, r.machine.loadavg_start, r.machine.loadavg_end
+    );
+    let _ = writeln!(
+        o,
+        "\nper-token step, one stream ({} timed steps after {} warm-up), ms:",
+        r.single.chain_ms.n, r.single.warmup_steps
+    );
+    let _ = writeln!(
+        o,
+        "  {:<16} {:>9} {:>9} {:>9}",
+        "", "median", "p95", "p99"
+    );
+    let row = |o: &mut String, name: &str, s: &Stats| {
+        let _ = writeln!(
+            o,
+            "  {:<16} {:>9.3} {:>9.3} {:>9.3}",
+            name, s.median, s.p95, s.p99
+        );
+    };
+    for g in &r.single.graphs {
+        row(&mut o, &g.graph, &g.ms);
+    }
+    row(&mut o, "sum of graphs", &r.single.graphs_sum_ms);
+    row(&mut o, "whole chain", &r.single.chain_ms);
+    let _ = writeln!(
+        o,
+        "  overhead (chain - graphs) {:.3} ms, log-mel frontend {:.3} ms/token",
+        r.single.overhead_ms_median, r.single.frontend_ms_per_token
+    );
+    let _ = writeln!(
+        o,
+        "  real-time factor {:.4} (token = {:.1} ms)",
+        r.single.real_time_factor, r.token_ms
+    );
+    let f = &r.first_frame;
+    let _ = writeln!(
+        o,
+        "\nfirst frame, audio at real-time pace in {:.0} ms chunks ({} trials): {:.1} ms median from the first sample \
+         (token 0's audio ends at {:.1} ms, its chunk arrives at {:.1} ms; compute after that {:.2} ms median); \
+         cold pipeline {:.1} ms (compute {:.1} ms)",
+        f.chunk_ms,
+        f.total_ms.n,
+        f.total_ms.median,
+        f.token0_audio_ms,
+        f.token0_chunk_arrival_ms,
+        f.compute_ms.median,
+        f.cold_pipeline_total_ms,
+        f.cold_pipeline_compute_ms
+    );
+    let _ = writeln!(
+        o,
+        "state per stream: {} bytes ({} without guidance); peak RSS {:.1} MiB after single stream, {:.1} MiB at the end",
+        r.state_bytes_per_stream,
+        r.state_bytes_per_stream_unguided,
+        r.peak_rss_single_bytes.unwrap_or(0) as f64 / 1048576.0,
+        r.peak_rss_bytes.unwrap_or(0) as f64 / 1048576.0
+    );
+    if !r.batched.is_empty() {
+        let _ = writeln!(
+            o,
+            "\nbatched stepping (one core):\n  {:>5} {:>6} {:>11} {:>9} {:>9} {:>13} {:>13}",
+            "N", "steps", "step med ms", "p95", "ms/strm", "RT streams", "RT w/ frontend"
+        );
+        for b in &r.batched {
+            let _ = writeln!(
+                o,
+                "  {:>5} {:>6} {:>11.2} {:>9.2} {:>9.3} {:>13.1} {:>13.1}{}",
+                b.streams,
+                b.timed_steps,
+                b.step_ms.median,
+                b.step_ms.p95,
+                b.per_stream_ms,
+                b.realtime_streams,
+                b.realtime_streams_with_frontend,
+                if b.capped { "  (time-capped)" } else { "" }
+            );
+        }
+    }
+    o
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn percentiles_match_numpy() {
+        let s = Stats::of(&[4.0, 1.0, 3.0, 2.0, 5.0]);
+        assert_eq!(s.median, 3.0);
+        assert!((s.p95 - 4.8).abs() < 1e-12);
+        assert_eq!(s.min, 1.0);
+        assert_eq!(s.max, 5.0);
+    }
+}
