@@ -136,13 +136,16 @@ fn from_tract(v: &TValue, want: DType, what: &str) -> Result<LgTensor> {
             let a = v
                 .to_plain_array_view::<f32>()
                 .with_context(|| format!("{what}: expected float32"))?;
-            LgTensor::f32(shape, a.iter().copied().collect())
+            // a contiguous view (the usual case) is one memcpy, not an element iterator
+            let data = a.as_slice().map_or_else(|| a.iter().copied().collect(), <[f32]>::to_vec);
+            LgTensor::f32(shape, data)
         }
         DType::I64 => {
             let a = v
                 .to_plain_array_view::<i64>()
                 .with_context(|| format!("{what}: expected int64"))?;
-            LgTensor::i64(shape, a.iter().copied().collect())
+            let data = a.as_slice().map_or_else(|| a.iter().copied().collect(), <[i64]>::to_vec);
+            LgTensor::i64(shape, data)
         }
     }
 }
