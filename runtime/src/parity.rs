@@ -11,7 +11,7 @@
 //! | `rollout` | the whole seeded rollout (`reference/clip.wav` repeated `clip_repeats` times, the manifest's seed and sampling defaults): tokens identical at every step, frames (poses, trans, expressions, foot contact) | [`ROLLOUT_FRAMES`] |
 //! | `logmel` | the Rust log-mel frontend on `reference/clip.wav` vs `reference/logmel.npy` | [`LOGMEL`] |
 //! | `chunks` | chunks of 1 sample, 160, 3200, 16000 samples and the whole prefix give identical frames (on a prefix of the clip, [`ParityOptions::chunk_seconds`]) | exact |
-//! | `batch` | [`Pipeline::step_batch`] with 1, 2 and 5 streams (different seeds, audio, one without guidance) vs separate runs: identical tokens, frames | [`BATCH_FRAMES`] |
+//! | `batch` | [`Pipeline::step_batch`] with 1, 2 and 5 streams (different seeds, audio, one without guidance) vs separate runs: identical tokens, frames | [`BATCH_FRAMES`] (ort), [`TRACT_BATCH_FRAMES`] (tract) |
 //!
 //! Every comparison is one [`Row`]: the check, the graph (or what is compared), the comparison
 //! (`ort vs torch`, ...), the output, the step of the largest error, the error, the bound and the
@@ -59,10 +59,26 @@ pub const TRACT_VS_TORCH: f64 = ORT_VS_TORCH + TRACT_VS_ORT;
 pub const ROLLOUT_FRAMES: f64 = 1e-4;
 /// Rust log-mel frontend vs the Python one (SPEC 7).
 pub const LOGMEL: f64 = 1e-4;
-/// Batched vs separate stepping, frames.
+/// Batched vs separate stepping, frames, on ort (which computes every row alike: exact in practice).
 pub const BATCH_FRAMES: f64 = 1e-6;
+/// Batched vs separate stepping, frames, on tract: tract optimises one plan per batch size and its
+/// kernels may sum in another order, so graph outputs differ by ~1e-7 between batch sizes, and the
+/// rot6d -> axis-angle conversion amplifies that for near-degenerate rot6d (random-weight bundles).
+/// The bound is tract's own tolerance (SPEC 7, "approximate").
+pub const TRACT_BATCH_FRAMES: f64 = TRACT_VS_ORT;
+
+/// The batched-vs-separate frame bound of a backend.
+pub fn batch_bound(kind: BackendKind) -> f64 {
+    match kind {
+        BackendKind::Ort => BATCH_FRAMES,
+        BackendKind::Tract => TRACT_BATCH_FRAMES,
+    }
+}
 /// A sampling margin (probability) below this is reported as a numerical near-tie.
 pub const NEAR_TIE: f64 = 1e-3;
+/// Two candidate tokens whose guided logits are closer than this are a near-tie too: the sampler
+/// orders tokens by guided logit, so such tokens can swap places (and CDF intervals).
+pub const NEAR_TIE_LOGIT: f64 = 1e-3;
 /// Chunk sizes of the chunk-invariance check (samples); the whole prefix is the reference.
 pub const CHUNK_SIZES: [usize; 4] = [1, 160, 3200, 16000];
 /// Batch sizes of the batching check.
@@ -394,7 +410,14 @@ impl Report {
         }
         let failures = self.failures();
         for f in &failures {
-            s.push_str(&f.failure_line());
+            if f.check == Check::Rollout && f.metric == Metric::DifferingSteps && !self.divergences.is_empty() {
+                // the divergence line above already says everything about it
+                let mut short = (*f).clone();
+                short.detail = Some("see the divergence above".into());
+                s.push_str(&short.failure_line());
+            } else {
+                s.push_str(&f.failure_line());
+            }
             s.push('\n');
         }
         if failures.is_empty() {
@@ -741,6 +764,13 @@ pub struct Margin {
     pub p_second: f64,
 }
 
+impl Margin {
+    /// See [`Divergence::near_tie`].
+    pub fn is_near_tie(&self) -> bool {
+        self.cdf_margin < NEAR_TIE || self.token_gap.abs() < NEAR_TIE_LOGIT
+    }
+}
+
 /// The first step where two rollouts' tokens differ.
 #[derive(Debug, Clone, Serialize)]
 pub struct Divergence {
@@ -762,12 +792,15 @@ pub struct Divergence {
 }
 
 impl Divergence {
-    /// True when every known margin is below [`NEAR_TIE`]: the draw sat on a boundary.
+    /// True when, from every known side's logits, the draw was fragile: it sat within [`NEAR_TIE`]
+    /// of an edge of the sampled token's CDF interval, or the two candidate tokens' guided logits
+    /// are within [`NEAR_TIE_LOGIT`] (so a tiny logit change swaps their order and intervals).
+    /// `None` when no logits are known.
     pub fn near_tie(&self) -> Option<bool> {
         if self.margins.is_empty() {
             None
         } else {
-            Some(self.margins.iter().all(|m| m.cdf_margin < NEAR_TIE))
+            Some(self.margins.iter().all(Margin::is_near_tie))
         }
     }
 }
@@ -809,11 +842,14 @@ impl fmt::Display for Divergence {
         match self.near_tie() {
             Some(true) => write!(
                 f,
-                "; verdict: numerical near-tie (margin < {NEAR_TIE:.0e}): the draw sat on the boundary between the two tokens"
+                "; verdict: numerical near-tie (draw within {NEAR_TIE:.0e} of an interval edge, or the two tokens' \
+                 guided logits within {NEAR_TIE_LOGIT:.0e}): a tiny logit difference flips this draw, so if the \
+                 graph checks pass this is numerical noise, not a bug"
             ),
             Some(false) => write!(
                 f,
-                "; verdict: NOT a near-tie (margin >= {NEAR_TIE:.0e}): the logits really differ"
+                "; verdict: NOT a near-tie (draw >= {NEAR_TIE:.0e} from the interval edges, logit gap >= \
+                 {NEAR_TIE_LOGIT:.0e}): the logits really differ, look for a bug"
             ),
             None => write!(f, "; no logits known on either side, margin not computed"),
         }
@@ -1037,25 +1073,32 @@ fn run_stream(
     Ok(steps)
 }
 
-/// Compares the frames of `got` to those of `want` (token steps) over the first `n_steps` steps.
+/// Compares the frames of token steps pairwise: `pairs` are (label naming the stream in the report,
+/// got, want).
 fn frame_rows_steps(
     check: Check,
     what: &str,
     comparison: &str,
-    got: &[TokenStep],
-    want: &[TokenStep],
+    pairs: &[(String, &[TokenStep], &[TokenStep])],
     bound: f64,
     rows: &mut Vec<Row>,
 ) {
     for (k, name) in FRAME_FIELDS.iter().enumerate() {
         let mut m = MaxAbs::default();
-        for (a, b) in got.iter().zip(want) {
-            for (fa, fb) in a.frames.iter().zip(&b.frames) {
-                for (j, (x, y)) in field(fa, k).iter().zip(field(fb, k)).enumerate() {
-                    if (*x as f64 - *y as f64).abs() > m.err || x.is_nan() || m.step.is_none() {
-                        m.add_f32(a.token_index, format!("frame {}, {name}[{j}]", fa.index), *x, *y);
-                    } else {
-                        m.count += 1;
+        for (label, got, want) in pairs {
+            for (a, b) in got.iter().zip(want.iter()) {
+                for (fa, fb) in a.frames.iter().zip(&b.frames) {
+                    for (j, (x, y)) in field(fa, k).iter().zip(field(fb, k)).enumerate() {
+                        if (*x as f64 - *y as f64).abs() > m.err || x.is_nan() || m.step.is_none() {
+                            m.add_f32(
+                                a.token_index,
+                                format!("{label}frame {}, {name}[{j}]", fa.index),
+                                *x,
+                                *y,
+                            );
+                        } else {
+                            m.count += 1;
+                        }
                     }
                 }
             }
@@ -1311,8 +1354,7 @@ fn rollout_rows(
             Check::Rollout,
             "rollout",
             "tract vs ort",
-            &t.steps[..n],
-            &o.steps[..n],
+            &[(String::new(), &t.steps[..n], &o.steps[..n])],
             ROLLOUT_FRAMES,
             rows,
         );
@@ -1383,7 +1425,14 @@ fn chunk_rows(
                 let tokens: Vec<Vec<i64>> = got.iter().map(|s| s.tokens.clone()).collect();
                 rows.push(token_row(Check::Chunks, &what, &comparison, &tokens, &whole_tokens, None));
                 let n = got.len().min(whole.len());
-                frame_rows_steps(Check::Chunks, &what, &comparison, &got[..n], &whole[..n], 0.0, rows);
+                frame_rows_steps(
+                    Check::Chunks,
+                    &what,
+                    &comparison,
+                    &[(String::new(), &got[..n], &whole[..n])],
+                    0.0,
+                    rows,
+                );
             }
             Err(e) => rows.push(Row::failed(
                 Check::Chunks,
@@ -1420,6 +1469,7 @@ fn batch_rows(
         })
         .collect();
     let comparison = format!("{kind}: batched vs separate");
+    let bound = batch_bound(kind);
     let mut single = Vec::new();
     for (o, a) in &streams {
         match run_stream(p, o, a, 3200) {
@@ -1430,7 +1480,7 @@ fn batch_rows(
                     "separate runs",
                     comparison,
                     "frames",
-                    BATCH_FRAMES,
+                    bound,
                     format!("{e:#}"),
                 ));
                 return;
@@ -1441,30 +1491,46 @@ fn batch_rows(
         let what = format!("batch {b}");
         match run_batched(p, &streams[..b], 3200) {
             Ok(batched) => {
-                let mut got_tokens = Vec::new();
-                let mut want_tokens = Vec::new();
-                let (mut got_all, mut want_all) = (Vec::new(), Vec::new());
+                let (mut differing, mut compared, mut first) = (0u64, 0u64, None);
+                let mut pairs = Vec::new();
                 for (i, (g, w)) in batched.iter().zip(&single).enumerate() {
-                    // tag steps with their stream so the report names it
+                    let n = g.len().min(w.len());
+                    compared += g.len().max(w.len()) as u64;
+                    differing += (g.len().max(w.len()) - n) as u64;
                     for (x, y) in g.iter().zip(w) {
-                        got_tokens.push(x.tokens.iter().chain([&(i as i64)]).copied().collect());
-                        want_tokens.push(y.tokens.iter().chain([&(i as i64)]).copied().collect());
+                        if x.tokens != y.tokens {
+                            differing += 1;
+                            first.get_or_insert((i, x.token_index, x.tokens.clone(), y.tokens.clone()));
+                        }
                     }
                     if g.len() != w.len() {
-                        got_tokens.push(vec![-1]);
+                        first.get_or_insert((i, n as u64, Vec::new(), Vec::new()));
                     }
-                    got_all.extend(g.iter().cloned());
-                    want_all.extend(w.iter().take(g.len()).cloned());
+                    pairs.push((format!("stream {i}, "), &g[..n], &w[..n]));
                 }
-                rows.push(token_row(Check::Batch, &what, &comparison, &got_tokens, &want_tokens, None));
-                frame_rows_steps(Check::Batch, &what, &comparison, &got_all, &want_all, BATCH_FRAMES, rows);
+                rows.push(Row {
+                    check: Check::Batch,
+                    what: what.clone(),
+                    comparison: comparison.clone(),
+                    output: "tokens".into(),
+                    step: first.as_ref().map(|f| f.1),
+                    metric: Metric::DifferingSteps,
+                    error: differing as f64,
+                    compared,
+                    bound: 0.0,
+                    pass: differing == 0,
+                    detail: first.map(|(i, t, a, b)| {
+                        format!("stream {i} first differs at step {t}: batched {a:?} vs separate {b:?}")
+                    }),
+                });
+                frame_rows_steps(Check::Batch, &what, &comparison, &pairs, bound, rows);
             }
             Err(e) => rows.push(Row::failed(
                 Check::Batch,
                 what,
                 comparison.clone(),
                 "frames",
-                BATCH_FRAMES,
+                bound,
                 format!("{e:#}"),
             )),
         }
