@@ -33,12 +33,17 @@ def _load(p: Path):
     return json.loads(p.read_text()) if p.exists() else None
 
 
-def roofline_ms(flops: float, weight_bytes: float, roof: dict) -> dict:
-    """Roofline time of one step: max(compute time at peak GFLOP/s, weight read time at read bandwidth)."""
+def roofline_ms(flops: float, weight_bytes: float, roof: dict, state_bytes: float = 0.0) -> dict:
+    """Roofline time of one step: max(compute time at peak GFLOP/s, weight read time at read bandwidth).
+
+    Also the same with the caches' traffic added to the memory term (`state_bytes` read and written once
+    per step: the least a stateful step must move), as `roofline_state_ms`."""
     t_c = flops / (roof["peak_gflops"] * 1e9) * 1e3
     t_m = weight_bytes / (roof["read_bandwidth_gbs"] * 1e9) * 1e3
+    t_s = t_m + 2 * state_bytes / (roof["copy_bandwidth_gbs"] * 1e9) * 1e3
     return {"compute_ms": t_c, "memory_ms": t_m, "roofline_ms": max(t_c, t_m),
-            "bound": "compute" if t_c >= t_m else "memory"}
+            "bound": "compute" if t_c >= t_m else "memory",
+            "state_memory_ms": t_s, "roofline_state_ms": max(t_c, t_s)}
 
 
 def summarise(res: Path) -> dict:
@@ -73,7 +78,7 @@ def summarise(res: Path) -> dict:
             if fl and roof:
                 f1 = fl["_total"]["flops_per_step_guided"]
                 wb = fl["_total"]["weight_bytes"]
-                rl = roofline_ms(f1, wb, roof)
+                rl = roofline_ms(f1, wb, roof, r["state_bytes_per_stream"])
                 med = s["chain_ms"]["median"]
                 s["flops_per_step"] = f1
                 s["weight_bytes"] = wb
@@ -81,6 +86,7 @@ def summarise(res: Path) -> dict:
                 s["achieved_gflops"] = f1 / (med * 1e-3) / 1e9
                 s["roofline_fraction"] = rl["roofline_ms"] / med
                 s["over_roofline"] = med / rl["roofline_ms"]
+                s["roofline_state_fraction"] = rl["roofline_state_ms"] / med
             for b in r["batched"]:
                 e = {"n": b["streams"], "step_ms": b["step_ms"]["median"], "p95": b["step_ms"]["p95"],
                      "timed_steps": b["timed_steps"], "capped": b["capped"], "churn": b["churn"],
@@ -88,12 +94,16 @@ def summarise(res: Path) -> dict:
                      "realtime_streams_with_frontend": b["realtime_streams_with_frontend"]}
                 if fl and roof:
                     fn = f1 * b["streams"]
-                    rl = roofline_ms(fn, wb, roof)
+                    rl = roofline_ms(fn, wb, roof, r["state_bytes_per_stream"] * b["streams"])
                     e["achieved_gflops"] = fn / (b["step_ms"]["median"] * 1e-3) / 1e9
                     e["compute_fraction"] = e["achieved_gflops"] / roof["peak_gflops"]
                     e["roofline_ms"] = rl["roofline_ms"]
                     e["roofline_fraction"] = rl["roofline_ms"] / b["step_ms"]["median"]
                     e["bound"] = rl["bound"]
+                    e["roofline_state_ms"] = rl["roofline_state_ms"]
+                    e["roofline_state_fraction"] = rl["roofline_state_ms"] / b["step_ms"]["median"]
+                    e["graphs_ms"] = b.get("graphs_sum_ms_median")
+                    e["overhead_ms"] = b.get("overhead_ms_median")
                 s["batched"].append(e)
             out["runs"][f"{cfg}/{be}"] = s
     return out
@@ -134,22 +144,27 @@ def table_md(summ: dict) -> str:
                  f"copy bandwidth {roof['copy_bandwidth_gbs']:.1f} GB/s.")
         L.append("")
         L.append("| config | backend | N streams | MFLOP / step | weight MB / step | roofline ms (bound) | "
-                 "measured ms | achieved GFLOP/s | of peak compute | roofline / measured |")
-        L.append("|---|---|---|---|---|---|---|---|---|---|")
+                 "roofline + state ms | measured ms (graphs) | achieved GFLOP/s | of peak compute | roofline / measured | "
+                 "(roofline + state) / measured |")
+        L.append("|---|---|---|---|---|---|---|---|---|---|---|---|")
         for s in runs.values():
             if "roofline" not in s:
                 continue
             L.append(f"| {s['config']} | {s['backend']} | 1 (chain) | {s['flops_per_step'] / 1e6:.1f} | "
                      f"{s['weight_bytes'] / 1e6:.1f} | {s['roofline']['roofline_ms']:.3f} ({s['roofline']['bound']}) | "
-                     f"{s['chain_ms']['median']:.2f} | {s['achieved_gflops']:.2f} | "
-                     f"{s['achieved_gflops'] / roof['peak_gflops']:.1%} | {s['roofline_fraction']:.1%} |")
+                     f"{s['roofline']['roofline_state_ms']:.3f} | "
+                     f"{s['chain_ms']['median']:.2f} ({s['graphs_sum_ms']['median']:.2f}) | {s['achieved_gflops']:.2f} | "
+                     f"{s['achieved_gflops'] / roof['peak_gflops']:.1%} | {s['roofline_fraction']:.1%} | "
+                     f"{s['roofline_state_fraction']:.1%} |")
             for b in s["batched"]:
                 if "roofline_ms" not in b:
                     continue
                 L.append(f"| {s['config']} | {s['backend']} | {b['n']} (batched) | "
                          f"{s['flops_per_step'] * b['n'] / 1e6:.1f} | {s['weight_bytes'] / 1e6:.1f} | "
-                         f"{b['roofline_ms']:.3f} ({b['bound']}) | {b['step_ms']:.2f} | {b['achieved_gflops']:.2f} | "
-                         f"{b['compute_fraction']:.1%} | {b['roofline_fraction']:.1%} |")
+                         f"{b['roofline_ms']:.3f} ({b['bound']}) | {b['roofline_state_ms']:.3f} | "
+                         f"{b['step_ms']:.2f} ({b['graphs_ms'] if b['graphs_ms'] is not None else float('nan'):.2f}) | "
+                         f"{b['achieved_gflops']:.2f} | {b['compute_fraction']:.1%} | {b['roofline_fraction']:.1%} | "
+                         f"{b['roofline_state_fraction']:.1%} |")
     L.append("")
     L.append("Batched stepping, real-time streams one core sustains (N x 133.3 ms / median batched step; "
              "with each stream's log-mel frontend added in parentheses):")

@@ -261,6 +261,10 @@ pub struct Batched {
     pub capped: bool,
     /// One batched token step of all N streams (graphs, stacking, sampling, frames).
     pub step_ms: Stats,
+    /// Graph runs per batched step (median of their sum).
+    pub graphs_sum_ms_median: f64,
+    /// Median of (step - graph runs): stacking and splitting caches, sampling, frames.
+    pub overhead_ms_median: f64,
     /// Median step / N.
     pub per_stream_ms: f64,
     /// N * token duration / median step: streams one core keeps in real time (graphs only).
@@ -500,7 +504,14 @@ pub fn run(
     for &n in &cfg.streams {
         progress(&format!("batched, {n} streams"));
         batched.push(run_batched(
-            &mut pipe, &opts, &mels, n, cfg, token_ms, frontend_ms,
+            &mut pipe,
+            &rec,
+            &opts,
+            &mels,
+            n,
+            cfg,
+            token_ms,
+            frontend_ms,
         )?);
         rec.drain();
     }
@@ -538,6 +549,7 @@ pub fn run(
 #[allow(clippy::too_many_arguments)]
 fn run_batched(
     pipe: &mut Pipeline,
+    rec: &Recorder,
     opts: &StreamOptions,
     mels: &[Array2<f32>],
     n: usize,
@@ -557,6 +569,7 @@ fn run_batched(
     }
     let mut next_seed = opts.seed.wrapping_add(n as u64);
     let mut times = Vec::new();
+    let mut graph_sums = Vec::new();
     let total = cfg.batch_warmup + cfg.batch_steps;
     let cap = Duration::from_secs_f64(cfg.batch_seconds);
     let mut timed_start: Option<Instant> = None;
@@ -587,8 +600,10 @@ fn run_batched(
         let out = pipe.step_batch(&mut refs, &block)?;
         let dt = ms(t.elapsed());
         std::hint::black_box(&out);
+        let g: f64 = rec.drain().iter().map(|e| e.1 * 1e3).sum();
         if step >= cfg.batch_warmup {
             times.push(dt);
+            graph_sums.push(g);
         }
         for p in pos.iter_mut() {
             *p = (*p + 1) % mels.len();
@@ -596,12 +611,15 @@ fn run_batched(
     }
     let st = Stats::of(&times);
     let nf = n as f64;
+    let over: Vec<f64> = times.iter().zip(&graph_sums).map(|(t, g)| t - g).collect();
     Ok(Batched {
         streams: n,
         churn: cfg.churn && n > 1,
         warmup_steps: cfg.batch_warmup,
         timed_steps: times.len(),
         capped,
+        graphs_sum_ms_median: Stats::of(&graph_sums).median,
+        overhead_ms_median: Stats::of(&over).median,
         per_stream_ms: st.median / nf,
         realtime_streams: nf * token_ms / st.median,
         realtime_streams_with_frontend: nf * token_ms / (st.median + nf * frontend_ms),
@@ -632,11 +650,7 @@ pub fn format_table(r: &BenchReport) -> String {
         "\nper-token step, one stream ({} timed steps after {} warm-up), ms:",
         r.single.chain_ms.n, r.single.warmup_steps
     );
-    let _ = writeln!(
-        o,
-        "  {:<16} {:>9} {:>9} {:>9}",
-        "", "median", "p95", "p99"
-    );
+    let _ = writeln!(o, "  {:<16} {:>9} {:>9} {:>9}", "", "median", "p95", "p99");
     let row = |o: &mut String, name: &str, s: &Stats| {
         let _ = writeln!(
             o,
@@ -685,17 +699,18 @@ pub fn format_table(r: &BenchReport) -> String {
     if !r.batched.is_empty() {
         let _ = writeln!(
             o,
-            "\nbatched stepping (one core):\n  {:>5} {:>6} {:>11} {:>9} {:>9} {:>13} {:>13}",
-            "N", "steps", "step med ms", "p95", "ms/strm", "RT streams", "RT w/ frontend"
+            "\nbatched stepping (one core):\n  {:>5} {:>6} {:>11} {:>9} {:>9} {:>9} {:>13} {:>13}",
+            "N", "steps", "step med ms", "p95", "graphs", "ms/strm", "RT streams", "RT w/ frontend"
         );
         for b in &r.batched {
             let _ = writeln!(
                 o,
-                "  {:>5} {:>6} {:>11.2} {:>9.2} {:>9.3} {:>13.1} {:>13.1}{}",
+                "  {:>5} {:>6} {:>11.2} {:>9.2} {:>9.2} {:>9.3} {:>13.1} {:>13.1}{}",
                 b.streams,
                 b.timed_steps,
                 b.step_ms.median,
                 b.step_ms.p95,
+                b.graphs_sum_ms_median,
                 b.per_stream_ms,
                 b.realtime_streams,
                 b.realtime_streams_with_frontend,
