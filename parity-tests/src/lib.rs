@@ -57,7 +57,10 @@ fn hash_sources(h: &mut impl Hasher, dir: &Path) {
     let mut entries: Vec<PathBuf> = rd.filter_map(|e| e.ok()).map(|e| e.path()).collect();
     entries.sort();
     for p in entries {
-        let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let name = p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
         if p.is_dir() {
             if !name.starts_with('_') && !name.starts_with('.') && name != "tests" {
                 hash_sources(h, &p);
@@ -108,19 +111,21 @@ fn export_tiny() -> PathBuf {
 /// The tiny bundle of this run (see the crate docs).
 pub fn tiny_bundle() -> PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| match std::env::var_os(TINY_BUNDLE_ENV).filter(|v| !v.is_empty()) {
-        Some(p) => {
-            let p = PathBuf::from(p);
-            assert!(
-                p.join("manifest.json").is_file(),
-                "{TINY_BUNDLE_ENV}={} has no manifest.json (export one with \
+    DIR.get_or_init(
+        || match std::env::var_os(TINY_BUNDLE_ENV).filter(|v| !v.is_empty()) {
+            Some(p) => {
+                let p = PathBuf::from(p);
+                assert!(
+                    p.join("manifest.json").is_file(),
+                    "{TINY_BUNDLE_ENV}={} has no manifest.json (export one with \
                  `$LIVEGESTURE_PY export/export.py --config tiny --out DIR`)",
-                p.display()
-            );
-            p
-        }
-        None => export_tiny(),
-    })
+                    p.display()
+                );
+                p
+            }
+            None => export_tiny(),
+        },
+    )
     .clone()
 }
 
@@ -137,7 +142,9 @@ pub enum Breakage {
 /// loads); returns the script's JSON description of the change.
 pub fn break_bundle(src: &Path, dst: &Path, graph: &str, how: &Breakage) -> serde_json::Value {
     let py = python("tools/break_bundle.py");
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools").join("break_bundle.py");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tools")
+        .join("break_bundle.py");
     let mut cmd = Command::new(&py);
     cmd.arg(&script).arg(src).arg(dst).args(["--graph", graph]);
     match how {

@@ -21,8 +21,17 @@ fn graph_rows<'a>(
 
 /// Every graph other than `broken` passes all its graph-level rows.
 fn others_pass(report: &Report, broken: &str) {
-    for r in report.rows.iter().filter(|r| r.check == Check::Graph && r.what != broken) {
-        assert!(r.pass, "graph '{}' should pass: {}", r.what, r.failure_line());
+    for r in report
+        .rows
+        .iter()
+        .filter(|r| r.check == Check::Graph && r.what != broken)
+    {
+        assert!(
+            r.pass,
+            "graph '{}' should pass: {}",
+            r.what,
+            r.failure_line()
+        );
     }
 }
 
@@ -30,7 +39,12 @@ fn others_pass(report: &Report, broken: &str) {
 fn perturbed_weight_fails_exactly_that_graph() {
     let tmp = tempfile::tempdir().unwrap();
     let dst = tmp.path().join("perturbed");
-    let change = break_bundle(&tiny_bundle(), &dst, BROKEN, &Breakage::PerturbWeight { delta: 0.01 });
+    let change = break_bundle(
+        &tiny_bundle(),
+        &dst,
+        BROKEN,
+        &Breakage::PerturbWeight { delta: 0.01 },
+    );
     eprintln!("break_bundle: {change}");
     let report = run_parity(&dst, &[Check::Graph]);
 
@@ -41,7 +55,10 @@ fn perturbed_weight_fails_exactly_that_graph() {
     for comparison in ["ort vs torch", "tract vs torch"] {
         let rows = graph_rows(&report, BROKEN, comparison);
         let bad: Vec<_> = rows.iter().filter(|r| !r.pass).collect();
-        assert!(!bad.is_empty(), "{comparison}: the perturbed weight was not caught");
+        assert!(
+            !bad.is_empty(),
+            "{comparison}: the perturbed weight was not caught"
+        );
         for r in bad {
             // a failure names the graph, the output, the step and the error
             assert_eq!(r.what, BROKEN);
@@ -49,13 +66,19 @@ fn perturbed_weight_fails_exactly_that_graph() {
             assert!(r.step.is_some(), "no step in {}", r.failure_line());
             assert!(r.error > r.bound && r.error.is_finite());
             let line = r.failure_line();
-            assert!(line.contains(BROKEN) && line.contains(&r.output) && line.contains("step"), "{line}");
+            assert!(
+                line.contains(BROKEN) && line.contains(&r.output) && line.contains("step"),
+                "{line}"
+            );
         }
     }
     // ... while both backends run the same perturbed graph alike
     let cross = graph_rows(&report, BROKEN, "tract vs ort");
     assert!(!cross.is_empty());
-    assert!(cross.iter().all(|r| r.pass), "tract vs ort must still agree on the perturbed graph");
+    assert!(
+        cross.iter().all(|r| r.pass),
+        "tract vs ort must still agree on the perturbed graph"
+    );
     others_pass(&report, BROKEN);
 }
 
@@ -80,8 +103,15 @@ fn frozen_cache_update_is_caught() {
             .into_iter()
             .find(|r| r.output == output)
             .unwrap_or_else(|| panic!("no {comparison} row for {output}"));
-        assert!(!row.pass, "{comparison}: the frozen cache was not caught: {row:?}");
-        assert_eq!(row.step, Some(9), "the final caches are compared after the last step");
+        assert!(
+            !row.pass,
+            "{comparison}: the frozen cache was not caught: {row:?}"
+        );
+        assert_eq!(
+            row.step,
+            Some(9),
+            "the final caches are compared after the last step"
+        );
     }
     others_pass(&report, BROKEN);
 
@@ -90,7 +120,11 @@ fn frozen_cache_update_is_caught() {
         let tokens = report
             .rows
             .iter()
-            .find(|r| r.check == Check::Rollout && r.comparison == format!("{backend} vs torch") && r.output == "tokens")
+            .find(|r| {
+                r.check == Check::Rollout
+                    && r.comparison == format!("{backend} vs torch")
+                    && r.output == "tokens"
+            })
             .expect("rollout token row");
         assert_eq!(tokens.metric, Metric::DifferingSteps);
         assert!(!tokens.pass, "{backend}: the rollout did not diverge");
@@ -104,13 +138,20 @@ fn frozen_cache_update_is_caught() {
         assert_ne!(d.first_token, d.second_token);
         assert_eq!(d.margins.len(), 2, "margins from both backends' logits");
         let text = d.to_string();
-        assert!(text.contains(&format!("step {}", d.step)) && text.contains(&d.region) && text.contains("verdict"), "{text}");
+        assert!(
+            text.contains(&format!("step {}", d.step))
+                && text.contains(&d.region)
+                && text.contains("verdict"),
+            "{text}"
+        );
     }
     // ort and tract run the same broken graph alike: identical tokens
     let cross = report
         .rows
         .iter()
-        .find(|r| r.check == Check::Rollout && r.comparison == "tract vs ort" && r.output == "tokens")
+        .find(|r| {
+            r.check == Check::Rollout && r.comparison == "tract vs ort" && r.output == "tokens"
+        })
         .expect("tract vs ort rollout row");
     assert!(cross.pass, "{}", cross.failure_line());
 }

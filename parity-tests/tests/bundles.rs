@@ -19,19 +19,33 @@ fn assert_complete_and_passing(report: &Report, graphs: usize) {
             .filter(|r| r.check == Check::Graph && r.comparison == comparison)
             .map(|r| r.what.as_str())
             .collect();
-        assert_eq!(covered.len(), graphs, "{comparison}: graphs compared {covered:?}");
+        assert_eq!(
+            covered.len(),
+            graphs,
+            "{comparison}: graphs compared {covered:?}"
+        );
     }
     for comparison in ["ort vs torch", "tract vs torch", "tract vs ort"] {
         let tokens = report
             .rows
             .iter()
-            .find(|r| r.check == Check::Rollout && r.comparison == comparison && r.output == "tokens")
+            .find(|r| {
+                r.check == Check::Rollout && r.comparison == comparison && r.output == "tokens"
+            })
             .unwrap_or_else(|| panic!("no rollout token row for {comparison}"));
         assert_eq!(tokens.metric, Metric::DifferingSteps);
-        assert!(tokens.compared >= 1000, "{comparison}: rollout of only {} steps", tokens.compared);
+        assert!(
+            tokens.compared >= 1000,
+            "{comparison}: rollout of only {} steps",
+            tokens.compared
+        );
     }
     let failures: Vec<String> = report.failures().iter().map(|r| r.failure_line()).collect();
-    assert!(failures.is_empty(), "parity failures:\n{}", failures.join("\n"));
+    assert!(
+        failures.is_empty(),
+        "parity failures:\n{}",
+        failures.join("\n")
+    );
     assert!(report.passed());
 }
 
@@ -39,7 +53,10 @@ fn assert_complete_and_passing(report: &Report, graphs: usize) {
 fn default_bundle_passes_every_check() {
     let dir = default_bundle();
     let report = run_parity(&dir, &[]);
-    let graphs = livegesture::bundle::Bundle::load(&dir).unwrap().graphs().len();
+    let graphs = livegesture::bundle::Bundle::load(&dir)
+        .unwrap()
+        .graphs()
+        .len();
     assert_complete_and_passing(&report, graphs);
 }
 
@@ -47,6 +64,9 @@ fn default_bundle_passes_every_check() {
 fn fresh_tiny_bundle_passes_every_check() {
     let dir = tiny_bundle();
     let report = run_parity(&dir, &[]);
-    let graphs = livegesture::bundle::Bundle::load(&dir).unwrap().graphs().len();
+    let graphs = livegesture::bundle::Bundle::load(&dir)
+        .unwrap()
+        .graphs()
+        .len();
     assert_complete_and_passing(&report, graphs);
 }

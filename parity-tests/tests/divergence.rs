@@ -28,7 +28,10 @@ fn random_logits() -> Vec<StepLogits> {
             let mut v = || (g.next_f64() * 4.0 - 2.0) as f32;
             let cond: Vec<f32> = (0..REGIONS.len() * K).map(|_| v()).collect();
             let uncond: Vec<f32> = (0..REGIONS.len() * K).map(|_| v()).collect();
-            StepLogits { cond, uncond: Some(uncond) }
+            StepLogits {
+                cond,
+                uncond: Some(uncond),
+            }
         })
         .collect()
 }
@@ -48,7 +51,11 @@ fn sample(name: &str, logits: Vec<StepLogits>, p: &SamplingParams) -> RolloutTra
                 .collect()
         })
         .collect();
-    RolloutTrace { name: name.into(), tokens, logits: Some(logits) }
+    RolloutTrace {
+        name: name.into(),
+        tokens,
+        logits: Some(logits),
+    }
 }
 
 /// Sets the region's logits so that token 0 has probability `p0`, token 1 the rest, every other
@@ -86,7 +93,9 @@ fn real_difference_is_named_with_step_region_and_margin() {
     let boost = (chosen + 5) % K;
     other[step].cond[region * K + boost] += 20.0;
     let b = sample("b", other, &p);
-    let d = find_divergence(&a, &b, &p).unwrap().expect("the sources diverge");
+    let d = find_divergence(&a, &b, &p)
+        .unwrap()
+        .expect("the sources diverge");
     eprintln!("{d}");
     assert_eq!(d.step, step as u64);
     assert_eq!(d.region, "lower");
@@ -100,7 +109,10 @@ fn real_difference_is_named_with_step_region_and_margin() {
     assert_eq!(d.near_tie(), Some(false));
     assert!(d.logit_difference.unwrap() > 20.0);
     let text = d.to_string();
-    assert!(text.contains("step 12") && text.contains("'lower'") && text.contains("NOT a near-tie"), "{text}");
+    assert!(
+        text.contains("step 12") && text.contains("'lower'") && text.contains("NOT a near-tie"),
+        "{text}"
+    );
 }
 
 #[test]
@@ -120,7 +132,9 @@ fn near_tie_is_told_apart() {
     two_token_logits(&mut lb[step], region, u - 2e-6);
     let a = sample("a", la, &p);
     let b = sample("b", lb, &p);
-    let d = find_divergence(&a, &b, &p).unwrap().expect("the near-tie flips the draw");
+    let d = find_divergence(&a, &b, &p)
+        .unwrap()
+        .expect("the near-tie flips the draw");
     eprintln!("{d}");
     assert_eq!((d.step, d.region.as_str()), (step as u64, "hands"));
     assert_eq!((d.first_token, d.second_token), (0, 1));
@@ -138,7 +152,11 @@ fn torch_side_without_logits_uses_the_backend_margin() {
     let a = sample("ort", base.clone(), &p);
     let mut tokens = a.tokens.clone();
     tokens[20][3] = (tokens[20][3] + 1) % K as i64;
-    let torch = RolloutTrace { name: "torch".into(), tokens, logits: None };
+    let torch = RolloutTrace {
+        name: "torch".into(),
+        tokens,
+        logits: None,
+    };
     let d = find_divergence(&a, &torch, &p).unwrap().expect("diverges");
     assert_eq!((d.step, d.region.as_str()), (20, "face"));
     assert_eq!(d.margins.len(), 1);

@@ -260,7 +260,10 @@ impl Row {
 
     /// One line naming everything about a failure (graph, output, step, error).
     pub fn failure_line(&self) -> String {
-        let step = self.step.map(|s| format!(" at step {s}")).unwrap_or_default();
+        let step = self
+            .step
+            .map(|s| format!(" at step {s}"))
+            .unwrap_or_default();
         let mut s = format!(
             "FAIL {} {} ({}): output '{}'{step}: error {} > bound {}",
             self.check,
@@ -392,7 +395,9 @@ impl Report {
             s.trim_end().to_string() + "\n"
         };
         let mut out = line(&header.map(String::from));
-        out.push_str(&line(&widths.iter().map(|w| "-".repeat(*w)).collect::<Vec<_>>()));
+        out.push_str(&line(
+            &widths.iter().map(|w| "-".repeat(*w)).collect::<Vec<_>>(),
+        ));
         for c in &cells {
             out.push_str(&line(c));
         }
@@ -410,7 +415,10 @@ impl Report {
         }
         let failures = self.failures();
         for f in &failures {
-            if f.check == Check::Rollout && f.metric == Metric::DifferingSteps && !self.divergences.is_empty() {
+            if f.check == Check::Rollout
+                && f.metric == Metric::DifferingSteps
+                && !self.divergences.is_empty()
+            {
                 // the divergence line above already says everything about it
                 let mut short = (*f).clone();
                 short.detail = Some("see the divergence above".into());
@@ -508,11 +516,9 @@ impl MaxAbs {
             return;
         }
         let diffs: Box<dyn Iterator<Item = (f64, f64)>> = match (&got.data, &want.data) {
-            (TensorData::F32(a), TensorData::F32(b)) => Box::new(
-                a.iter()
-                    .zip(b)
-                    .map(|(&x, &y)| (x as f64, y as f64)),
-            ),
+            (TensorData::F32(a), TensorData::F32(b)) => {
+                Box::new(a.iter().zip(b).map(|(&x, &y)| (x as f64, y as f64)))
+            }
             (TensorData::I64(a), TensorData::I64(b)) => {
                 Box::new(a.iter().zip(b).map(|(&x, &y)| (x as f64, y as f64)))
             }
@@ -608,7 +614,10 @@ impl ReferenceVectors {
     pub fn scalar(&self, key: &str) -> Result<i64, ReferenceError> {
         match &self.get(key)?.data {
             TensorData::I64(v) if v.len() == 1 => Ok(v[0]),
-            _ => Err(ref_err(&self.path, format!("'{key}' is not an integer scalar"))),
+            _ => Err(ref_err(
+                &self.path,
+                format!("'{key}' is not an integer scalar"),
+            )),
         }
     }
 }
@@ -679,7 +688,8 @@ fn graph_rows(
     }
     let mut runs: Vec<(BackendKind, std::result::Result<StepOutputs, String>)> = Vec::new();
     for (kind, be) in backends {
-        let r = chain_graph(be.as_ref(), bundle, spec, &refv, n_steps).map_err(|e| format!("{e:#}"));
+        let r =
+            chain_graph(be.as_ref(), bundle, spec, &refv, n_steps).map_err(|e| format!("{e:#}"));
         runs.push((*kind, r));
     }
     let outputs = spec.output_names();
@@ -705,9 +715,20 @@ fn graph_rows(
         for (k, o) in spec.outputs.iter().enumerate() {
             let mut m = MaxAbs::default();
             for (s, out) in steps.iter().enumerate() {
-                m.add(s as u64, &out[k], refv.get(&format!("step{s}.output.{}", o.name))?);
+                m.add(
+                    s as u64,
+                    &out[k],
+                    refv.get(&format!("step{s}.output.{}", o.name))?,
+                );
             }
-            rows.push(Row::max_abs(Check::Graph, &spec.name, comparison, &o.name, &m, bound));
+            rows.push(Row::max_abs(
+                Check::Graph,
+                &spec.name,
+                comparison,
+                &o.name,
+                &m,
+                bound,
+            ));
         }
         for (k, c) in spec.caches.iter().enumerate() {
             let mut m = MaxAbs::default();
@@ -716,7 +737,14 @@ fn graph_rows(
                 &steps[last][spec.outputs.len() + k],
                 refv.get(&format!("step{last}.new_cache.{}", c.name))?,
             );
-            rows.push(Row::max_abs(Check::Graph, &spec.name, comparison, &c.output, &m, bound));
+            rows.push(Row::max_abs(
+                Check::Graph,
+                &spec.name,
+                comparison,
+                &c.output,
+                &m,
+                bound,
+            ));
         }
     }
     let ort = runs.iter().find(|r| r.0 == BackendKind::Ort);
@@ -727,7 +755,14 @@ fn graph_rows(
             for s in 0..n_steps {
                 m.add(s as u64, &t[s][k], &o[s][k]);
             }
-            rows.push(Row::max_abs(Check::Graph, &spec.name, "tract vs ort", *name, &m, TRACT_VS_ORT));
+            rows.push(Row::max_abs(
+                Check::Graph,
+                &spec.name,
+                "tract vs ort",
+                *name,
+                &m,
+                TRACT_VS_ORT,
+            ));
         }
     } else if ort.is_some() && tract.is_some() {
         rows.push(Row::failed(
@@ -837,7 +872,10 @@ impl fmt::Display for Divergence {
             )?;
         }
         if let Some(d) = self.logit_difference {
-            write!(f, "; guided logits differ by up to {d:.3e} between the sides")?;
+            write!(
+                f,
+                "; guided logits differ by up to {d:.3e} between the sides"
+            )?;
         }
         match self.near_tie() {
             Some(true) => write!(
@@ -901,8 +939,16 @@ pub fn sampling_margin(
     let k = g.len();
     let mut order: Vec<usize> = (0..k).collect();
     order.sort_unstable_by(|&a, &b| g[b].total_cmp(&g[a]).then(a.cmp(&b)));
-    let top2_gap = if k > 1 { g[order[0]] - g[order[1]] } else { f64::INFINITY };
-    let kept = if p.top_k > 0 && p.top_k < k { p.top_k } else { k };
+    let top2_gap = if k > 1 {
+        g[order[0]] - g[order[1]]
+    } else {
+        f64::INFINITY
+    };
+    let kept = if p.top_k > 0 && p.top_k < k {
+        p.top_k
+    } else {
+        k
+    };
     let order = &order[..kept];
     let g0 = g[order[0]];
     let w: Vec<f64> = order.iter().map(|&i| (g[i] - g0).exp()).collect();
@@ -958,7 +1004,10 @@ pub fn find_divergence(
     let region = (0..a.tokens[step].len())
         .find(|&r| a.tokens[step].get(r) != b.tokens[step].get(r))
         .unwrap_or(0);
-    let (ta, tb) = (a.tokens[step][region], b.tokens[step].get(region).copied().unwrap_or(-1));
+    let (ta, tb) = (
+        a.tokens[step][region],
+        b.tokens[step].get(region).copied().unwrap_or(-1),
+    );
     let nr = p.regions.len().max(a.tokens[step].len());
     let u = replay_uniform(p.seed, nr, step as u64, region);
     let mut margins = Vec::new();
@@ -1118,7 +1167,9 @@ fn token_row(
     let n = got.len().min(want.len());
     let mut differing = got.iter().zip(want).filter(|(a, b)| a != b).count() as u64;
     differing += (got.len().max(want.len()) - n) as u64;
-    let first = (0..n).find(|&t| got[t] != want[t]).or((got.len() != want.len()).then_some(n));
+    let first = (0..n)
+        .find(|&t| got[t] != want[t])
+        .or((got.len() != want.len()).then_some(n));
     let detail = detail.or_else(|| {
         (got.len() != want.len()).then(|| format!("{} steps vs {}", got.len(), want.len()))
     });
@@ -1196,7 +1247,11 @@ fn rollout_rows(
         guidance: s.guidance,
         temperature: s.temperature,
         top_k: s.top_k,
-        regions: bundle.region_names().iter().map(|r| r.to_string()).collect(),
+        regions: bundle
+            .region_names()
+            .iter()
+            .map(|r| r.to_string())
+            .collect(),
     };
     let mut audio = Vec::with_capacity(clip.len() * reference.clip_repeats);
     for _ in 0..reference.clip_repeats {
@@ -1297,14 +1352,21 @@ fn rollout_rows(
                     let i = fr.index as usize;
                     if i >= want.nrows() {
                         m.problem.get_or_insert_with(|| {
-                            format!("frame {i} is beyond the reference's {} frames", want.nrows())
+                            format!(
+                                "frame {i} is beyond the reference's {} frames",
+                                want.nrows()
+                            )
                         });
                         continue;
                     }
                     let row = want.row(i);
                     if row.len() != field(fr, k).len() {
                         m.problem.get_or_insert_with(|| {
-                            format!("{name} has {} values per frame, reference {}", field(fr, k).len(), row.len())
+                            format!(
+                                "{name} has {} values per frame, reference {}",
+                                field(fr, k).len(),
+                                row.len()
+                            )
                         });
                         continue;
                     }
@@ -1317,7 +1379,14 @@ fn rollout_rows(
                     }
                 }
             }
-            let mut row = Row::max_abs(Check::Rollout, "rollout", &comparison, *name, &m, ROLLOUT_FRAMES);
+            let mut row = Row::max_abs(
+                Check::Rollout,
+                "rollout",
+                &comparison,
+                *name,
+                &m,
+                ROLLOUT_FRAMES,
+            );
             if n < run.steps.len().max(reference.tokens.len()) && m.problem.is_none() {
                 let d = format!(
                     "frames compared over the first {} frames, before the token divergence",
@@ -1387,13 +1456,7 @@ fn rollout_rows(
 
 // ---------------------------------------------------------------------------- chunks and batches
 
-fn chunk_rows(
-    p: &mut Pipeline,
-    kind: BackendKind,
-    audio: &[f32],
-    seed: u64,
-    rows: &mut Vec<Row>,
-) {
+fn chunk_rows(p: &mut Pipeline, kind: BackendKind, audio: &[f32], seed: u64, rows: &mut Vec<Row>) {
     let opts = StreamOptions {
         seed,
         ..Default::default()
@@ -1423,7 +1486,14 @@ fn chunk_rows(
         match run_stream(p, &opts, audio, chunk) {
             Ok(got) => {
                 let tokens: Vec<Vec<i64>> = got.iter().map(|s| s.tokens.clone()).collect();
-                rows.push(token_row(Check::Chunks, &what, &comparison, &tokens, &whole_tokens, None));
+                rows.push(token_row(
+                    Check::Chunks,
+                    &what,
+                    &comparison,
+                    &tokens,
+                    &whole_tokens,
+                    None,
+                ));
                 let n = got.len().min(whole.len());
                 frame_rows_steps(
                     Check::Chunks,
@@ -1500,7 +1570,12 @@ fn batch_rows(
                     for (x, y) in g.iter().zip(w) {
                         if x.tokens != y.tokens {
                             differing += 1;
-                            first.get_or_insert((i, x.token_index, x.tokens.clone(), y.tokens.clone()));
+                            first.get_or_insert((
+                                i,
+                                x.token_index,
+                                x.tokens.clone(),
+                                y.tokens.clone(),
+                            ));
                         }
                     }
                     if g.len() != w.len() {
@@ -1520,7 +1595,9 @@ fn batch_rows(
                     bound: 0.0,
                     pass: differing == 0,
                     detail: first.map(|(i, t, a, b)| {
-                        format!("stream {i} first differs at step {t}: batched {a:?} vs separate {b:?}")
+                        format!(
+                            "stream {i} first differs at step {t}: batched {a:?} vs separate {b:?}"
+                        )
                     }),
                 });
                 frame_rows_steps(Check::Batch, &what, &comparison, &pairs, bound, rows);
@@ -1626,7 +1703,11 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
         log(&format!(
             "graphs: {} graphs on {} in {:.1} s",
             bundle.graphs().len(),
-            kinds.iter().map(|k| k.to_string()).collect::<Vec<_>>().join(", "),
+            kinds
+                .iter()
+                .map(|k| k.to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
             t.elapsed().as_secs_f64()
         ));
     }
@@ -1652,13 +1733,25 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
                     let mpt = bundle.frontend().mel_frames_per_token as usize;
                     for ((idx, x), y) in got.indexed_iter().zip(want_mel.iter()) {
                         if (*x as f64 - *y as f64).abs() > m.err || x.is_nan() || m.step.is_none() {
-                            m.add_f32((idx.0 / mpt) as u64, format!("mel frame {}, band {}", idx.0, idx.1), *x, *y);
+                            m.add_f32(
+                                (idx.0 / mpt) as u64,
+                                format!("mel frame {}, band {}", idx.0, idx.1),
+                                *x,
+                                *y,
+                            );
                         } else {
                             m.count += 1;
                         }
                     }
                 }
-                rows.push(Row::max_abs(Check::Logmel, "clip.wav", "rust vs python", "log-mel", &m, LOGMEL));
+                rows.push(Row::max_abs(
+                    Check::Logmel,
+                    "clip.wav",
+                    "rust vs python",
+                    "log-mel",
+                    &m,
+                    LOGMEL,
+                ));
             }
             Err(e) => rows.push(Row::failed(
                 Check::Logmel,
@@ -1671,7 +1764,9 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
         }
     }
 
-    let need_pipeline = [Check::Rollout, Check::Chunks, Check::Batch].into_iter().any(want);
+    let need_pipeline = [Check::Rollout, Check::Chunks, Check::Batch]
+        .into_iter()
+        .any(want);
     let mut pipelines: Vec<(BackendKind, Pipeline)> = Vec::new();
     if need_pipeline {
         for (k, be) in &backends {
@@ -1689,7 +1784,15 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
         }
     }
     if want(Check::Rollout) {
-        rollout_rows(&bundle, &mut pipelines, &clip, &mut rows, &mut notes, &mut divergences, log)?;
+        rollout_rows(
+            &bundle,
+            &mut pipelines,
+            &clip,
+            &mut rows,
+            &mut notes,
+            &mut divergences,
+            log,
+        )?;
     }
     let seed = bundle.reference().and_then(|r| r.rollout_seed).unwrap_or(0);
     let prefix_len = ((opts.chunk_seconds * 16000.0).round() as usize).clamp(1, clip.len().max(1));

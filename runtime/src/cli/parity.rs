@@ -17,8 +17,10 @@ use livegesture::parity::{self, Check, ParityOptions, ReferenceError};
 use super::common::{BackendArg, InputError};
 
 #[derive(Debug, clap::Args)]
-#[command(after_help = "Examples:\n  livegesture parity --bundle models/default\n  \
-    livegesture parity --bundle /tmp/tiny-bundle --backends tract --checks graph,logmel --json parity.json")]
+#[command(
+    after_help = "Examples:\n  livegesture parity --bundle models/default\n  \
+    livegesture parity --bundle /tmp/tiny-bundle --backends tract --checks graph,logmel --json parity.json"
+)]
 pub struct Args {
     /// Model bundle folder (default: $LIVEGESTURE_BUNDLE, else the repository's models/default).
     #[arg(long, value_name = "DIR")]
@@ -119,8 +121,7 @@ pub fn run(a: Args) -> Result<()> {
     print!("{}", report.summary());
     if let Some(path) = &a.json {
         let text = serde_json::to_string_pretty(&report)?;
-        std::fs::write(path, text + "\n")
-            .with_context(|| format!("writing {}", path.display()))?;
+        std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
     }
     if report.passed() {
         Ok(())
