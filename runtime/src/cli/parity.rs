@@ -120,7 +120,11 @@ pub fn run(a: Args) -> Result<()> {
     println!();
     print!("{}", report.summary());
     if let Some(path) = &a.json {
-        let text = serde_json::to_string_pretty(&report)?;
+        let mut value = serde_json::to_value(&report)?;
+        if let Some(obj) = value.as_object_mut() {
+            obj.insert("passed".into(), report.passed().into());
+        }
+        let text = serde_json::to_string_pretty(&value)?;
         std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
     }
     if report.passed() {
