@@ -302,7 +302,10 @@ pub struct BenchReport {
 #[derive(Debug, Clone, Serialize)]
 pub struct Machine {
     pub cpu: String,
+    /// Logical CPUs of the machine (`/proc/cpuinfo`).
     pub cores: usize,
+    /// CPUs this process may run on (fewer under `taskset`).
+    pub usable_cpus: usize,
     pub loadavg_start: String,
     pub loadavg_end: String,
 }
@@ -318,6 +321,19 @@ pub fn cpu_name() -> String {
                 .map(|(_, v)| v.trim().to_string())
         })
         .unwrap_or_else(|| std::env::consts::ARCH.to_string())
+}
+
+/// Logical CPUs listed in `/proc/cpuinfo` (falls back to the CPUs this process may use).
+pub fn online_cpus() -> usize {
+    std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .map(|s| s.lines().filter(|l| l.starts_with("processor")).count())
+        .filter(|&n| n > 0)
+        .unwrap_or_else(|| {
+            std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1)
+        })
 }
 
 /// `/proc/loadavg` (first three fields).
@@ -528,7 +544,8 @@ pub fn run(
         token_ms,
         machine: Machine {
             cpu: cpu_name(),
-            cores: std::thread::available_parallelism()
+            cores: online_cpus(),
+            usable_cpus: std::thread::available_parallelism()
                 .map(|n| n.get())
                 .unwrap_or(1),
             loadavg_start: load_start,
@@ -642,8 +659,12 @@ pub fn format_table(r: &BenchReport) -> String {
     );
     let _ = writeln!(
         o,
-        "machine: {}, {} cores, load {} -> {}",
-        r.machine.cpu, r.machine.cores, r.machine.loadavg_start, r.machine.loadavg_end
+        "machine: {}, {} cores ({} usable by this process), load {} -> {}",
+        r.machine.cpu,
+        r.machine.cores,
+        r.machine.usable_cpus,
+        r.machine.loadavg_start,
+        r.machine.loadavg_end
     );
     let _ = writeln!(
         o,
