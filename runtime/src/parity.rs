@@ -8,6 +8,7 @@
 //! | `graph` | every graph, all chained steps of `reference/<graph>.npz` (`n_steps`, 10) from the manifest's zero caches, every output at every step and the caches after the last step: ort vs torch | [`ORT_VS_TORCH`] |
 //! | `graph` | the same, tract vs ort (same inputs, each backend chaining its own caches; every output and cache at every step) | [`TRACT_VS_ORT`] |
 //! | `graph` | the same, tract vs torch (implied by the two above) | [`TRACT_VS_TORCH`] |
+//! | `graph` | torch step-by-step vs torch offline: measured by the exporter (it needs PyTorch) and read from the manifest's `checks` | [`TORCH_STEP_VS_OFFLINE`] |
 //! | `rollout` | the whole seeded rollout (`reference/clip.wav` repeated `clip_repeats` times, the manifest's seed and sampling defaults): tokens identical at every step, frames (poses, trans, expressions, foot contact) | [`ROLLOUT_FRAMES`] |
 //! | `logmel` | the Rust log-mel frontend on `reference/clip.wav` vs `reference/logmel.npy` | [`LOGMEL`] |
 //! | `chunks` | chunks of 1 sample, 160, 3200, 16000 samples and the whole prefix give identical frames (on a prefix of the clip, [`ParityOptions::chunk_seconds`]) | exact |
@@ -49,6 +50,9 @@ use crate::output::Frame;
 use crate::pipeline::{Pipeline, StepLogits, StreamOptions, TokenStep};
 use crate::sampling::{guide, SplitMix64};
 
+/// torch step-by-step vs torch offline causal forward (SPEC 7; measured at export, recorded in the
+/// manifest's `checks`).
+pub const TORCH_STEP_VS_OFFLINE: f64 = 1e-5;
 /// onnxruntime vs torch, every graph output (SPEC 7).
 pub const ORT_VS_TORCH: f64 = 1e-5;
 /// tract vs onnxruntime, every graph output (SPEC 7).
@@ -685,6 +689,24 @@ fn graph_rows(
     }
     for c in &spec.caches {
         refv.get(&format!("step{last}.new_cache.{}", c.name))?;
+    }
+    // SPEC 7's first row, torch step-by-step vs torch offline, is measured by the exporter (it needs
+    // the PyTorch model) and recorded in the manifest's `checks`: reported as recorded.
+    if let Some(e) = bundle.manifest().checks[&spec.name]["torch_step_vs_offline_max_abs"].as_f64()
+    {
+        rows.push(Row {
+            check: Check::Graph,
+            what: spec.name.clone(),
+            comparison: "torch step vs offline".into(),
+            output: "(all, recorded by export)".into(),
+            step: None,
+            metric: Metric::MaxAbs,
+            error: e,
+            compared: 0,
+            bound: TORCH_STEP_VS_OFFLINE,
+            pass: e <= TORCH_STEP_VS_OFFLINE,
+            detail: Some("measured by export/export.py, read from manifest.json `checks`".into()),
+        });
     }
     let mut runs: Vec<(BackendKind, std::result::Result<StepOutputs, String>)> = Vec::new();
     for (kind, be) in backends {
