@@ -64,18 +64,17 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let streams = a
-        .streams
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| {
-            s.parse::<usize>()
-                .ok()
-                .filter(|&n| n > 0)
-                .ok_or_else(|| InputError(format!("--streams: '{s}' is not a positive integer")))
-        })
-        .collect::<Result<Vec<_>, _>>()?;
+    let streams =
+        a.streams
+            .split(',')
+            .map(str::trim)
+            .filter(|s| !s.is_empty())
+            .map(|s| {
+                s.parse::<usize>().ok().filter(|&n| n > 0).ok_or_else(|| {
+                    InputError(format!("--streams: '{s}' is not a positive integer"))
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
     if a.steps == 0 {
         return Err(InputError("--steps must be at least 1".into()).into());
     }
