@@ -20,6 +20,7 @@ pub mod bench;
 pub mod bundle;
 pub mod frontend;
 pub mod output;
+pub mod parity;
 pub mod pipeline;
 pub mod rotation;
 pub mod sampling;

@@ -9,6 +9,7 @@ pub mod bench;
 pub mod common;
 pub mod generate;
 pub mod info;
+pub mod parity;
 pub mod stream;
 
 pub use common::exit_code;
@@ -39,6 +40,9 @@ pub enum Command {
     Stream(stream::Args),
     /// Describe a bundle: model, regions, graphs, state size, sampling defaults, provenance.
     Info(info::Args),
+    /// Check a bundle's parity: every graph vs the torch reference vectors on ort and tract, the
+    /// whole seeded rollout, the log-mel frontend, chunk-size and batch invariance (SPEC section 7).
+    Parity(parity::Args),
     /// Benchmark a bundle on one core: step times per graph and whole chain, first-frame latency,
     /// state bytes, peak RSS, real-time streams per core with batched stepping.
     Bench(bench::Args),
@@ -50,6 +54,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Generate(a) => generate::run(a),
         Command::Stream(a) => stream::run(a),
         Command::Info(a) => info::run(a),
+        Command::Parity(a) => parity::run(a),
         Command::Bench(a) => bench::run(a),
     }
 }
