@@ -1696,7 +1696,12 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
                 BackendOptions::default()
             }
         };
-        backends.push((*k, backend::create(&o)?));
+        backends.push((
+            *k,
+            backend::create(&o).with_context(|| {
+                format!("starting the {k} backend for the parity checks (choose backends with --backends)")
+            })?,
+        ));
     }
     let mut rows = Vec::new();
     let mut notes = Vec::new();
