@@ -187,6 +187,47 @@ def table_md(summ: dict) -> str:
     return "\n".join(L) + "\n"
 
 
+def targets_md(summ: dict) -> str:
+    """Issue 7's targets on one core: measured value, verdict and the factor by which a target is missed."""
+    runs = summ["runs"]
+    L = ["| target | measured | verdict |", "|---|---|---|"]
+
+    def verdict(ok: bool, factor: float, by: str) -> str:
+        return "met" if ok else f"**missed**: {factor:.2f}x over ({by})"
+
+    parts = []
+    for be in BACKENDS:
+        s = runs.get(f"default/{be}")
+        if s:
+            m = s["chain_ms"]["median"]
+            parts.append((be, m, verdict(m < 2.0, m / 2.0, f"by {m - 2.0:.2f} ms")))
+    if parts:
+        L.append("| default, 1 stream, guidance, whole chain < 2 ms on both backends | "
+                 + ", ".join(f"{be} {m:.2f} ms" for be, m, _ in parts) + " | "
+                 + "; ".join(f"{be}: {v}" for be, _, v in parts) + " |")
+    paper = [runs[f"paper/{be}"] for be in BACKENDS if f"paper/{be}" in runs]
+    if paper:
+        f = min(paper, key=lambda s: s["chain_ms"]["median"])
+        m = f["chain_ms"]["median"]
+        L.append(f"| paper, 1 stream < 15 ms on the faster backend | {f['backend']} {m:.2f} ms | "
+                 f"{verdict(m < 15.0, m / 15.0, f'by {m - 15.0:.1f} ms')} |")
+        if "roofline" in f:
+            r = f["roofline"]["roofline_ms"]
+            L.append(f"| paper, 1 stream within 3x of its roofline | {f['backend']} {m:.2f} ms vs roofline {r:.2f} ms "
+                     f"({f['roofline']['bound']}-bound) = {m / r:.2f}x | "
+                     f"{verdict(m <= 3 * r, m / (3 * r), f'{m / r:.2f}x instead of 3x')} |")
+    cells = []
+    for key, s in runs.items():
+        b = next((b for b in s["batched"] if b["n"] == 32 and "compute_fraction" in b), None)
+        if b:
+            cf = b["compute_fraction"]
+            cells.append(f"{key} {cf:.1%} ({'met' if cf >= 0.5 else f'missed, {0.5 / cf:.1f}x short'})")
+    if cells:
+        L.append("| batched N = 32 >= 50% of compute roofline | " + "; ".join(cells) + " | "
+                 + ("met" if all("met" in c for c in cells) else "**missed**") + " |")
+    return "\n".join(L) + "\n"
+
+
 def plot(res: Path, plots: Path, summ: dict):
     plots.mkdir(parents=True, exist_ok=True)
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
@@ -245,7 +286,7 @@ def main(argv=None):
     res = Path(args.results)
     summ = summarise(res)
     (res / "summary.json").write_text(json.dumps(summ, indent=1))
-    md = table_md(summ)
+    md = table_md(summ) + "\nTargets (issue 7), one core:\n\n" + targets_md(summ)
     (res / "summary.md").write_text(md)
     plot(res, Path(args.plots), summ)
     print(md)
