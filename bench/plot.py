@@ -282,6 +282,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--results", default="bench/results")
     ap.add_argument("--plots", default="docs/bench")
+    ap.add_argument("--doc", help="replace the text between '<!-- results:begin -->' and '<!-- results:end -->' "
+                                  "in this file (BENCHMARKS.md) with the tables")
     args = ap.parse_args(argv)
     res = Path(args.results)
     summ = summarise(res)
@@ -289,6 +291,18 @@ def main(argv=None):
     md = table_md(summ) + "\nTargets (issue 7), one core:\n\n" + targets_md(summ)
     (res / "summary.md").write_text(md)
     plot(res, Path(args.plots), summ)
+    if args.doc:
+        doc = Path(args.doc)
+        text = doc.read_text()
+        b, e = "<!-- results:begin -->", "<!-- results:end -->"
+        if b in text and e in text:
+            env = summ.get("env") or {}
+            head = (f"Run {env.get('start', '?')} .. {env.get('end', '?')} on `{env.get('cpu', '?')}`, "
+                    f"{env.get('cores', '?')} cores, load average {env.get('loadavg_start', '?')} at the start, "
+                    f"{env.get('loadavg_end', '?')} at the end, commit `{env.get('commit', '?')}`.\n\n")
+            pre, rest = text.split(b, 1)
+            post = rest.split(e, 1)[1]
+            doc.write_text(pre + b + "\n" + head + md + e + post)
     print(md)
     return 0
 

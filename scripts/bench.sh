@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs the whole benchmark matrix (SPEC section 11, issue 7) on one core and writes BENCHMARKS.md's inputs:
 #   bench/results/*.json      raw results (livegesture bench, PyTorch eager loop, FLOPs, roofline)
-#   bench/results/summary.md  the tables
+#   bench/results/summary.md  the tables (also written into BENCHMARKS.md between its results markers)
 #   docs/bench/*.png          latency distribution, real-time streams per core against N
 #
 #   scripts/bench.sh                       # default bundle + a paper-config bundle with random weights
@@ -83,4 +83,5 @@ json.dump({"start": start, "end": end, "loadavg_start": l0, "loadavg_end": l1, "
           open(out, "w"), indent=1)
 EOF
 
-"$LIVEGESTURE_PY" bench/plot.py --results "$RES" --plots "$PLOTS"
+# the tables also go into BENCHMARKS.md between its results markers (the prose there is written by hand)
+"$LIVEGESTURE_PY" bench/plot.py --results "$RES" --plots "$PLOTS" --doc BENCHMARKS.md
