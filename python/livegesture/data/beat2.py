@@ -324,8 +324,10 @@ class Beat2Corpus:
 def _as_set(v, typ):
     if v is None:
         return None
-    if isinstance(v, str) and typ is str:
-        return None if v == "all" else {v}
+    if isinstance(v, str):
+        if v == "all":
+            return None
+        return {typ(x.strip()) for x in v.split(",") if x.strip()}
     if isinstance(v, (int, np.integer)) and typ is int:
         return {int(v)}
     return {typ(x) for x in v}

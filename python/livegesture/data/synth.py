@@ -49,13 +49,13 @@ import sys
 import tempfile
 import time
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..regions import FPS, N_EXPRESSIONS, N_JOINTS, SAMPLE_RATE
-from ..skeleton import PARENTS, REST_OFFSETS, axis_angle_to_matrix_np
+from ..skeleton import REST_OFFSETS, axis_angle_to_matrix_np
 
 ESPEAK = "espeak-ng"
 ESPEAK_RATE = 22050
@@ -946,20 +946,20 @@ def generate_corpus(out: str | Path, minutes: float, seed: int, jobs: int = 1,
     bar = None
     if progress:
         from tqdm import tqdm
-        bar = tqdm(total=round(sum(p.n_samples for p in plans) / SAMPLE_RATE / 60, 2), unit="min",
-                   desc=f"synth corpus ({len(plans)} clips)")
+        bar = tqdm(total=len(plans), unit="clip",
+                   desc=f"synth corpus ({sum(p.n_samples for p in plans) / SAMPLE_RATE / 60:.1f} min)")
     if jobs > 1:
         import multiprocessing as mp
         ctx = mp.get_context("fork") if sys.platform.startswith("linux") else mp.get_context()
         with ctx.Pool(jobs) as pool:
             for n in pool.imap_unordered(_clip_job, tasks, chunksize=1):
                 if bar is not None:
-                    bar.update(round(n / SAMPLE_RATE / 60, 4))
+                    bar.update(1)
     else:
         for tk in tasks:
             n = _clip_job(tk)
             if bar is not None:
-                bar.update(round(n / SAMPLE_RATE / 60, 4))
+                bar.update(1)
     if bar is not None:
         bar.close()
     csv = "id,type\n" + "".join(f"{p.id},{p.split}\n" for p in plans)
