@@ -21,7 +21,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from ..config import LiveGestureConfig
-from .layers import AttnLayer, CacheSpec, check_cache, check_shape
+from .layers import AttnLayer, CacheSpec, check_cache, check_shape, window_bias
 
 
 class RegionExpert(nn.Module):
@@ -91,8 +91,9 @@ class RegionExpert(nn.Module):
         step = cache["step"]
         x = self.embed_mlp(self.embed(prev_token))
         a = self._audio(audio, cond)
+        bias = {w: window_bias(step, w) for w in {l.attn.w for l in self.layers}}   # one mask per window size
         for name, layer in zip(self.layer_names(), self.layers):
-            x = layer.step(x, a, step, cache, new_cache, name)
+            x = layer.step(x, a, bias[layer.attn.w], cache, new_cache, name)
         new_cache["step"] = step + 1
         return {"hidden": self.norm(x)}, new_cache
 

@@ -21,7 +21,7 @@ import torch.nn as nn
 
 from ..config import LiveGestureConfig
 from ..regions import REGION_NAMES
-from .layers import AttnLayer, CacheSpec, FeedForward, WindowedAttention, check_cache, check_shape
+from .layers import CacheSpec, FeedForward, WindowedAttention, check_cache, check_shape, window_bias
 
 
 class SpatialAttention(nn.Module):
@@ -39,6 +39,12 @@ class SpatialAttention(nn.Module):
         q, k, v = self.qkv(x).reshape(N, R, 3, self.h, self.hd).permute(2, 0, 3, 1, 4)
         a = torch.softmax((q @ k.transpose(-1, -2)) / math.sqrt(self.hd), dim=-1)
         return self.o((a @ v).transpose(1, 2).reshape(N, R, self.d))
+
+    def step(self, x):  # (B, R, d): the same computation with constant reshape sizes (lean step graph)
+        R = int(x.shape[1])
+        q, k, v = self.qkv(x).reshape(-1, R, 3, self.h, self.hd).permute(2, 0, 3, 1, 4)
+        a = torch.softmax((q @ k.transpose(-1, -2)) / math.sqrt(self.hd), dim=-1)
+        return self.o((a @ v).transpose(1, 2).reshape(-1, R, self.d))
 
 
 class FuseBlock(nn.Module):
@@ -128,15 +134,21 @@ class XARFuse(nn.Module):
         step = cache["step"]
         x = self._adapt(torch.stack([hidden[r] for r in REGION_NAMES], dim=1))   # (B, R, d)
         a = self._audio(audio, cond)
-        step_r = step[:, None].expand(B, R).reshape(B * R)
+        # one additive mask per window, shared by the blocks; the temporal attention runs on B * R rows
+        # (stream-major, region-minor), so its mask is repeated per region with a broadcast, not an Expand
+        bias_a = window_bias(step, self.cfg.audio_window)
+        bias_t = window_bias(step, self.cfg.fuse_window)
+        bias_t = (bias_t[:, None] + torch.zeros((1, R, 1, 1, 1), device=bias_t.device)).reshape(
+            -1, 1, 1, self.cfg.fuse_window)
         for i, blk in enumerate(self.blocks):
-            x = x + blk.spatial(blk.ln_s(x))
+            x = x + blk.spatial.step(blk.ln_s(x))
             name = f"block{i}.tattn"
-            tc, tn = {name: cache[name].reshape(B * R, blk.temporal.w - 1, 2 * d)}, {}
-            xt = blk.ln_t(x).reshape(B * R, d)
-            x = x + blk.temporal.step(xt, xt, step_r, tc, tn, name).reshape(B, R, d)
-            new_cache[name] = tn[name].reshape(B, R, blk.temporal.w - 1, 2 * d)
-            x = x + blk.cross.step(blk.ln_a(x), a, step, cache, new_cache, f"block{i}.xattn")
+            w = blk.temporal.w
+            tc, tn = {name: cache[name].reshape(-1, w - 1, 2 * d)}, {}
+            xt = blk.ln_t(x).reshape(-1, d)
+            x = x + blk.temporal.step(xt, xt, bias_t, tc, tn, name).reshape(-1, R, d)
+            new_cache[name] = tn[name].reshape(-1, R, w - 1, 2 * d)
+            x = x + blk.cross.step(blk.ln_a(x), a, bias_a, cache, new_cache, f"block{i}.xattn")
             x = x + blk.ffn(blk.ln_f(x))
         new_cache["step"] = step + 1
         return {"logits": self._classify(x)}, new_cache

@@ -75,7 +75,7 @@ class CausalConv1d(nn.Module):
         if self.pad == 0:
             return self.conv(x)
         xx = torch.cat([cache[name], x], dim=2)
-        new_cache[name] = xx[:, :, xx.shape[2] - self.pad:]
+        new_cache[name] = xx[:, :, -self.pad:]        # constant bounds: no shape arithmetic in the graph
         return self.conv(xx)
 
 
@@ -93,6 +93,39 @@ def apply_rope(x: torch.Tensor, cos: torch.Tensor, sin: torch.Tensor) -> torch.T
     h = x.shape[-1] // 2
     rot = torch.cat([-x[..., h:], x[..., :h]], dim=-1)
     return x * cos + rot * sin
+
+
+def step_query_rotations(window: int, head_dim: int, rope: bool = True) -> torch.Tensor:
+    """(head_dim, window * head_dim) float32: column block j maps a query to R_m q / sqrt(head_dim) with
+    m = window - 1 - j (identity / sqrt(head_dim) without RoPE). Built in float64 from the same angles as
+    :func:`rope_tables`. R_m q = q * cos_m + rotate_half(q) * sin_m, and rotate_half(q) = q @ P."""
+    h = head_dim // 2
+    P = torch.zeros(head_dim, head_dim, dtype=torch.float64)
+    P[torch.arange(h, head_dim), torch.arange(h)] = -1.0
+    P[torch.arange(h), torch.arange(h, head_dim)] = 1.0
+    inv = 10000.0 ** (-torch.arange(0, head_dim, 2, dtype=torch.float64) / head_dim)
+    blocks = []
+    for j in range(window):
+        m = window - 1 - j
+        if rope:
+            ang = torch.cat([m * inv, m * inv])
+            blocks.append(torch.diag(torch.cos(ang)) + P * torch.sin(ang)[None, :])
+        else:
+            blocks.append(torch.eye(head_dim, dtype=torch.float64))
+    return (torch.cat(blocks, dim=1) / math.sqrt(head_dim)).float()
+
+
+def window_bias(step: torch.Tensor, window: int) -> torch.Tensor:
+    """Additive attention mask (B, 1, 1, window) for a step with ``step`` (B,) steps taken before it.
+
+    Cache slot j (oldest first; the current key is slot window - 1) holds time t - (window - 1) + j, which
+    exists iff j + t >= window - 1. Valid slots get 0, not-yet-filled ones -inf (``x + -inf == -inf`` and
+    ``x + 0 == x`` exactly, so this equals masking). Computed once per graph and shared by every attention
+    layer with that window."""
+    slot = torch.arange(window, dtype=torch.int64, device=step.device)
+    valid = (slot[None, :] + step[:, None]) >= window - 1
+    zero = torch.zeros((), dtype=torch.float32, device=step.device)
+    return torch.where(valid, zero, torch.full_like(zero, float("-inf")))[:, None, None, :]
 
 
 class WindowedAttention(nn.Module):
@@ -117,7 +150,7 @@ class WindowedAttention(nn.Module):
         cos, sin = rope_tables(window, self.hd)
         self.register_buffer("win_cos", cos, persistent=False)
         self.register_buffer("win_sin", sin, persistent=False)
-        self.register_buffer("slot", torch.arange(window - 1, dtype=torch.int64), persistent=False)
+        self.register_buffer("qrot", step_query_rotations(window, self.hd, rope), persistent=False)
 
     def _heads(self, x):  # (B, T, d) -> (B, h, T, hd)
         return x.reshape(x.shape[0], x.shape[1], self.h, self.hd).transpose(1, 2)
@@ -142,30 +175,32 @@ class WindowedAttention(nn.Module):
     def cache_spec(self, name: str) -> list[CacheSpec]:
         return [CacheSpec(name, (self.w - 1, 2 * self.d))]
 
-    def step(self, x: torch.Tensor, kv_in: torch.Tensor, step: torch.Tensor, cache: dict, new_cache: dict,
+    def step(self, x: torch.Tensor, kv_in: torch.Tensor, bias: torch.Tensor, cache: dict, new_cache: dict,
              name: str) -> torch.Tensor:
         """x (B, d_model), or (B, n_q, d_model) for several queries at the current time sharing the keys;
-        kv_in (B, d_kv) the current key source; step (B,) int64 steps taken before this one."""
-        B = x.shape[0]
+        kv_in (B, d_kv) the current key source; bias (B, 1, 1, window) from :func:`window_bias`.
+
+        The query sits at window slot W - 1 and the key in slot j at W - 1 - m (m = W - 1 - j tokens
+        earlier), so with rotary positions its score is <R_m q, k_j> / sqrt(hd) (R_m the RoPE rotation by m
+        positions, the same dot product as <R_{W-1} q, R_j k_j> in exact arithmetic). The step computes all
+        W rotated, scaled queries with one MatMul by the constant ``qrot`` (hd, W * hd) and the scores and
+        the weighted values as Mul + ReduceSum: the graph has no per-head batched MatMul, no RoPE on the
+        cached keys and only constant-size reshapes (-1 on the batch axis)."""
+        W, h, hd, d = self.w, self.h, self.hd, self.d
         single = x.dim() == 2
-        xq = x[:, None, :] if single else x
+        n_q = 1 if single else int(x.shape[1])
         kv_new = self.kv(kv_in)[:, None, :]                      # (B, 1, 2d)
         kv_all = torch.cat([cache[name], kv_new], dim=1)         # (B, W, 2d), oldest first
         new_cache[name] = kv_all[:, 1:, :]
-        k, v = kv_all.chunk(2, dim=-1)
-        q = self._heads(self.q(xq))                              # (B, h, n_q, hd)
-        k, v = self._heads(k), self._heads(v)                    # (B, h, W, hd)
-        if self.rope:
-            q = apply_rope(q, self.win_cos[self.w - 1:], self.win_sin[self.w - 1:])
-            k = apply_rope(k, self.win_cos, self.win_sin)
-        scores = (q @ k.transpose(-1, -2)) / math.sqrt(self.hd)  # (B, h, n_q, W)
-        # cache slot j holds time (t - (W-1) + j): valid iff j >= W - 1 - min(t, W - 1); the current key is always valid
-        filled = torch.minimum(step, torch.full_like(step, self.w - 1))
-        valid_old = self.slot[None, :] >= (self.w - 1 - filled)[:, None]              # (B, W-1)
-        valid = torch.cat([valid_old, torch.ones_like(valid_old[:, :1])], dim=1)     # (B, W)
-        scores = scores.masked_fill(~valid[:, None, None, :], float("-inf"))
-        y = torch.softmax(scores, dim=-1) @ v                    # (B, h, n_q, hd)
-        y = self.o(y.transpose(1, 2).reshape(B, xq.shape[1], self.d))
+        k, v = kv_all.split(d, dim=-1)
+        k = k.reshape(-1, 1, W, h, hd).transpose(2, 3)           # (B, 1, h, W, hd)
+        v = v.reshape(-1, 1, W, h, hd).transpose(2, 3)           # (B, 1, h, W, hd)
+        q = self.q(x).reshape(-1, n_q, h, hd)                    # (B, n_q, h, hd)
+        qr = (q @ self.qrot).reshape(-1, n_q, h, W, hd)          # (B, n_q, h, W, hd): R_{W-1-j} q / sqrt(hd)
+        scores = (qr * k).sum(-1) + bias                         # (B, n_q, h, W)
+        p = torch.softmax(scores, dim=-1)
+        y = (p[..., None] * v).sum(-2).reshape(-1, n_q, d)       # (B, n_q, d)
+        y = self.o(y)
         return y[:, 0, :] if single else y
 
 
@@ -195,7 +230,7 @@ class AttnLayer(nn.Module):
         x = x + self.attn(h, kv_src if self.is_cross else h)
         return x + self.ffn(self.ln2(x))
 
-    def step(self, x, kv_src, step, cache, new_cache, name):
+    def step(self, x, kv_src, bias, cache, new_cache, name):
         h = self.ln1(x)
-        x = x + self.attn.step(h, kv_src if self.is_cross else h, step, cache, new_cache, name)
+        x = x + self.attn.step(h, kv_src if self.is_cross else h, bias, cache, new_cache, name)
         return x + self.ffn(self.ln2(x))

@@ -45,8 +45,12 @@ def _dilations(cfg: LiveGestureConfig):
 
 
 def upsample2(x: torch.Tensor) -> torch.Tensor:
-    """Nearest-neighbour temporal upsampling by 2: (B, C, T) -> (B, C, 2T)."""
-    return torch.stack([x, x], dim=-1).reshape(x.shape[0], x.shape[1], -1)
+    """Nearest-neighbour temporal upsampling by 2: (B, C, T) -> (B, C, 2T).
+
+    Channels and frames are static in every graph (only the batch is dynamic), so the reshape uses
+    constant sizes and exports without shape arithmetic."""
+    C, T = int(x.shape[1]), int(x.shape[2])
+    return torch.stack([x, x], dim=-1).reshape(-1, C, 2 * T)
 
 
 class SVQEncoder(nn.Module):
