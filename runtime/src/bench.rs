@@ -10,12 +10,14 @@
 //!   from the first sample's arrival until the first frame comes back, and the compute part after the
 //!   chunk completing token 0's audio arrived;
 //! - **state bytes per stream** ([`crate::pipeline::state_bytes`]) and **peak RSS** (`VmHWM`);
-//! - **batched stepping**: [`Pipeline::step_batch`] over N streams (caches stacked on the batch axis,
-//!   optionally with one stream leaving and a fresh one joining at every step), and the streams one
-//!   core sustains in real time.
+//! - **batched stepping**: [`Pipeline::step_stream_batch`] over a [`crate::pipeline::StreamBatch`] of
+//!   N streams (caches kept stacked on the batch axis between steps; optionally one stream leaving and
+//!   a fresh one joining at every step, the leaving and joining timed with the step), and the streams
+//!   one core sustains in real time.
 //!
 //! Warm-up steps (which also build tract's per-batch-size plans) are excluded from every figure.
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -27,7 +29,7 @@ use serde::Serialize;
 use crate::backend::{Backend, GraphRunner, Tensor};
 use crate::bundle::{Bundle, GraphSpec};
 use crate::frontend::StreamingLogMel;
-use crate::pipeline::{state_bytes, Pipeline, StreamOptions};
+use crate::pipeline::{state_bytes, Pipeline, StreamId, StreamOptions};
 
 /// Times of the graph runs since the last [`Recorder::drain`]: `(graph index, seconds)`.
 #[derive(Debug, Default)]
@@ -259,11 +261,12 @@ pub struct Batched {
     pub timed_steps: usize,
     /// True when the time cap ended the timed steps before `batch_steps`.
     pub capped: bool,
-    /// One batched token step of all N streams (graphs, stacking, sampling, frames).
+    /// One batched token step of all N streams (graphs, sampling, frames; with churn, one stream
+    /// leaving and one joining the batch).
     pub step_ms: Stats,
     /// Graph runs per batched step (median of their sum).
     pub graphs_sum_ms_median: f64,
-    /// Median of (step - graph runs): stacking and splitting caches, sampling, frames.
+    /// Median of (step - graph runs): data inputs, sampling, frames, churn.
     pub overhead_ms_median: f64,
     /// Median step / N.
     pub per_stream_ms: f64,
@@ -574,15 +577,16 @@ fn run_batched(
     token_ms: f64,
     frontend_ms: f64,
 ) -> Result<Batched> {
-    // each stream starts at its own place in the audio and has its own seed
-    let mut streams = Vec::with_capacity(n);
-    let mut pos = Vec::with_capacity(n);
+    // each stream starts at its own place in the audio and has its own seed; their caches stay
+    // stacked in one StreamBatch between steps
+    let mut batch = pipe.new_batch();
+    let mut pos: HashMap<StreamId, usize> = HashMap::with_capacity(n);
     for i in 0..n {
-        streams.push(pipe.new_stream(&StreamOptions {
+        let id = batch.add(pipe.new_stream(&StreamOptions {
             seed: opts.seed.wrapping_add(i as u64),
             ..opts.clone()
-        })?);
-        pos.push((i * 7) % mels.len());
+        })?)?;
+        pos.insert(id, (i * 7) % mels.len());
     }
     let mut next_seed = opts.seed.wrapping_add(n as u64);
     let mut times = Vec::new();
@@ -601,28 +605,38 @@ fn run_batched(
                 break;
             }
         }
-        if cfg.churn && step > 0 && n > 1 {
-            // one stream leaves, a fresh one (cold start) joins in its place
-            let j = step % n;
-            streams[j] = pipe.new_stream(&StreamOptions {
+        // with churn, the stream at position `step % n` leaves and a fresh one (cold start) joins:
+        // its creation is not timed, leaving and joining the batch are
+        let joining = if cfg.churn && step > 0 && n > 1 {
+            let s = pipe.new_stream(&StreamOptions {
                 seed: next_seed,
                 ..opts.clone()
             })?;
             next_seed = next_seed.wrapping_add(1);
-            pos[j] = 0;
+            Some((batch.ids()[step % n], s))
+        } else {
+            None
+        };
+        let mut dt = 0.0;
+        if let Some((leaving, s)) = joining {
+            let t = Instant::now();
+            std::hint::black_box(batch.remove(leaving)?);
+            let id = batch.add(s)?;
+            dt += ms(t.elapsed());
+            pos.remove(&leaving);
+            pos.insert(id, 0);
         }
-        let block: Vec<Array2<f32>> = pos.iter().map(|&p| mels[p].clone()).collect();
-        let mut refs: Vec<&mut crate::pipeline::Stream> = streams.iter_mut().collect();
+        let block: Vec<Array2<f32>> = batch.ids().iter().map(|id| mels[pos[id]].clone()).collect();
         let t = Instant::now();
-        let out = pipe.step_batch(&mut refs, &block)?;
-        let dt = ms(t.elapsed());
+        let out = pipe.step_stream_batch(&mut batch, &block)?;
+        dt += ms(t.elapsed());
         std::hint::black_box(&out);
         let g: f64 = rec.drain().iter().map(|e| e.1 * 1e3).sum();
         if step >= cfg.batch_warmup {
             times.push(dt);
             graph_sums.push(g);
         }
-        for p in pos.iter_mut() {
+        for p in pos.values_mut() {
             *p = (*p + 1) % mels.len();
         }
     }

@@ -24,12 +24,20 @@
 //! A [`Stream`] owns all per-stream state (frontend buffer, every graph's caches, previous tokens, the
 //! PRNG, the token counter). Its size is fixed: it does not grow with the stream's length. A
 //! [`Pipeline`] owns the loaded graphs and is shared by any number of streams.
-//! [`Pipeline::step_batch`] steps several streams at once: their caches are stacked on the batch
-//! axis, every graph runs once for all of them, and the updated caches are split back. Stepping
-//! streams one by one or together gives the same results.
 //!
-//! After an error inside a graph the stream's caches are incomplete; the stream refuses further work
-//! until [`Stream::reset`].
+//! Two ways to step many streams at once, every graph running once for all of them:
+//!
+//! - [`Pipeline::step_batch`] on separately owned [`Stream`]s: their caches are stacked on the batch
+//!   axis before each graph run and split back after it (a copy of every cache, twice, per step);
+//! - a [`StreamBatch`] ([`Pipeline::new_batch`], [`Pipeline::step_stream_batch`]) keeps the caches of
+//!   its streams stacked between steps: each graph gets them as they are and its new caches simply
+//!   replace them. Streams join and leave between steps ([`StreamBatch::add`], [`StreamBatch::remove`]).
+//!
+//! Stepping streams one by one, with `step_batch` or in a `StreamBatch` gives the same tokens and
+//! frames.
+//!
+//! After an error inside a graph the caches are incomplete: the stream refuses further work until
+//! [`Pipeline::reset`], a batch until its streams have been removed.
 
 use anyhow::{bail, ensure, Context, Result};
 use ndarray::Array2;
@@ -197,7 +205,23 @@ fn zeros_for(caches: &[CacheSpec], rows: usize) -> Vec<Tensor> {
     caches.iter().map(|c| c.zeros(rows)).collect()
 }
 
-/// Per-stream caches of every graph.
+/// A graph of the chain, as a place for caches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Slot {
+    AudioEncoder,
+    Expert(usize),
+    Fusion,
+    Decoder(usize),
+}
+
+impl Slot {
+    /// True for the graphs that carry both guidance branches (2 rows per guided stream).
+    fn branched(self) -> bool {
+        matches!(self, Slot::Expert(_) | Slot::Fusion)
+    }
+}
+
+/// Caches of every graph: one stream's, or the stacked caches of a [`StreamBatch`].
 #[derive(Debug, Clone)]
 struct Caches {
     audio_encoder: Vec<Tensor>,
@@ -206,80 +230,444 @@ struct Caches {
     decoders: Vec<Vec<Tensor>>,
 }
 
-/// One stream's state (see the module docs).
+impl Caches {
+    fn slots(&self) -> Vec<Slot> {
+        let n = self.experts.len();
+        std::iter::once(Slot::AudioEncoder)
+            .chain((0..n).map(Slot::Expert))
+            .chain(std::iter::once(Slot::Fusion))
+            .chain((0..self.decoders.len()).map(Slot::Decoder))
+            .collect()
+    }
+
+    fn slot(&self, s: Slot) -> &Vec<Tensor> {
+        match s {
+            Slot::AudioEncoder => &self.audio_encoder,
+            Slot::Expert(i) => &self.experts[i],
+            Slot::Fusion => &self.fusion,
+            Slot::Decoder(i) => &self.decoders[i],
+        }
+    }
+
+    fn slot_mut(&mut self, s: Slot) -> &mut Vec<Tensor> {
+        match s {
+            Slot::AudioEncoder => &mut self.audio_encoder,
+            Slot::Expert(i) => &mut self.experts[i],
+            Slot::Fusion => &mut self.fusion,
+            Slot::Decoder(i) => &mut self.decoders[i],
+        }
+    }
+
+    /// Zero caches like `template`'s (same tensors and row shapes) with `rows` rows in the branched
+    /// graphs and one row in the others.
+    fn zeros_like(template: &Caches, branch_rows: usize) -> Caches {
+        let mut out = template.clone();
+        for s in template.slots() {
+            let r = if s.branched() { branch_rows } else { 1 };
+            for t in out.slot_mut(s) {
+                let mut shape = t.shape.clone();
+                shape[0] = r;
+                *t = Tensor::zeros(t.dtype(), shape);
+            }
+        }
+        out
+    }
+}
+
+/// Where a token step takes each graph's caches from and puts the updated ones.
+trait CacheStore {
+    /// The caches of `slot` for every stream of the step, stacked in stream order.
+    fn take(&mut self, slot: Slot) -> Result<Vec<Tensor>>;
+    /// Stores the caches a graph returned for `slot` (stacked like [`CacheStore::take`]'s).
+    fn put(&mut self, slot: Slot, new: Vec<Tensor>) -> Result<()>;
+}
+
+/// Separately owned per-stream caches ([`Pipeline::step_batch`]): stacked before each graph run and
+/// split back after it.
+struct SeparateCaches<'a> {
+    caches: Vec<&'a mut Caches>,
+    branch_rows: Vec<usize>,
+    ones: Vec<usize>,
+}
+
+impl CacheStore for SeparateCaches<'_> {
+    fn take(&mut self, slot: Slot) -> Result<Vec<Tensor>> {
+        stack_caches(
+            self.caches
+                .iter_mut()
+                .map(|c| std::mem::take(c.slot_mut(slot)))
+                .collect(),
+        )
+    }
+
+    fn put(&mut self, slot: Slot, new: Vec<Tensor>) -> Result<()> {
+        let rows = if slot.branched() {
+            &self.branch_rows
+        } else {
+            &self.ones
+        };
+        for (c, part) in self.caches.iter_mut().zip(split_caches(new, rows)?) {
+            *c.slot_mut(slot) = part;
+        }
+        Ok(())
+    }
+}
+
+/// Caches already stacked on the batch axis ([`StreamBatch`]): handed to the graph and replaced by
+/// its outputs, moved, never copied.
+impl CacheStore for Caches {
+    fn take(&mut self, slot: Slot) -> Result<Vec<Tensor>> {
+        Ok(std::mem::take(self.slot_mut(slot)))
+    }
+
+    fn put(&mut self, slot: Slot, new: Vec<Tensor>) -> Result<()> {
+        *self.slot_mut(slot) = new;
+        Ok(())
+    }
+}
+
+/// Everything of one stream except its caches.
 #[derive(Debug)]
-pub struct Stream {
+struct StreamState {
     opts: StreamOptions,
     gamma: f64,
     temperature: f64,
     top_k: usize,
     frontend: StreamingLogMel,
-    caches: Caches,
     prev: Vec<i64>,
     rng: SplitMix64,
     t: u64,
+}
+
+impl StreamState {
+    fn branch_rows(&self) -> usize {
+        if self.gamma != 1.0 {
+            2
+        } else {
+            1
+        }
+    }
+}
+
+/// One stream's state (see the module docs).
+#[derive(Debug)]
+pub struct Stream {
+    state: StreamState,
+    caches: Caches,
     poisoned: bool,
 }
 
 impl Stream {
     /// True when classifier-free guidance is on (gamma != 1).
     pub fn guided(&self) -> bool {
-        self.gamma != 1.0
+        self.state.gamma != 1.0
     }
 
     /// Rows this stream occupies in the expert and fusion batches (2 with guidance, else 1).
     pub fn branch_rows(&self) -> usize {
-        if self.guided() {
-            2
-        } else {
-            1
-        }
+        self.state.branch_rows()
     }
 
     /// Guidance scale in use.
     pub fn guidance(&self) -> f64 {
-        self.gamma
+        self.state.gamma
     }
 
     /// Temperature in use.
     pub fn temperature(&self) -> f64 {
-        self.temperature
+        self.state.temperature
     }
 
     /// Top-k in use.
     pub fn top_k(&self) -> usize {
-        self.top_k
+        self.state.top_k
     }
 
     /// The options the stream was created with.
     pub fn options(&self) -> &StreamOptions {
-        &self.opts
+        &self.state.opts
     }
 
     /// Tokens stepped so far.
     pub fn tokens_done(&self) -> u64 {
-        self.t
+        self.state.t
     }
 
     /// Frames emitted so far (`frames_per_token` per token).
     pub fn frames_done(&self) -> u64 {
-        self.t * self.frontend.config().frames_per_token
+        self.state.t * self.state.frontend.config().frames_per_token
     }
 
     /// Audio samples received so far.
     pub fn samples_received(&self) -> u64 {
-        self.frontend.samples_received()
+        self.state.frontend.samples_received()
     }
 
     /// The previous token of every region (BOS before the first step).
     pub fn prev_tokens(&self) -> &[i64] {
-        &self.prev
+        &self.state.prev
+    }
+
+    /// True after a failed step: the stream refuses further work until [`Pipeline::reset`].
+    pub fn is_poisoned(&self) -> bool {
+        self.poisoned
     }
 
     /// Feeds audio to the stream's frontend only, returning the mel frames of each completed token.
     /// Use with [`Pipeline::step_batch`] to step many streams together.
     pub fn push_audio(&mut self, chunk: &[f32]) -> Result<Vec<Array2<f32>>> {
-        self.frontend.push(chunk)
+        self.state.frontend.push(chunk)
+    }
+}
+
+/// Identifies a stream inside a [`StreamBatch`] (unique within that batch, never reused).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct StreamId(u64);
+
+impl std::fmt::Display for StreamId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "stream #{}", self.0)
+    }
+}
+
+#[derive(Debug)]
+struct Member {
+    id: StreamId,
+    state: StreamState,
+}
+
+/// Streams stepped together, with their caches kept stacked on the batch axis between steps.
+///
+/// Stream `i` (in [`StreamBatch::ids`] order) occupies row `i` of the `audio_encoder` and decoder
+/// caches, and [`Stream::branch_rows`] consecutive rows (2 with guidance: conditional, then
+/// unconditional) of the expert and fusion caches, after the rows of the streams before it.
+/// [`Pipeline::step_stream_batch`] hands these stacked caches to each graph and keeps the graph's
+/// new caches in their place: no per-step stacking or splitting.
+///
+/// Streams join ([`StreamBatch::add`], their rows appended) and leave ([`StreamBatch::remove`]) at
+/// any time between steps; each keeps its own seed, guidance and sampling settings, and its tokens
+/// and frames are those it would get stepped alone. Removing a stream moves the last stream into its
+/// place when both occupy the same number of rows (one stream's rows copied, whatever the batch
+/// size), otherwise the later streams shift down; either way [`StreamBatch::ids`] gives the new order.
+/// Buffers keep their capacity, so a stream joining after one left costs no reallocation.
+///
+/// After a failed step the batch refuses to step again until all its streams have been removed
+/// (they come back poisoned: [`Pipeline::reset`] them).
+#[derive(Debug)]
+pub struct StreamBatch {
+    members: Vec<Member>,
+    /// Stacked caches of all members.
+    caches: Caches,
+    /// The same tensors with zero rows (the layout every added stream must match).
+    empty: Caches,
+    next_id: u64,
+    poisoned: bool,
+}
+
+impl StreamBatch {
+    /// Number of streams.
+    pub fn len(&self) -> usize {
+        self.members.len()
+    }
+
+    /// True without streams.
+    pub fn is_empty(&self) -> bool {
+        self.members.is_empty()
+    }
+
+    /// The streams in batch order: the order [`Pipeline::step_stream_batch`] takes mel blocks in and
+    /// returns token steps in. Changes only with [`StreamBatch::add`] (appends) and
+    /// [`StreamBatch::remove`].
+    pub fn ids(&self) -> Vec<StreamId> {
+        self.members.iter().map(|m| m.id).collect()
+    }
+
+    /// Position of `id` in batch order.
+    pub fn position(&self, id: StreamId) -> Option<usize> {
+        self.members.iter().position(|m| m.id == id)
+    }
+
+    /// True when `id` is in the batch.
+    pub fn contains(&self, id: StreamId) -> bool {
+        self.position(id).is_some()
+    }
+
+    /// Rows of the expert and fusion batches (the sum of the streams' [`Stream::branch_rows`]).
+    pub fn branch_rows(&self) -> usize {
+        self.members.iter().map(|m| m.state.branch_rows()).sum()
+    }
+
+    /// True after a failed step (see the type's docs).
+    pub fn is_poisoned(&self) -> bool {
+        self.poisoned
+    }
+
+    fn member(&self, id: StreamId) -> Result<&Member> {
+        self.members
+            .iter()
+            .find(|m| m.id == id)
+            .with_context(|| format!("{id} is not in this batch"))
+    }
+
+    /// The options stream `id` was created with.
+    pub fn options(&self, id: StreamId) -> Result<&StreamOptions> {
+        Ok(&self.member(id)?.state.opts)
+    }
+
+    /// Tokens stream `id` has stepped so far.
+    pub fn tokens_done(&self, id: StreamId) -> Result<u64> {
+        Ok(self.member(id)?.state.t)
+    }
+
+    /// Feeds audio to stream `id`'s frontend, returning the mel frames of each completed token (for
+    /// [`Pipeline::step_stream_batch`]).
+    pub fn push_audio(&mut self, id: StreamId, chunk: &[f32]) -> Result<Vec<Array2<f32>>> {
+        let m = self
+            .members
+            .iter_mut()
+            .find(|m| m.id == id)
+            .with_context(|| format!("{id} is not in this batch"))?;
+        m.state.frontend.push(chunk)
+    }
+
+    /// Adds `stream` (fresh from [`Pipeline::new_stream`], or one that has already stepped, e.g. one
+    /// taken out of another batch) at the end of the batch: its caches are appended to the stacked
+    /// ones. Errors for a poisoned stream or batch, or a stream of a bundle with other caches.
+    pub fn add(&mut self, stream: Stream) -> Result<StreamId> {
+        ensure!(
+            !self.poisoned,
+            "a step of this batch failed; remove its streams before adding new ones"
+        );
+        ensure!(
+            !stream.poisoned,
+            "the stream failed earlier; reset it before adding it to a batch"
+        );
+        let branch = stream.state.branch_rows();
+        for slot in self.empty.slots() {
+            let have = self.empty.slot(slot);
+            let add = stream.caches.slot(slot);
+            let rows = if slot.branched() { branch } else { 1 };
+            ensure!(
+                have.len() == add.len(),
+                "the stream has {} caches for a graph with {} (a stream of another bundle?)",
+                add.len(),
+                have.len()
+            );
+            for (h, a) in have.iter().zip(add) {
+                ensure!(
+                    a.dtype() == h.dtype()
+                        && a.shape.len() == h.shape.len()
+                        && a.shape[1..] == h.shape[1..]
+                        && a.batch() == rows,
+                    "the stream's cache {:?} ({}) does not fit the batch's {:?} ({}) (a stream of another bundle?)",
+                    a.shape,
+                    a.dtype(),
+                    h.shape,
+                    h.dtype()
+                );
+            }
+        }
+        for slot in self.empty.slots() {
+            for (h, a) in self
+                .caches
+                .slot_mut(slot)
+                .iter_mut()
+                .zip(stream.caches.slot(slot))
+            {
+                h.append_rows(a)?;
+            }
+        }
+        let id = StreamId(self.next_id);
+        self.next_id += 1;
+        self.members.push(Member {
+            id,
+            state: stream.state,
+        });
+        Ok(id)
+    }
+
+    /// Takes stream `id` out of the batch, with its caches: the returned [`Stream`] can be stepped
+    /// alone or added to a batch again and continues exactly where it was. The order of the remaining
+    /// streams may change (see the type's docs).
+    pub fn remove(&mut self, id: StreamId) -> Result<Stream> {
+        let i = self
+            .position(id)
+            .with_context(|| format!("{id} is not in this batch"))?;
+        let branch = self.members[i].state.branch_rows();
+        if self.poisoned {
+            let m = self.members.remove(i);
+            if self.members.is_empty() {
+                self.caches = self.empty.clone();
+                self.poisoned = false;
+            }
+            return Ok(Stream {
+                state: m.state,
+                caches: Caches::zeros_like(&self.empty, branch),
+                poisoned: true,
+            });
+        }
+        match self.remove_rows(i, branch) {
+            Ok(caches) => {
+                let last = self.members.len() - 1;
+                let m = if i != last && self.members[last].state.branch_rows() == branch {
+                    self.members.swap_remove(i)
+                } else {
+                    self.members.remove(i)
+                };
+                Ok(Stream {
+                    state: m.state,
+                    caches,
+                    poisoned: false,
+                })
+            }
+            Err(e) => {
+                // cannot happen with consistent caches; keep the batch from stepping on broken ones
+                self.poison();
+                Err(e.context(format!("removing {id} from the batch")))
+            }
+        }
+    }
+
+    /// Copies out member `i`'s rows and removes them (moving the last member's rows into their place
+    /// when it has as many).
+    fn remove_rows(&mut self, i: usize, branch: usize) -> Result<Caches> {
+        let last = self.members.len() - 1;
+        let swap = i != last && self.members[last].state.branch_rows() == branch;
+        let start_b: usize = self.members[..i]
+            .iter()
+            .map(|m| m.state.branch_rows())
+            .sum();
+        let mut out = self.empty.clone();
+        for slot in self.empty.slots() {
+            let (start, count) = if slot.branched() {
+                (start_b, branch)
+            } else {
+                (i, 1)
+            };
+            let ts = self.caches.slot_mut(slot);
+            let mine = ts
+                .iter()
+                .map(|t| t.rows(start, count))
+                .collect::<Result<Vec<_>>>()?;
+            for t in ts.iter_mut() {
+                if swap {
+                    t.swap_remove_rows(start, count)?;
+                } else {
+                    t.remove_rows(start, count)?;
+                }
+            }
+            *out.slot_mut(slot) = mine;
+        }
+        Ok(out)
+    }
+
+    /// Drops the (possibly incomplete) caches and refuses further steps until the batch is emptied.
+    fn poison(&mut self) {
+        self.poisoned = true;
+        self.caches = self.empty.clone();
+        if self.members.is_empty() {
+            self.poisoned = false;
+        }
     }
 }
 
@@ -481,41 +869,57 @@ impl Pipeline {
             temperature.is_finite() && temperature > 0.0,
             "temperature must be > 0, got {temperature}"
         );
-        Ok(Stream {
+        let state = StreamState {
             opts: opts.clone(),
             gamma,
             temperature,
             top_k,
             frontend: StreamingLogMel::new(&self.frontend)?,
-            caches: self.initial_caches(gamma != 1.0),
             prev: vec![self.bos; self.regions.len()],
             rng: SplitMix64::new(opts.seed),
             t: 0,
+        };
+        Ok(Stream {
+            caches: self.initial_caches(state.branch_rows(), 1),
+            state,
             poisoned: false,
         })
     }
 
-    fn initial_caches(&self, guided: bool) -> Caches {
-        let rows = if guided { 2 } else { 1 };
+    /// Zero caches from the manifest with `branch_rows` rows in the expert and fusion graphs and
+    /// `rows` in the others.
+    fn initial_caches(&self, branch_rows: usize, rows: usize) -> Caches {
         Caches {
-            audio_encoder: zeros_for(&self.audio_encoder.spec.caches, 1),
+            audio_encoder: zeros_for(&self.audio_encoder.spec.caches, rows),
             experts: self
                 .experts
                 .iter()
-                .map(|e| zeros_for(&e.spec.caches, rows))
+                .map(|e| zeros_for(&e.spec.caches, branch_rows))
                 .collect(),
-            fusion: zeros_for(&self.fusion.spec.caches, rows),
+            fusion: zeros_for(&self.fusion.spec.caches, branch_rows),
             decoders: self
                 .decoders
                 .iter()
-                .map(|d| zeros_for(&d.spec.caches, 1))
+                .map(|d| zeros_for(&d.spec.caches, rows))
                 .collect(),
+        }
+    }
+
+    /// An empty [`StreamBatch`] for this pipeline's graphs; add streams with [`StreamBatch::add`].
+    pub fn new_batch(&self) -> StreamBatch {
+        let empty = self.initial_caches(0, 0);
+        StreamBatch {
+            members: Vec::new(),
+            caches: empty.clone(),
+            empty,
+            next_id: 0,
+            poisoned: false,
         }
     }
 
     /// Resets `stream` to a cold start with its original options (and seed).
     pub fn reset(&self, stream: &mut Stream) -> Result<()> {
-        *stream = self.new_stream(&stream.opts.clone())?;
+        *stream = self.new_stream(&stream.state.opts.clone())?;
         Ok(())
     }
 
@@ -534,7 +938,7 @@ impl Pipeline {
             !stream.poisoned,
             "the stream failed earlier; reset it before pushing more audio"
         );
-        let mels = stream.frontend.push(chunk)?;
+        let mels = stream.state.frontend.push(chunk)?;
         let mut out = Vec::with_capacity(mels.len());
         for mel in &mels {
             out.push(self.step(stream, mel)?);
@@ -548,19 +952,30 @@ impl Pipeline {
         v.pop().context("step_batch returned no result")
     }
 
-    /// One token step of several streams at once (`mels[i]` for `streams[i]`): every graph runs once
-    /// with the streams' caches stacked on the batch axis. Streams may differ in guidance.
+    fn check_mels(&self, n: usize, mels: &[Array2<f32>]) -> Result<()> {
+        ensure!(n == mels.len(), "{n} streams but {} mel blocks", mels.len());
+        let mpt = self.frontend.mel_frames_per_token as usize;
+        let n_mels = self.frontend.n_mels;
+        for m in mels {
+            ensure!(
+                m.dim() == (mpt, n_mels),
+                "mel block has shape {:?}, expected ({mpt}, {n_mels})",
+                m.dim()
+            );
+        }
+        Ok(())
+    }
+
+    /// One token step of several separately owned streams at once (`mels[i]` for `streams[i]`):
+    /// every graph runs once with the streams' caches stacked on the batch axis before the run and
+    /// split back after it. Streams may differ in guidance. For a set of streams stepped together
+    /// again and again, a [`StreamBatch`] ([`Pipeline::step_stream_batch`]) avoids the stacking.
     pub fn step_batch(
         &mut self,
         streams: &mut [&mut Stream],
         mels: &[Array2<f32>],
     ) -> Result<Vec<TokenStep>> {
-        ensure!(
-            streams.len() == mels.len(),
-            "step_batch: {} streams but {} mel blocks",
-            streams.len(),
-            mels.len()
-        );
+        self.check_mels(streams.len(), mels).context("step_batch")?;
         if streams.is_empty() {
             return Ok(Vec::new());
         }
@@ -573,16 +988,58 @@ impl Pipeline {
         for s in streams.iter_mut() {
             s.poisoned = true;
         }
-        let out = self.step_batch_inner(streams, mels)?;
+        let mut states = Vec::with_capacity(streams.len());
+        let mut store = SeparateCaches {
+            caches: Vec::with_capacity(streams.len()),
+            branch_rows: Vec::with_capacity(streams.len()),
+            ones: vec![1; streams.len()],
+        };
+        for s in streams.iter_mut() {
+            let s = &mut **s;
+            store.branch_rows.push(s.state.branch_rows());
+            states.push(&mut s.state);
+            store.caches.push(&mut s.caches);
+        }
+        let out = self.step_inner(&mut states, &mut store, mels)?;
         for s in streams.iter_mut() {
             s.poisoned = false;
         }
         Ok(out)
     }
 
-    fn step_batch_inner(
+    /// One token step of every stream of `batch` (`mels[i]` for the `i`-th of [`StreamBatch::ids`]):
+    /// every graph runs once on the batch's stacked caches, and the new caches it returns take their
+    /// place (moved, not copied). Returns the token steps in the same order. The tokens and frames of
+    /// each stream are those it would get stepped alone.
+    pub fn step_stream_batch(
         &mut self,
-        streams: &mut [&mut Stream],
+        batch: &mut StreamBatch,
+        mels: &[Array2<f32>],
+    ) -> Result<Vec<TokenStep>> {
+        self.check_mels(batch.len(), mels)
+            .context("step_stream_batch")?;
+        ensure!(
+            !batch.poisoned,
+            "a step of this batch failed earlier; remove its streams (and reset them) to use it again"
+        );
+        if batch.is_empty() {
+            return Ok(Vec::new());
+        }
+        let mut states: Vec<&mut StreamState> =
+            batch.members.iter_mut().map(|m| &mut m.state).collect();
+        let r = self.step_inner(&mut states, &mut batch.caches, mels);
+        if r.is_err() {
+            batch.poison();
+        }
+        r
+    }
+
+    /// The token step shared by [`Pipeline::step_batch`] and [`Pipeline::step_stream_batch`]; the mel
+    /// blocks have been checked. On error the caches in `store` are incomplete.
+    fn step_inner(
+        &mut self,
+        streams: &mut [&mut StreamState],
+        store: &mut impl CacheStore,
         mels: &[Array2<f32>],
     ) -> Result<Vec<TokenStep>> {
         let n = streams.len();
@@ -594,31 +1051,18 @@ impl Pipeline {
         // 1-2. audio encoder, one row per stream
         let mut mel_data = Vec::with_capacity(n * mpt * n_mels);
         for m in mels {
-            ensure!(
-                m.dim() == (mpt, n_mels),
-                "mel block has shape {:?}, expected ({mpt}, {n_mels})",
-                m.dim()
-            );
             mel_data.extend(m.iter().copied());
         }
         let mel_t = Tensor::f32(vec![n, mpt, n_mels], mel_data)?;
-        let caches = stack_caches(
-            streams
-                .iter_mut()
-                .map(|s| std::mem::take(&mut s.caches.audio_encoder))
-                .collect(),
-        )?;
         let mut mel_opt = Some(mel_t);
         let (out, new) = self.audio_encoder.run(
             |r| match r {
                 Role::Mel => mel_opt.take().context("mel used twice"),
                 other => bail!("audio_encoder: unexpected input {other:?}"),
             },
-            caches,
+            store.take(Slot::AudioEncoder)?,
         )?;
-        for (s, c) in streams.iter_mut().zip(split_caches(new, &vec![1; n])?) {
-            s.caches.audio_encoder = c;
-        }
+        store.put(Slot::AudioEncoder, new)?;
         let audio = out
             .into_iter()
             .next()
@@ -646,12 +1090,6 @@ impl Pipeline {
                 prev.extend(std::iter::repeat_n(s.prev[ri], r));
             }
             let prev_t = Tensor::i64(vec![total], prev)?;
-            let caches = stack_caches(
-                streams
-                    .iter_mut()
-                    .map(|s| std::mem::take(&mut s.caches.experts[ri]))
-                    .collect(),
-            )?;
             let (out, new) = stage.run(
                 |role| match role {
                     Role::PrevToken => Ok(prev_t.clone()),
@@ -659,11 +1097,9 @@ impl Pipeline {
                     Role::Cond => Ok(cond_b.clone()),
                     other => bail!("expert: unexpected input {other:?}"),
                 },
-                caches,
+                store.take(Slot::Expert(ri))?,
             )?;
-            for (s, c) in streams.iter_mut().zip(split_caches(new, &rows)?) {
-                s.caches.experts[ri] = c;
-            }
+            store.put(Slot::Expert(ri), new)?;
             hidden.push(
                 out.into_iter()
                     .next()
@@ -672,12 +1108,6 @@ impl Pipeline {
         }
 
         // 4. fusion
-        let caches = stack_caches(
-            streams
-                .iter_mut()
-                .map(|s| std::mem::take(&mut s.caches.fusion))
-                .collect(),
-        )?;
         let (out, new) = self.fusion.run(
             |role| match role {
                 Role::Hidden(i) => hidden
@@ -688,11 +1118,9 @@ impl Pipeline {
                 Role::Cond => Ok(cond_b.clone()),
                 other => bail!("fusion: unexpected input {other:?}"),
             },
-            caches,
+            store.take(Slot::Fusion)?,
         )?;
-        for (s, c) in streams.iter_mut().zip(split_caches(new, &rows)?) {
-            s.caches.fusion = c;
-        }
+        store.put(Slot::Fusion, new)?;
         let logits = out
             .into_iter()
             .next()
@@ -741,22 +1169,14 @@ impl Pipeline {
         let mut feats: Vec<Tensor> = Vec::with_capacity(n_regions);
         for (ri, stage) in self.decoders.iter_mut().enumerate() {
             let tok_t = Tensor::i64(vec![n], tokens_all.iter().map(|t| t[ri]).collect())?;
-            let caches = stack_caches(
-                streams
-                    .iter_mut()
-                    .map(|s| std::mem::take(&mut s.caches.decoders[ri]))
-                    .collect(),
-            )?;
             let (out, new) = stage.run(
                 |role| match role {
                     Role::Token => Ok(tok_t.clone()),
                     other => bail!("decoder: unexpected input {other:?}"),
                 },
-                caches,
+                store.take(Slot::Decoder(ri))?,
             )?;
-            for (s, c) in streams.iter_mut().zip(split_caches(new, &vec![1; n])?) {
-                s.caches.decoders[ri] = c;
-            }
+            store.put(Slot::Decoder(ri), new)?;
             feats.push(
                 out.into_iter()
                     .next()
@@ -841,6 +1261,7 @@ mod tests {
     fn streams_and_pipelines_move_between_threads() {
         assert_send::<Stream>();
         assert_send::<Pipeline>();
+        assert_send::<StreamBatch>();
     }
 
     #[test]

@@ -225,6 +225,99 @@ impl Tensor {
         }
         Ok(out)
     }
+
+    fn check_rows(&self, start: usize, count: usize) -> Result<()> {
+        ensure!(
+            !self.shape.is_empty(),
+            "a tensor without a batch axis has no rows"
+        );
+        ensure!(
+            start + count <= self.batch(),
+            "rows {start}..{} out of a batch of {}",
+            start + count,
+            self.batch()
+        );
+        Ok(())
+    }
+
+    /// A copy of rows `start .. start + count` (batch axis).
+    pub fn rows(&self, start: usize, count: usize) -> Result<Tensor> {
+        self.check_rows(start, count)?;
+        let rl = self.row_len();
+        let range = start * rl..(start + count) * rl;
+        let mut shape = self.shape.clone();
+        shape[0] = count;
+        let data = match &self.data {
+            TensorData::F32(v) => TensorData::F32(v[range].to_vec()),
+            TensorData::I64(v) => TensorData::I64(v[range].to_vec()),
+        };
+        Ok(Tensor { shape, data })
+    }
+
+    /// Appends the rows of `other` (same dtype and row shape) on the batch axis, in place: the buffer
+    /// grows only when its capacity is exceeded.
+    pub fn append_rows(&mut self, other: &Tensor) -> Result<()> {
+        ensure!(
+            !self.shape.is_empty()
+                && self.shape.len() == other.shape.len()
+                && self.shape[1..] == other.shape[1..]
+                && self.dtype() == other.dtype(),
+            "cannot append rows of shape {:?} ({}) to a tensor of shape {:?} ({})",
+            other.shape,
+            other.dtype(),
+            self.shape,
+            self.dtype()
+        );
+        match (&mut self.data, &other.data) {
+            (TensorData::F32(a), TensorData::F32(b)) => a.extend_from_slice(b),
+            (TensorData::I64(a), TensorData::I64(b)) => a.extend_from_slice(b),
+            _ => unreachable!("dtypes checked above"),
+        }
+        self.shape[0] += other.batch();
+        Ok(())
+    }
+
+    /// Removes rows `start .. start + count`, shifting the later rows down (their order is kept); the
+    /// buffer keeps its capacity.
+    pub fn remove_rows(&mut self, start: usize, count: usize) -> Result<()> {
+        self.check_rows(start, count)?;
+        let rl = self.row_len();
+        let range = start * rl..(start + count) * rl;
+        match &mut self.data {
+            TensorData::F32(v) => drop(v.drain(range)),
+            TensorData::I64(v) => drop(v.drain(range)),
+        }
+        self.shape[0] -= count;
+        Ok(())
+    }
+
+    /// Removes rows `start .. start + count` by moving the last `count` rows into their place (like
+    /// `Vec::swap_remove`: one block copy whatever the batch, the other rows stay where they are); the
+    /// buffer keeps its capacity. The removed block must be the tail or not overlap it.
+    pub fn swap_remove_rows(&mut self, start: usize, count: usize) -> Result<()> {
+        self.check_rows(start, count)?;
+        let n = self.batch();
+        if start + count < n {
+            ensure!(
+                start + count <= n - count,
+                "swap_remove_rows: rows {start}..{} overlap the last {count} rows of {n}",
+                start + count
+            );
+            let rl = self.row_len();
+            let (src, dst) = ((n - count) * rl..n * rl, start * rl);
+            match &mut self.data {
+                TensorData::F32(v) => v.copy_within(src, dst),
+                TensorData::I64(v) => v.copy_within(src, dst),
+            }
+        }
+        let rl = self.row_len();
+        match &mut self.data {
+            TensorData::F32(v) => v.truncate((n - count) * rl),
+            TensorData::I64(v) => v.truncate((n - count) * rl),
+        }
+        self.shape[0] -= count;
+        Ok(())
+    }
 }
 
 /// A loaded step graph, ready to run.
@@ -426,5 +519,68 @@ mod tests {
         let parts = c.split(&[1, 2]).unwrap();
         assert_eq!(parts, vec![a, b]);
         assert!(c.split(&[1, 1]).is_err());
+    }
+
+    fn rows_of(t: &Tensor) -> Vec<Vec<f32>> {
+        let v = t.as_f32("t").unwrap();
+        v.chunks(t.row_len()).map(<[f32]>::to_vec).collect()
+    }
+
+    #[test]
+    fn row_editing_in_place() {
+        // 5 rows of 2: row r holds [r, r + 0.5]
+        let data: Vec<f32> = (0..5).flat_map(|r| [r as f32, r as f32 + 0.5]).collect();
+        let t = Tensor::f32(vec![5, 2], data).unwrap();
+        assert_eq!(
+            rows_of(&t.rows(1, 2).unwrap()),
+            vec![vec![1.0, 1.5], vec![2.0, 2.5]]
+        );
+        assert!(t.rows(4, 2).is_err());
+
+        let mut a = t.clone();
+        a.remove_rows(1, 2).unwrap();
+        assert_eq!(a.shape, vec![3, 2]);
+        assert_eq!(
+            rows_of(&a),
+            vec![vec![0.0, 0.5], vec![3.0, 3.5], vec![4.0, 4.5]]
+        );
+
+        let mut s = t.clone();
+        s.swap_remove_rows(0, 2).unwrap(); // rows 3, 4 move into 0, 1
+        assert_eq!(
+            rows_of(&s),
+            vec![vec![3.0, 3.5], vec![4.0, 4.5], vec![2.0, 2.5]]
+        );
+        let cap = match &s.data {
+            TensorData::F32(v) => v.capacity(),
+            _ => unreachable!(),
+        };
+        s.swap_remove_rows(2, 1).unwrap(); // the tail: just dropped
+        assert_eq!(s.shape, vec![2, 2]);
+        assert!(t.clone().swap_remove_rows(2, 2).is_err()); // overlaps the tail block
+
+        // appending within the capacity left by a removal does not reallocate
+        let extra = Tensor::f32(vec![1, 2], vec![9.0, 9.5]).unwrap();
+        s.append_rows(&extra).unwrap();
+        assert_eq!(s.shape, vec![3, 2]);
+        assert_eq!(rows_of(&s)[2], vec![9.0, 9.5]);
+        match &s.data {
+            TensorData::F32(v) => assert_eq!(v.capacity(), cap),
+            _ => unreachable!(),
+        }
+        assert!(s
+            .append_rows(&Tensor::i64(vec![1, 2], vec![1, 2]).unwrap())
+            .is_err());
+        assert!(s
+            .append_rows(&Tensor::f32(vec![1, 3], vec![0.0; 3]).unwrap())
+            .is_err());
+
+        // 1-D (step counters) work the same
+        let mut c = Tensor::i64(vec![3], vec![7, 8, 9]).unwrap();
+        c.swap_remove_rows(0, 1).unwrap();
+        assert_eq!(c.as_i64("c").unwrap(), &[9, 8]);
+        c.append_rows(&Tensor::i64(vec![1], vec![0]).unwrap())
+            .unwrap();
+        assert_eq!(c.as_i64("c").unwrap(), &[9, 8, 0]);
     }
 }

@@ -137,14 +137,18 @@ fn from_tract(v: &TValue, want: DType, what: &str) -> Result<LgTensor> {
                 .to_plain_array_view::<f32>()
                 .with_context(|| format!("{what}: expected float32"))?;
             // a contiguous view (the usual case) is one memcpy, not an element iterator
-            let data = a.as_slice().map_or_else(|| a.iter().copied().collect(), <[f32]>::to_vec);
+            let data = a
+                .as_slice()
+                .map_or_else(|| a.iter().copied().collect(), <[f32]>::to_vec);
             LgTensor::f32(shape, data)
         }
         DType::I64 => {
             let a = v
                 .to_plain_array_view::<i64>()
                 .with_context(|| format!("{what}: expected int64"))?;
-            let data = a.as_slice().map_or_else(|| a.iter().copied().collect(), <[i64]>::to_vec);
+            let data = a
+                .as_slice()
+                .map_or_else(|| a.iter().copied().collect(), <[i64]>::to_vec);
             LgTensor::i64(shape, data)
         }
     }
