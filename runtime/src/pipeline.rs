@@ -149,20 +149,31 @@ impl Stage {
         })
     }
 
-    /// Runs with data inputs built by `data(role)` and the stacked `caches`; returns (data outputs, new caches).
+    /// Runs with data inputs built by `data(role)` and the stacked `caches`, writing the new caches
+    /// into the buffers of `spare` where the backend can (empty: fresh buffers). Returns (data
+    /// outputs, new caches, the input caches: spare buffers for the next run).
     fn run(
         &mut self,
         mut data: impl FnMut(Role) -> Result<Tensor>,
         caches: Vec<Tensor>,
-    ) -> Result<(Vec<Tensor>, Vec<Tensor>)> {
-        let mut inputs = Vec::with_capacity(self.roles.len() + caches.len());
+        spare: Vec<Tensor>,
+    ) -> Result<(Vec<Tensor>, Vec<Tensor>, Vec<Tensor>)> {
+        let n_data = self.roles.len();
+        let mut inputs = Vec::with_capacity(n_data + caches.len());
         for &r in &self.roles {
             inputs.push(data(r)?);
         }
         inputs.extend(caches);
-        let mut out = self.runner.run(&inputs)?;
-        let caches = out.split_off(self.spec.outputs.len());
-        Ok((out, caches))
+        let n_out = self.spec.outputs.len();
+        let mut out = Vec::with_capacity(n_out + spare.len());
+        if !spare.is_empty() {
+            out.resize_with(n_out, Tensor::default);
+            out.extend(spare);
+        }
+        self.runner.run_into(&inputs, &mut out)?;
+        let caches = out.split_off(n_out);
+        let old = inputs.split_off(n_data);
+        Ok((out, caches, old))
     }
 }
 
@@ -276,10 +287,12 @@ impl Caches {
 
 /// Where a token step takes each graph's caches from and puts the updated ones.
 trait CacheStore {
-    /// The caches of `slot` for every stream of the step, stacked in stream order.
-    fn take(&mut self, slot: Slot) -> Result<Vec<Tensor>>;
-    /// Stores the caches a graph returned for `slot` (stacked like [`CacheStore::take`]'s).
-    fn put(&mut self, slot: Slot, new: Vec<Tensor>) -> Result<()>;
+    /// The caches of `slot` for every stream of the step, stacked in stream order, and buffers the
+    /// graph may write its new caches into (empty: none).
+    fn take(&mut self, slot: Slot) -> Result<(Vec<Tensor>, Vec<Tensor>)>;
+    /// Stores the caches a graph returned for `slot` (stacked like [`CacheStore::take`]'s), and the
+    /// input caches it no longer needs.
+    fn put(&mut self, slot: Slot, new: Vec<Tensor>, old: Vec<Tensor>) -> Result<()>;
 }
 
 /// Separately owned per-stream caches ([`Pipeline::step_batch`]): stacked before each graph run and
@@ -291,16 +304,17 @@ struct SeparateCaches<'a> {
 }
 
 impl CacheStore for SeparateCaches<'_> {
-    fn take(&mut self, slot: Slot) -> Result<Vec<Tensor>> {
-        stack_caches(
+    fn take(&mut self, slot: Slot) -> Result<(Vec<Tensor>, Vec<Tensor>)> {
+        let stacked = stack_caches(
             self.caches
                 .iter_mut()
                 .map(|c| std::mem::take(c.slot_mut(slot)))
                 .collect(),
-        )
+        )?;
+        Ok((stacked, Vec::new()))
     }
 
-    fn put(&mut self, slot: Slot, new: Vec<Tensor>) -> Result<()> {
+    fn put(&mut self, slot: Slot, new: Vec<Tensor>, _old: Vec<Tensor>) -> Result<()> {
         let rows = if slot.branched() {
             &self.branch_rows
         } else {
@@ -314,14 +328,24 @@ impl CacheStore for SeparateCaches<'_> {
 }
 
 /// Caches already stacked on the batch axis ([`StreamBatch`]): handed to the graph and replaced by
-/// its outputs, moved, never copied.
-impl CacheStore for Caches {
-    fn take(&mut self, slot: Slot) -> Result<Vec<Tensor>> {
-        Ok(std::mem::take(self.slot_mut(slot)))
+/// its outputs, moved, never copied. Double-buffered: the graph writes its new caches into the
+/// buffers of the previous step's input caches (`spare`), so a steady batch allocates nothing.
+struct StackedCaches<'a> {
+    cur: &'a mut Caches,
+    spare: &'a mut Caches,
+}
+
+impl CacheStore for StackedCaches<'_> {
+    fn take(&mut self, slot: Slot) -> Result<(Vec<Tensor>, Vec<Tensor>)> {
+        Ok((
+            std::mem::take(self.cur.slot_mut(slot)),
+            std::mem::take(self.spare.slot_mut(slot)),
+        ))
     }
 
-    fn put(&mut self, slot: Slot, new: Vec<Tensor>) -> Result<()> {
-        *self.slot_mut(slot) = new;
+    fn put(&mut self, slot: Slot, new: Vec<Tensor>, old: Vec<Tensor>) -> Result<()> {
+        *self.cur.slot_mut(slot) = new;
+        *self.spare.slot_mut(slot) = old;
         Ok(())
     }
 }
@@ -458,6 +482,9 @@ pub struct StreamBatch {
     members: Vec<Member>,
     /// Stacked caches of all members.
     caches: Caches,
+    /// Last step's input caches, as output buffers for the next step (contents stale; their batch
+    /// size may lag behind `caches` after adds and removes: the backend resizes them).
+    spare: Caches,
     /// The same tensors with zero rows (the layout every added stream must match).
     empty: Caches,
     next_id: u64,
@@ -598,6 +625,7 @@ impl StreamBatch {
             let m = self.members.remove(i);
             if self.members.is_empty() {
                 self.caches = self.empty.clone();
+                self.spare = self.empty.clone();
                 self.poisoned = false;
             }
             return Ok(Stream {
@@ -665,6 +693,7 @@ impl StreamBatch {
     fn poison(&mut self) {
         self.poisoned = true;
         self.caches = self.empty.clone();
+        self.spare = self.empty.clone();
         if self.members.is_empty() {
             self.poisoned = false;
         }
@@ -911,6 +940,7 @@ impl Pipeline {
         StreamBatch {
             members: Vec::new(),
             caches: empty.clone(),
+            spare: empty.clone(),
             empty,
             next_id: 0,
             poisoned: false,
@@ -1027,7 +1057,11 @@ impl Pipeline {
         }
         let mut states: Vec<&mut StreamState> =
             batch.members.iter_mut().map(|m| &mut m.state).collect();
-        let r = self.step_inner(&mut states, &mut batch.caches, mels);
+        let mut store = StackedCaches {
+            cur: &mut batch.caches,
+            spare: &mut batch.spare,
+        };
+        let r = self.step_inner(&mut states, &mut store, mels);
         if r.is_err() {
             batch.poison();
         }
@@ -1055,14 +1089,16 @@ impl Pipeline {
         }
         let mel_t = Tensor::f32(vec![n, mpt, n_mels], mel_data)?;
         let mut mel_opt = Some(mel_t);
-        let (out, new) = self.audio_encoder.run(
+        let (caches, spare) = store.take(Slot::AudioEncoder)?;
+        let (out, new, old) = self.audio_encoder.run(
             |r| match r {
                 Role::Mel => mel_opt.take().context("mel used twice"),
                 other => bail!("audio_encoder: unexpected input {other:?}"),
             },
-            store.take(Slot::AudioEncoder)?,
+            caches,
+            spare,
         )?;
-        store.put(Slot::AudioEncoder, new)?;
+        store.put(Slot::AudioEncoder, new, old)?;
         let audio = out
             .into_iter()
             .next()
@@ -1090,16 +1126,18 @@ impl Pipeline {
                 prev.extend(std::iter::repeat_n(s.prev[ri], r));
             }
             let prev_t = Tensor::i64(vec![total], prev)?;
-            let (out, new) = stage.run(
+            let (caches, spare) = store.take(Slot::Expert(ri))?;
+            let (out, new, old) = stage.run(
                 |role| match role {
                     Role::PrevToken => Ok(prev_t.clone()),
                     Role::Audio => Ok(audio_b.clone()),
                     Role::Cond => Ok(cond_b.clone()),
                     other => bail!("expert: unexpected input {other:?}"),
                 },
-                store.take(Slot::Expert(ri))?,
+                caches,
+                spare,
             )?;
-            store.put(Slot::Expert(ri), new)?;
+            store.put(Slot::Expert(ri), new, old)?;
             hidden.push(
                 out.into_iter()
                     .next()
@@ -1108,7 +1146,8 @@ impl Pipeline {
         }
 
         // 4. fusion
-        let (out, new) = self.fusion.run(
+        let (caches, spare) = store.take(Slot::Fusion)?;
+        let (out, new, old) = self.fusion.run(
             |role| match role {
                 Role::Hidden(i) => hidden
                     .get(i)
@@ -1118,9 +1157,10 @@ impl Pipeline {
                 Role::Cond => Ok(cond_b.clone()),
                 other => bail!("fusion: unexpected input {other:?}"),
             },
-            store.take(Slot::Fusion)?,
+            caches,
+            spare,
         )?;
-        store.put(Slot::Fusion, new)?;
+        store.put(Slot::Fusion, new, old)?;
         let logits = out
             .into_iter()
             .next()
@@ -1169,14 +1209,16 @@ impl Pipeline {
         let mut feats: Vec<Tensor> = Vec::with_capacity(n_regions);
         for (ri, stage) in self.decoders.iter_mut().enumerate() {
             let tok_t = Tensor::i64(vec![n], tokens_all.iter().map(|t| t[ri]).collect())?;
-            let (out, new) = stage.run(
+            let (caches, spare) = store.take(Slot::Decoder(ri))?;
+            let (out, new, old) = stage.run(
                 |role| match role {
                     Role::Token => Ok(tok_t.clone()),
                     other => bail!("decoder: unexpected input {other:?}"),
                 },
-                store.take(Slot::Decoder(ri))?,
+                caches,
+                spare,
             )?;
-            store.put(Slot::Decoder(ri), new)?;
+            store.put(Slot::Decoder(ri), new, old)?;
             feats.push(
                 out.into_iter()
                     .next()

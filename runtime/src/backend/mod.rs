@@ -226,6 +226,27 @@ impl Tensor {
         Ok(out)
     }
 
+    /// Makes this tensor a `dtype` tensor of `shape` whose elements are about to be overwritten: the
+    /// buffer is kept when the dtype matches and it is large enough (its contents are then stale,
+    /// not zeroed); otherwise a new zeroed one is allocated (no copy of the old contents).
+    pub fn prepare_output(&mut self, dtype: DType, shape: Vec<usize>) {
+        let n: usize = shape.iter().product();
+        fn fit<T: Copy + Default>(v: &mut Vec<T>, n: usize) {
+            if n > v.capacity() {
+                *v = vec![T::default(); n];
+            } else {
+                v.resize(n, T::default());
+            }
+        }
+        match (&mut self.data, dtype) {
+            (TensorData::F32(v), DType::F32) => fit(v, n),
+            (TensorData::I64(v), DType::I64) => fit(v, n),
+            (d, DType::F32) => *d = TensorData::F32(vec![0.0; n]),
+            (d, DType::I64) => *d = TensorData::I64(vec![0; n]),
+        }
+        self.shape = shape;
+    }
+
     fn check_rows(&self, start: usize, count: usize) -> Result<()> {
         ensure!(
             !self.shape.is_empty(),
@@ -328,6 +349,16 @@ pub trait GraphRunner: Send {
     /// Runs one step. `inputs` are in the graph's input order (data inputs, then caches); the
     /// outputs come back in the graph's output order (data outputs, then new caches).
     fn run(&mut self, inputs: &[Tensor]) -> Result<Vec<Tensor>>;
+
+    /// Like [`GraphRunner::run`], writing the outputs into `outputs`: it is resized to the graph's
+    /// output count and each tensor reshaped for this run, keeping its buffer when it is large
+    /// enough, so a caller that passes the same tensors again (e.g. last step's input caches as this
+    /// step's output caches) saves allocations. Backends that can write outputs in place (ort) also
+    /// save a copy per output; the default runs [`GraphRunner::run`] and replaces `outputs`.
+    fn run_into(&mut self, inputs: &[Tensor], outputs: &mut Vec<Tensor>) -> Result<()> {
+        *outputs = self.run(inputs)?;
+        Ok(())
+    }
 
     /// Runs one step with inputs given by name (any order); returns `(name, tensor)` in graph order.
     fn run_named(&mut self, inputs: &[(&str, &Tensor)]) -> Result<Vec<(String, Tensor)>> {

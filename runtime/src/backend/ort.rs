@@ -23,14 +23,14 @@ use std::sync::OnceLock;
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use ort::environment::Environment;
 use ort::session::builder::GraphOptimizationLevel;
-use ort::session::{Session, SessionInputValue};
-use ort::value::TensorRef;
+use ort::session::Session;
+use ort::value::{DynValueRef, DynValueRefMut, TensorRef, TensorRefMut};
 use ort::AsPointer;
 
 use super::{
-    check_inputs, check_outputs, Backend, BackendOptions, DType, GraphRunner, Tensor, TensorData,
+    check_inputs, check_outputs, Backend, BackendOptions, GraphRunner, Tensor, TensorData,
 };
-use crate::bundle::GraphSpec;
+use crate::bundle::{concrete_shape, GraphSpec};
 
 /// Environment variable naming the ONNX Runtime shared library.
 pub const ORT_DYLIB_ENV: &str = "ORT_DYLIB_PATH";
@@ -376,19 +376,41 @@ impl Backend for OrtBackend {
             spec.name,
             spec.input_names()
         );
-        Ok(Box::new(OrtGraph {
-            spec: spec.clone(),
-            output_names: spec.output_names().iter().map(|s| s.to_string()).collect(),
-            session,
-        }))
+        Ok(Box::new(OrtGraph::new(spec, session)?))
     }
 }
 
 /// A graph loaded into an ONNX Runtime session.
+///
+/// Runs go through the C API's `Run` with **preallocated outputs**: every output is an `OrtValue`
+/// over the buffer of the caller's [`Tensor`] (reused when large enough), so ONNX Runtime writes the
+/// results straight into it, with no output allocation by the session and no copy out of it. This
+/// is the mechanism of ort's `OutputSelector::preallocate`, which only accepts values that own their
+/// data. Inputs are borrowed the same way (`TensorRef`, no copy).
 pub struct OrtGraph {
     spec: GraphSpec,
-    output_names: Vec<String>,
+    input_names: Vec<CString>,
+    output_names: Vec<CString>,
     session: Session,
+}
+
+impl OrtGraph {
+    fn new(spec: &GraphSpec, session: Session) -> Result<Self> {
+        let c = |names: Vec<&str>| -> Result<Vec<CString>> {
+            names
+                .into_iter()
+                .map(|n| {
+                    CString::new(n).with_context(|| format!("graph '{}': name {n:?}", spec.name))
+                })
+                .collect()
+        };
+        Ok(OrtGraph {
+            spec: spec.clone(),
+            input_names: c(spec.input_names())?,
+            output_names: c(spec.output_names())?,
+            session,
+        })
+    }
 }
 
 impl GraphRunner for OrtGraph {
@@ -397,46 +419,81 @@ impl GraphRunner for OrtGraph {
     }
 
     fn run(&mut self, inputs: &[Tensor]) -> Result<Vec<Tensor>> {
+        let mut out = Vec::new();
+        self.run_into(inputs, &mut out)?;
+        Ok(out)
+    }
+
+    fn run_into(&mut self, inputs: &[Tensor], outputs: &mut Vec<Tensor>) -> Result<()> {
         let batch = check_inputs(&self.spec, inputs)?;
         let name = &self.spec.name;
-        let mut values: Vec<SessionInputValue<'_>> = Vec::with_capacity(inputs.len());
+        let mut values: Vec<DynValueRef<'_>> = Vec::with_capacity(inputs.len());
         for t in inputs {
-            let v: SessionInputValue<'_> = match &t.data {
+            let v = match &t.data {
                 TensorData::F32(d) => {
-                    TensorRef::from_array_view((t.shape.as_slice(), d.as_slice()))?.into()
+                    TensorRef::from_array_view((t.shape.as_slice(), d.as_slice()))?.into_dyn()
                 }
                 TensorData::I64(d) => {
-                    TensorRef::from_array_view((t.shape.as_slice(), d.as_slice()))?.into()
+                    TensorRef::from_array_view((t.shape.as_slice(), d.as_slice()))?.into_dyn()
                 }
             };
             values.push(v);
         }
-        let outputs = self
-            .session
-            .run(values.as_slice())
-            .with_context(|| format!("ort: running graph '{name}' (batch {batch})"))?;
-        let mut out = Vec::with_capacity(self.output_names.len());
-        for (oname, (_, dtype, _)) in self.output_names.iter().zip(self.spec.all_outputs()) {
-            let v = outputs
-                .get(oname.as_str())
-                .ok_or_else(|| anyhow!("ort: graph '{name}' returned no output '{oname}'"))?;
-            let t = match dtype {
-                DType::F32 => {
-                    let (shape, data) = v
-                        .try_extract_tensor::<f32>()
-                        .with_context(|| format!("ort: graph '{name}' output '{oname}'"))?;
-                    Tensor::f32(shape.iter().map(|&d| d as usize).collect(), data.to_vec())?
+        let specs = self.spec.all_outputs();
+        outputs.truncate(specs.len());
+        outputs.resize_with(specs.len(), Tensor::default);
+        for (t, (_, dtype, shape)) in outputs.iter_mut().zip(&specs) {
+            t.prepare_output(*dtype, concrete_shape(shape, batch));
+        }
+        let mut out_values: Vec<DynValueRefMut<'_>> = Vec::with_capacity(outputs.len());
+        for t in outputs.iter_mut() {
+            let Tensor { shape, data } = t;
+            let v = match data {
+                TensorData::F32(d) => {
+                    TensorRefMut::from_array_view_mut((shape.as_slice(), d.as_mut_slice()))?
+                        .into_dyn()
                 }
-                DType::I64 => {
-                    let (shape, data) = v
-                        .try_extract_tensor::<i64>()
-                        .with_context(|| format!("ort: graph '{name}' output '{oname}'"))?;
-                    Tensor::i64(shape.iter().map(|&d| d as usize).collect(), data.to_vec())?
+                TensorData::I64(d) => {
+                    TensorRefMut::from_array_view_mut((shape.as_slice(), d.as_mut_slice()))?
+                        .into_dyn()
                 }
             };
-            out.push(t);
+            out_values.push(v);
         }
-        check_outputs(&self.spec, &out, batch)?;
-        Ok(out)
+        let in_names: Vec<*const c_char> = self.input_names.iter().map(|n| n.as_ptr()).collect();
+        let out_names: Vec<*const c_char> = self.output_names.iter().map(|n| n.as_ptr()).collect();
+        let in_ptrs: Vec<*const ort::sys::OrtValue> = values.iter().map(|v| v.ptr()).collect();
+        let mut out_ptrs: Vec<*mut ort::sys::OrtValue> =
+            out_values.iter().map(|v| v.ptr().cast_mut()).collect();
+        ensure!(
+            in_ptrs.len() == in_names.len() && out_ptrs.len() == out_names.len(),
+            "ort: graph '{name}': {} inputs and {} outputs for {} and {} names",
+            in_ptrs.len(),
+            out_ptrs.len(),
+            in_names.len(),
+            out_names.len()
+        );
+        // SAFETY: the session pointer is live and used by this thread only (`&mut self`); the name
+        // arrays hold NUL-terminated strings owned by `self`; every input and output pointer is a
+        // live OrtValue over a buffer that outlives the call (`values` borrows `inputs`,
+        // `out_values` borrows `outputs` mutably, both dropped after it). Non-null outputs are
+        // preallocated: ONNX Runtime writes into them (shape mismatches are reported as errors) and
+        // does not replace or release them.
+        let status = unsafe {
+            (ort::api().Run)(
+                self.session.ptr().cast_mut(),
+                std::ptr::null(),
+                in_names.as_ptr(),
+                in_ptrs.as_ptr(),
+                in_ptrs.len(),
+                out_names.as_ptr(),
+                out_ptrs.len(),
+                out_ptrs.as_mut_ptr(),
+            )
+        };
+        check_status(status, &format!("running graph '{name}' (batch {batch})"))?;
+        drop(out_values);
+        drop(values);
+        check_outputs(&self.spec, outputs, batch)
     }
 }
