@@ -441,9 +441,16 @@ fn check_run_into(kind: BackendKind) {
         assert!(outs == want, "{kind}: {name}: run_into differs from run");
         let ptrs = data_ptrs(&outs);
         g.run_into(&inputs, &mut outs).unwrap();
-        assert!(outs == want, "{kind}: {name}: second run_into differs from run");
+        assert!(
+            outs == want,
+            "{kind}: {name}: second run_into differs from run"
+        );
         if kind == BackendKind::Ort {
-            assert_eq!(data_ptrs(&outs), ptrs, "{name}: ort run_into reallocated its outputs");
+            assert_eq!(
+                data_ptrs(&outs),
+                ptrs,
+                "{name}: ort run_into reallocated its outputs"
+            );
         }
     }
 }
