@@ -281,6 +281,8 @@ pub struct Batched {
     pub realtime_streams: f64,
     /// Same with each stream's log-mel frontend added: N * token / (step + N * frontend).
     pub realtime_streams_with_frontend: f64,
+    /// Per-graph times of the timed batched steps (each graph runs once per step on all N streams).
+    pub graphs: Vec<GraphTiming>,
 }
 
 /// Everything one `bench` run measures.
@@ -598,6 +600,8 @@ fn run_batched(
     let mut next_seed = opts.seed.wrapping_add(n as u64);
     let mut times = Vec::new();
     let mut graph_sums = Vec::new();
+    let names = rec.names();
+    let mut per_graph: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
     let total = cfg.batch_warmup + cfg.batch_steps;
     let cap = Duration::from_secs_f64(cfg.batch_seconds);
     let mut timed_start: Option<Instant> = None;
@@ -638,10 +642,16 @@ fn run_batched(
         let out = pipe.step_stream_batch(&mut batch, &block)?;
         dt += ms(t.elapsed());
         std::hint::black_box(&out);
-        let g: f64 = rec.drain().iter().map(|e| e.1 * 1e3).sum();
+        let mut step_graph = vec![0.0; names.len()];
+        for (id, secs) in rec.drain() {
+            step_graph[id] += secs * 1e3;
+        }
         if step >= cfg.batch_warmup {
             times.push(dt);
-            graph_sums.push(g);
+            graph_sums.push(step_graph.iter().sum::<f64>());
+            for (v, x) in per_graph.iter_mut().zip(step_graph) {
+                v.push(x);
+            }
         }
         for p in pos.values_mut() {
             *p = (*p + 1) % mels.len();
@@ -662,6 +672,14 @@ fn run_batched(
         realtime_streams: nf * token_ms / st.median,
         realtime_streams_with_frontend: nf * token_ms / (st.median + nf * frontend_ms),
         step_ms: st,
+        graphs: names
+            .iter()
+            .zip(&per_graph)
+            .map(|(n, v)| GraphTiming {
+                graph: n.clone(),
+                ms: Stats::of(v),
+            })
+            .collect(),
     })
 }
 
@@ -758,6 +776,20 @@ pub fn format_table(r: &BenchReport) -> String {
                 b.realtime_streams_with_frontend,
                 if b.capped { "  (time-capped)" } else { "" }
             );
+        }
+        if let Some(first) = r.batched.first() {
+            let _ = write!(o, "\nbatched, per graph (median ms per batched step):\n  {:>5}", "N");
+            for g in &first.graphs {
+                let _ = write!(o, " {:>14}", g.graph);
+            }
+            let _ = writeln!(o);
+            for b in &r.batched {
+                let _ = write!(o, "  {:>5}", b.streams);
+                for g in &b.graphs {
+                    let _ = write!(o, " {:>14.3}", g.ms.median);
+                }
+                let _ = writeln!(o);
+            }
         }
     }
     o

@@ -16,7 +16,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from ..config import LiveGestureConfig
-from .layers import CacheSpec, CausalConv1d, check_cache, check_shape
+from .layers import CacheSpec, CausalConv1d, check_cache, check_shape, conv_as_gemm
 
 
 class AudioEncoder(nn.Module):
@@ -35,10 +35,10 @@ class AudioEncoder(nn.Module):
         self.aggregate = nn.Conv1d(C, cfg.audio_dim, self.M, stride=self.M)
         self.norm = nn.LayerNorm(cfg.audio_dim)
 
-    def _trunk(self, x, conv):
+    def _trunk(self, x, conv, mix=lambda m, x: m(x)):
         x = F.gelu(conv(self.proj, x, "proj"))
-        for i, (dil, mix) in enumerate(zip(self.pyramid, self.pyramid_mix)):
-            x = x + mix(F.gelu(conv(dil, x, f"pyramid{i}")))
+        for i, (dil, mx) in enumerate(zip(self.pyramid, self.pyramid_mix)):
+            x = x + mix(mx, F.gelu(conv(dil, x, f"pyramid{i}")))
         return x
 
     def forward(self, mel: torch.Tensor) -> torch.Tensor:
@@ -64,7 +64,12 @@ class AudioEncoder(nn.Module):
         check_shape(self.name, "mel", mel, (None, self.M, self.cfg.frontend.n_mels), torch.float32)
         check_cache(self.name, self.cache_specs(), cache, mel.shape[0])
         new_cache: dict = {}
-        x = ((mel - self.mel_mean) / self.mel_std).transpose(1, 2)
-        x = self._trunk(x, lambda m, x, n: m.step(x, cache, new_cache, n))
-        a = self.norm(self.aggregate(x)[:, :, 0])
+        # channels-last (B, M, C) throughout: every conv is one Gemm over streams and frames, and the
+        # per-token aggregation (kernel M, stride M over the token's M frames) is one Gemm over M * C
+        x = (mel - self.mel_mean) / self.mel_std
+        x = self._trunk(x, lambda m, x, n: m.step(x, cache, new_cache, n),
+                        lambda m, x: conv_as_gemm(m, x, 1, 1))
+        agg = self.aggregate
+        w = agg.weight.permute(0, 2, 1).reshape(agg.weight.shape[0], -1)   # [o, i*C + c] = W[o, c, i]
+        a = self.norm(F.linear(x.reshape(-1, self.M * x.shape[2]), w, agg.bias))
         return {"audio": a}, new_cache

@@ -7,8 +7,10 @@ Cache conventions (the manifest describes them; Rust builds the initial state fr
 - caches start as zeros; attention caches come with a step counter ``step`` (int64, shape (B,)) counting
   the steps already taken, from which the masks of not-yet-filled window slots are derived, so the cold
   start is exact without warm-up;
-- a conv cache holds the last ``(kernel - 1) * dilation`` input frames; an attention cache holds the keys
-  and values (keys before rotation) of the previous ``window - 1`` positions, oldest first.
+- a conv cache holds the last ``(kernel - 1) * dilation`` input frames, channels-last ``(frames, channels)``
+  (step graphs run channels-last so that every convolution is one Gemm over all streams and frames);
+- an attention cache holds the keys and values (keys before rotation) of the previous ``window - 1``
+  positions, ``(window - 1, 2 * d_model)``, oldest first.
 """
 from __future__ import annotations
 
@@ -57,26 +59,49 @@ def check_cache(component: str, specs: list[CacheSpec], cache: dict, batch: int)
 
 
 class CausalConv1d(nn.Module):
-    """Conv1d with left-only padding. ``step`` keeps the last ``(k - 1) * d`` input frames as its cache."""
+    """Conv1d with left-only padding. ``step`` keeps the last ``(k - 1) * d`` input frames as its cache.
+
+    The offline ``forward`` is channels-first (B, C, T) like ``nn.Conv1d``. ``step`` is channels-last
+    (B, T, C) and computes the same convolution as one matrix product: the k taps of every output frame are
+    gathered with a constant index (im2col), giving (B*T, k*C_in) rows for a single Gemm with the
+    (k*C_in, C_out) weight. One Gemm over all streams and frames is what a batched step needs: runtimes
+    run a batched Conv as one small matrix product per batch item."""
 
     def __init__(self, c_in: int, c_out: int, kernel: int, dilation: int = 1):
         super().__init__()
         self.conv = nn.Conv1d(c_in, c_out, kernel, dilation=dilation)
         self.pad = (kernel - 1) * dilation
-        self.c_in = c_in
+        self.c_in, self.c_out, self.k, self.dil = c_in, c_out, kernel, dilation
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, C, T)
         return self.conv(F.pad(x, (self.pad, 0)))
 
     def cache_spec(self, name: str) -> list[CacheSpec]:
-        return [CacheSpec(name, (self.c_in, self.pad))] if self.pad > 0 else []
+        return [CacheSpec(name, (self.pad, self.c_in))] if self.pad > 0 else []
 
     def step(self, x: torch.Tensor, cache: dict, new_cache: dict, name: str) -> torch.Tensor:
-        if self.pad == 0:
-            return self.conv(x)
-        xx = torch.cat([cache[name], x], dim=2)
-        new_cache[name] = xx[:, :, -self.pad:]        # constant bounds: no shape arithmetic in the graph
-        return self.conv(xx)
+        """x (B, T, C_in) channels-last, the next T frames -> (B, T, C_out)."""
+        return conv_as_gemm(self.conv, x, self.k, self.dil, cache, new_cache, name, self.pad)
+
+
+def conv_as_gemm(conv: nn.Conv1d, x: torch.Tensor, k: int, dil: int, cache: dict | None = None,
+                 new_cache: dict | None = None, name: str = "", pad: int = 0) -> torch.Tensor:
+    """``conv`` (stride 1, no padding of its own) over the cached ``pad`` frames followed by x (B, T, C_in),
+    channels-last, as Gather (im2col with a constant index) + one Gemm: y[t] = sum_i W[:, :, i] xx[t + i*dil]."""
+    T, c_in = int(x.shape[1]), int(x.shape[2])
+    c_out = conv.weight.shape[0]
+    if pad > 0:
+        xx = torch.cat([cache[name], x], dim=1)               # (B, pad + T, C_in)
+        new_cache[name] = xx[:, -pad:, :]                     # constant bounds
+    else:
+        xx = x
+    w = conv.weight.permute(0, 2, 1).reshape(c_out, k * c_in)  # [o, i*C_in + c] = W[o, c, i] (folded at export)
+    if k == 1:
+        cols = xx.reshape(-1, c_in)
+    else:
+        idx = (torch.arange(T)[:, None] + dil * torch.arange(k)[None, :]).to(x.device)   # (T, k), constant
+        cols = xx[:, idx].reshape(-1, k * c_in)               # (B*T, k*C_in)
+    return F.linear(cols, w, conv.bias).reshape(-1, T, c_out)
 
 
 def rope_tables(n_pos: int, head_dim: int, base: float = 10000.0, offset: int = 0):

@@ -18,7 +18,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from ..config import LiveGestureConfig
-from .layers import CacheSpec, CausalConv1d, check_cache, check_shape
+from .layers import CacheSpec, CausalConv1d, check_cache, check_shape, conv_as_gemm
 
 
 class ResBlock1D(nn.Module):
@@ -36,8 +36,9 @@ class ResBlock1D(nn.Module):
     def forward(self, x):
         return x + self.mix(F.relu(self.conv(F.relu(x))))
 
-    def step(self, x, cache, new_cache, name):
-        return x + self.mix(F.relu(self.conv.step(F.relu(x), cache, new_cache, name)))
+    def step(self, x, cache, new_cache, name):  # channels-last (B, T, C)
+        y = F.relu(self.conv.step(F.relu(x), cache, new_cache, name))
+        return x + conv_as_gemm(self.mix, y, 1, 1)
 
 
 def _dilations(cfg: LiveGestureConfig):
@@ -51,6 +52,12 @@ def upsample2(x: torch.Tensor) -> torch.Tensor:
     constant sizes and exports without shape arithmetic."""
     C, T = int(x.shape[1]), int(x.shape[2])
     return torch.stack([x, x], dim=-1).reshape(-1, C, 2 * T)
+
+
+def upsample2_channels_last(x: torch.Tensor) -> torch.Tensor:
+    """:func:`upsample2` for channels-last x: (B, T, C) -> (B, 2T, C)."""
+    T, C = int(x.shape[1]), int(x.shape[2])
+    return torch.stack([x, x], dim=2).reshape(-1, 2 * T, C)
 
 
 class SVQEncoder(nn.Module):
@@ -79,10 +86,10 @@ class SVQDecoder(nn.Module):
         self.out1 = CausalConv1d(W, W, 3)
         self.out2 = CausalConv1d(W, d_out, 3)
 
-    def _run(self, z, conv, res):
+    def _run(self, z, conv, res, up=upsample2):
         x = F.relu(conv(self.inp, z, "inp"))
         for s in range(2):
-            x = upsample2(x)
+            x = up(x)
             x = conv(self.up_convs[s], x, f"up{s}")
             for j, blk in enumerate(self.res[s]):
                 x = res(blk, x, f"up{s}.res{j}")
@@ -100,9 +107,9 @@ class SVQDecoder(nn.Module):
                 specs += blk.conv.cache_spec(f"up{s}.res{j}")
         return specs + self.out1.cache_spec("out1") + self.out2.cache_spec("out2")
 
-    def step(self, z, cache, new_cache):  # z (B, latent, 1) -> (B, d_out, 4)
+    def step(self, z, cache, new_cache):  # channels-last: z (B, 1, latent) -> (B, 4, d_out)
         return self._run(z, lambda m, x, n: m.step(x, cache, new_cache, n),
-                         lambda b, x, n: b.step(x, cache, new_cache, n))
+                         lambda b, x, n: b.step(x, cache, new_cache, n), upsample2_channels_last)
 
 
 class Quantizer(nn.Module):
@@ -208,6 +215,6 @@ class SVQ(nn.Module):
         check_shape(self.name, "token", token, (None,), torch.int64)
         check_cache(self.name, self.cache_specs(), cache, token.shape[0])
         new_cache: dict = {}
-        z = self.head(self.quantizer.codebook[token])[:, :, None]
-        y = self.decoder.step(z, cache, new_cache).transpose(1, 2)
+        z = self.head(self.quantizer.codebook[token])[:, None, :]         # (B, 1, latent), channels-last
+        y = self.decoder.step(z, cache, new_cache)                         # (B, 4, d_in)
         return {"motion": y * self.std + self.mean}, new_cache
