@@ -778,7 +778,11 @@ pub fn format_table(r: &BenchReport) -> String {
             );
         }
         if let Some(first) = r.batched.first() {
-            let _ = write!(o, "\nbatched, per graph (median ms per batched step):\n  {:>5}", "N");
+            let _ = write!(
+                o,
+                "\nbatched, per graph (median ms per batched step):\n  {:>5}",
+                "N"
+            );
             for g in &first.graphs {
                 let _ = write!(o, " {:>14}", g.graph);
             }
