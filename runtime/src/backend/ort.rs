@@ -363,6 +363,10 @@ impl Backend for OrtBackend {
             .with_context(what)?
             .with_inter_threads(1)
             .map_err(e)
+            .with_context(what)?
+            // subnormals flushed on pool threads too (the calling thread: `flush_denormals` in run)
+            .with_flush_to_zero()
+            .map_err(e)
             .with_context(what)?;
         self.append_provider(&mut builder).with_context(what)?;
         let session = builder
@@ -479,7 +483,7 @@ impl GraphRunner for OrtGraph {
         // `out_values` borrows `outputs` mutably, both dropped after it). Non-null outputs are
         // preallocated: ONNX Runtime writes into them (shape mismatches are reported as errors) and
         // does not replace or release them.
-        let status = unsafe {
+        let status = super::flush_denormals(|| unsafe {
             (ort::api().Run)(
                 self.session.ptr().cast_mut(),
                 std::ptr::null(),
@@ -490,7 +494,7 @@ impl GraphRunner for OrtGraph {
                 out_ptrs.len(),
                 out_ptrs.as_mut_ptr(),
             )
-        };
+        });
         check_status(status, &format!("running graph '{name}' (batch {batch})"))?;
         drop(out_values);
         drop(values);

@@ -163,9 +163,8 @@ impl GraphRunner for TractGraph {
         let batch = check_inputs(&self.spec, inputs)?;
         let tv: TVec<TValue> = inputs.iter().map(to_tract).collect::<Result<_>>()?;
         let name = self.spec.name.clone();
-        let outs = self
-            .state_for(batch)?
-            .run(tv)
+        let state = self.state_for(batch)?;
+        let outs = super::flush_denormals(|| state.run(tv))
             .with_context(|| format!("tract: running graph '{name}' (batch {batch})"))?;
         let specs = self.spec.all_outputs();
         ensure!(
