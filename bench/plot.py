@@ -76,7 +76,8 @@ def summarise(res: Path) -> dict:
                 s["torch_ms"] = torch["step_ms_median"]
                 s["rust_over_torch"] = s["chain_ms"]["median"] / torch["step_ms_median"]
             if fl and roof:
-                f1 = fl["_total"]["flops_per_step_guided"]
+                # the model's arithmetic (older flops files: all counted MatMul/Gemm/Conv FLOPs)
+                f1 = fl["_total"].get("model_flops_per_step_guided", fl["_total"]["flops_per_step_guided"])
                 wb = fl["_total"]["weight_bytes"]
                 rl = roofline_ms(f1, wb, roof, r["state_bytes_per_stream"])
                 med = s["chain_ms"]["median"]

@@ -4,7 +4,10 @@
     python export/flops.py --bundle models/default [--json out.json]
 
 FLOPs: 2 x multiply-accumulates of MatMul, Gemm and Conv nodes (the rest is elementwise and negligible
-for these models, and is reported separately as an element count). Shapes come from ONNX shape inference
+for these models, and is reported separately as an element count). MatMuls by a ``Constant`` node (not a
+weight initializer) are the attention step's query-rotation tables (``qrot``: one query becomes W rotated
+queries, W x the work of applying RoPE elementwise): they are counted apart as ``rope_expansion`` and left
+out of ``model_flops``, the model's own arithmetic that roofline fractions are quoted against. Shapes come from ONNX shape inference
 with the batch axis set to 1. Weight bytes: the size of all initializers (what one step must read).
 """
 from __future__ import annotations
@@ -38,12 +41,14 @@ def count(path: str | Path, batch: int = 1) -> dict:
     inits = {i.name: numpy_helper.to_array(i) for i in m.graph.initializer}
     for i in inits:
         shapes[i] = list(inits[i].shape)
+    constants = set()
     for n in m.graph.node:
         if n.op_type == "Constant":
+            constants.add(n.output[0])
             for a in n.attribute:
                 if a.name == "value":
                     shapes[n.output[0]] = list(numpy_helper.to_array(a.t).shape)
-    flops, unknown, elementwise = 0, [], 0
+    flops, rope_expansion, unknown, elementwise = 0, 0, [], 0
     for n in m.graph.node:
         try:
             if n.op_type == "MatMul":
@@ -51,6 +56,8 @@ def count(path: str | Path, batch: int = 1) -> dict:
                 out = shapes.get(n.output[0])
                 k = a[-1]
                 flops += 2 * int(np.prod(out)) * k
+                if n.input[1] in constants:
+                    rope_expansion += 2 * int(np.prod(out)) * k
             elif n.op_type == "Gemm":
                 a, out = shapes[n.input[0]], shapes[n.output[0]]
                 trans_a = any(x.name == "transA" and x.i for x in n.attribute)
@@ -66,8 +73,9 @@ def count(path: str | Path, batch: int = 1) -> dict:
         except (KeyError, TypeError):
             unknown.append(n.name or n.op_type)
     weight_bytes = int(sum(a.nbytes for a in inits.values()))
-    return {"flops": int(flops), "weight_bytes": weight_bytes, "elementwise_elements": elementwise,
-            "uncounted_nodes": unknown}
+    return {"flops": int(flops), "rope_expansion_flops": int(rope_expansion),
+            "model_flops": int(flops - rope_expansion), "weight_bytes": weight_bytes,
+            "elementwise_elements": elementwise, "uncounted_nodes": unknown}
 
 
 def bundle_counts(bundle: str | Path) -> dict:
@@ -79,9 +87,12 @@ def bundle_counts(bundle: str | Path) -> dict:
         c1 = count(bundle / g["file"], 1)
         cb = count(bundle / g["file"], b) if b != 1 else c1
         out[g["name"]] = {"flops_per_stream": c1["flops"], "flops_per_step_guided": cb["flops"],
+                          "model_flops_per_step_guided": cb["model_flops"],
+                          "rope_expansion_flops_per_step_guided": cb["rope_expansion_flops"],
                           "weight_bytes": c1["weight_bytes"], "uncounted_nodes": c1["uncounted_nodes"]}
-    out["_total"] = {"flops_per_step_guided": sum(v["flops_per_step_guided"] for v in out.values()),
-                     "weight_bytes": sum(v["weight_bytes"] for v in out.values())}
+    keys = ["flops_per_step_guided", "model_flops_per_step_guided", "rope_expansion_flops_per_step_guided",
+            "weight_bytes"]
+    out["_total"] = {k: sum(v[k] for v in out.values()) for k in keys}
     return out
 
 
@@ -92,7 +103,9 @@ def main(argv=None):
     args = ap.parse_args(argv)
     res = bundle_counts(args.bundle)
     for k, v in res.items():
-        print(f"{k:<16} {v['flops_per_step_guided'] / 1e6:10.3f} MFLOP/step (guided)   {v['weight_bytes'] / 1e6:9.3f} MB weights")
+        print(f"{k:<16} {v['model_flops_per_step_guided'] / 1e6:10.3f} MFLOP/step model "
+              f"(+ {v['rope_expansion_flops_per_step_guided'] / 1e6:.3f} query-rotation; guided)   "
+              f"{v['weight_bytes'] / 1e6:9.3f} MB weights")
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=1))
     return 0
