@@ -70,6 +70,9 @@ echo "[bench] PyTorch eager streaming loop" >&2
 "${PIN[@]}" "$LIVEGESTURE_PY" -m livegesture.bench torch --config paper \
   --tokens "$TORCH_TOKENS" --json "$RES/torch_paper.json" >/dev/null
 
+echo "[bench] roofline again (the tables use the best of both measurements)" >&2
+"${PIN[@]}" "$LIVEGESTURE_PY" -m livegesture.bench roofline --json "$RES/roofline_end.json" >/dev/null
+
 end=$(date -u +%FT%TZ)
 "$LIVEGESTURE_PY" - "$RES/env.json" "$start" "$end" "$load_start" "$(cut -d' ' -f1-3 /proc/loadavg)" \
   "$(git rev-parse --short HEAD)" "$STEPS" "$BATCH_SECONDS" <<'EOF'
