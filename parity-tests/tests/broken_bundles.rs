@@ -86,7 +86,7 @@ fn perturbed_weight_fails_exactly_that_graph() {
 fn frozen_cache_update_is_caught() {
     let tmp = tempfile::tempdir().unwrap();
     let dst = tmp.path().join("frozen");
-    let cache = "layer0.xattn";
+    let cache = "layer0.xattn.k";
     let change = break_bundle(
         &tiny_bundle(),
         &dst,

@@ -2,7 +2,7 @@
 """Copy a LiveGesture bundle and break ONE graph in the copy, for the parity suite's negative tests.
 
     break_bundle.py SRC DST --graph expert_hands --perturb-weight [--delta 0.01]
-    break_bundle.py SRC DST --graph expert_hands --freeze-cache layer0.xattn
+    break_bundle.py SRC DST --graph expert_hands --freeze-cache layer0.xattn.k
 
 --perturb-weight   adds --delta to one element (the first) of the weight initializer of the graph's first
                    MatMul/Gemm whose weight is an initializer.

@@ -99,7 +99,8 @@ def test_dropped_cache_update_is_caught(tmp_path, monkeypatch):
     def broken(self, prev_token, audio, cond, cache):
         out, new = orig(self, prev_token, audio, cond, cache)
         if self.region == "hands":
-            new["layer1.sattn"] = cache["layer1.sattn"]      # forgets its self-attention history
+            for kv in ("k", "v"):                             # forgets its self-attention history
+                new[f"layer1.sattn.{kv}"] = cache[f"layer1.sattn.{kv}"]
         return out, new
     monkeypatch.setattr(RegionExpert, "step", broken)
     with pytest.raises(ExportCheckError, match=r"graph 'expert_hands', output 'hidden', step \d+"):

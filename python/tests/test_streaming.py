@@ -119,9 +119,9 @@ def test_step_rejects_bad_shapes(tiny):
         ex.step(torch.zeros(2, dtype=torch.int64), torch.zeros(2, 3), torch.ones(2), cache)
     with pytest.raises(ValueError, match=r"expert_lower: input 'prev_token' has dtype torch.float32"):
         ex.step(torch.zeros(2), torch.zeros(2, cfg.audio_dim), torch.ones(2), cache)
-    with pytest.raises(ValueError, match=r"expert_lower: input 'cache.layer0.xattn' has shape"):
+    with pytest.raises(ValueError, match=r"expert_lower: input 'cache.layer0.xattn.k' has shape"):
         bad = dict(cache)
-        bad["layer0.xattn"] = torch.zeros(2, 1, 1)
+        bad["layer0.xattn.k"] = torch.zeros(2, 1, 1)
         ex.step(torch.zeros(2, dtype=torch.int64), torch.zeros(2, cfg.audio_dim), torch.ones(2), bad)
     with pytest.raises(ValueError, match=r"audio_encoder: input 'mel' has shape \(1, 7, 16\), expected \(B, 8, 16\)"):
         tiny.audio_encoder.step(torch.zeros(1, 7, 16), tiny.audio_encoder.init_cache(1))

@@ -112,7 +112,7 @@ class XARFuse(nn.Module):
         specs = [CacheSpec("step", (), "int64")]
         for i, blk in enumerate(self.blocks):
             t = blk.temporal
-            specs.append(CacheSpec(f"block{i}.tattn", (self.R,) + t.cache_spec("")[0].shape))
+            specs += t.cache_spec(f"block{i}.tattn", lead=(self.R,))
             specs += blk.cross.cache_spec(f"block{i}.xattn")
         return specs
 
@@ -142,12 +142,10 @@ class XARFuse(nn.Module):
             -1, 1, 1, self.cfg.fuse_window)
         for i, blk in enumerate(self.blocks):
             x = x + blk.spatial.step(blk.ln_s(x))
-            name = f"block{i}.tattn"
-            shape = tuple(blk.temporal.cache_spec("")[0].shape)          # per region: (2, h, W - 1, hd)
-            tc, tn = {name: cache[name].reshape((-1,) + shape)}, {}
+            # temporal attention on B * R rows (stream-major, region-minor); its caches keep the region axis
             xt = blk.ln_t(x).reshape(-1, d)
-            x = x + blk.temporal.step(xt, xt, bias_t, tc, tn, name).reshape(-1, R, d)
-            new_cache[name] = tn[name].reshape((-1, R) + shape)
+            x = x + blk.temporal.step(xt, xt, bias_t, cache, new_cache, f"block{i}.tattn",
+                                      lead=(R,)).reshape(-1, R, d)
             x = x + blk.cross.step(blk.ln_a(x), a, bias_a, cache, new_cache, f"block{i}.xattn")
             x = x + blk.ffn(blk.ln_f(x))
         new_cache["step"] = step + 1

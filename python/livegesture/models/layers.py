@@ -9,8 +9,8 @@ Cache conventions (the manifest describes them; Rust builds the initial state fr
   start is exact without warm-up;
 - a conv cache holds the last ``(kernel - 1) * dilation`` input frames, channels-last ``(frames, channels)``
   (step graphs run channels-last so that every convolution is one Gemm over all streams and frames);
-- an attention cache holds the keys (before rotation) and values of the previous ``window - 1`` positions
-  per head, ``(2, heads, window - 1, head_dim)``, oldest first.
+- an attention layer has two caches, ``<layer>.k`` (keys before rotation) and ``<layer>.v`` (values), with
+  the previous ``window - 1`` positions per head, ``(heads, window - 1, head_dim)``, oldest first.
 """
 from __future__ import annotations
 
@@ -197,19 +197,24 @@ class WindowedAttention(nn.Module):
         y = torch.softmax(scores, dim=-1) @ v
         return self.o(y.transpose(1, 2).reshape(x.shape[0], T, self.d))
 
-    def cache_spec(self, name: str) -> list[CacheSpec]:
-        # keys (index 0) and values (index 1) of the previous window - 1 positions, per head, oldest first
-        return [CacheSpec(name, (2, self.h, self.w - 1, self.hd))]
+    def cache_spec(self, name: str, lead: tuple[int, ...] = ()) -> list[CacheSpec]:
+        """Keys (before rotation) ``<name>.k`` and values ``<name>.v`` of the previous window - 1 positions,
+        per head, oldest first: (*lead, h, W - 1, hd) each (``lead``: extra row axes per stream, e.g. the
+        fusion's regions)."""
+        shape = tuple(lead) + (self.h, self.w - 1, self.hd)
+        return [CacheSpec(f"{name}.k", shape), CacheSpec(f"{name}.v", shape)]
 
     def step(self, x: torch.Tensor, kv_in: torch.Tensor, bias: torch.Tensor, cache: dict, new_cache: dict,
-             name: str) -> torch.Tensor:
-        """x (B, d_model), or (B, n_q, d_model) for several queries at the current time sharing the keys;
-        kv_in (B, d_kv) the current key source; bias (B, 1, 1, window) from :func:`window_bias`.
+             name: str, lead: tuple[int, ...] = ()) -> torch.Tensor:
+        """x (rows, d_model), or (rows, n_q, d_model) for several queries at the current time sharing the keys;
+        kv_in (rows, d_kv) the current key source; bias (rows, 1, 1, window) from :func:`window_bias`.
+        rows = B * prod(lead): the caches (:meth:`cache_spec`) have the ``lead`` axes after the batch.
 
-        The cache holds keys (before rotation) and values per head, (B, 2, h, W - 1, hd), so the new key and
-        value are appended with one Concat and no transpose. The query sits at window slot W - 1 and the key
-        in slot j at W - 1 - m (m = W - 1 - j tokens earlier), so with rotary positions its score is
-        <R_m q, k_j> / sqrt(hd) (R_m the RoPE rotation by m positions, the same dot product as
+        Keys and values are separate head-major caches, so the new key and value are appended with one
+        Concat each and the caches need no Split or Transpose; the updated caches are Slices of those
+        Concats in the caches' own layout (graph outputs without a copy). The query sits at window slot
+        W - 1 and the key in slot j at W - 1 - m (m = W - 1 - j tokens earlier), so with rotary positions
+        its score is <R_m q, k_j> / sqrt(hd) (R_m the RoPE rotation by m positions, the same dot product as
         <R_{W-1} q, R_j k_j> in exact arithmetic). The step computes all W rotated, scaled queries with one
         MatMul by the constant ``qrot`` (hd, W * hd), and the scores and the weighted values as Mul +
         ReduceSum of tensors of the keys' shape: no per-head batched MatMul (runtimes run those as one
@@ -218,15 +223,21 @@ class WindowedAttention(nn.Module):
         W, h, hd, d = self.w, self.h, self.hd, self.d
         single = x.dim() == 2
         n_q = 1 if single else int(x.shape[1])
-        kv_new = self.kv(kv_in).reshape(-1, 2, h, 1, hd)          # (B, 2, h, 1, hd): [k | v] per head
-        kv_all = torch.cat([cache[name], kv_new], dim=3)          # (B, 2, h, W, hd), oldest first
-        new_cache[name] = kv_all[:, :, :, 1:, :]
-        k, v = kv_all.split(1, dim=1)                             # (B, 1, h, W, hd) each
-        q = self.q(x).reshape(-1, n_q, h, hd)                     # (B, n_q, h, hd)
-        qr = (q @ self.qrot).reshape(-1, n_q, h, W, hd)           # (B, n_q, h, W, hd): R_{W-1-j} q / sqrt(hd)
-        scores = (qr * k).sum(-1) + bias                          # (B, n_q, h, W)
+        lead = tuple(lead)
+        kv_new = self.kv(kv_in)                                   # (rows, 2d): [k | v]
+        k_new = kv_new[:, :d].reshape((-1,) + lead + (h, 1, hd))
+        v_new = kv_new[:, d:].reshape((-1,) + lead + (h, 1, hd))
+        k_all = torch.cat([cache[f"{name}.k"], k_new], dim=-2)    # (B, *lead, h, W, hd), oldest first
+        v_all = torch.cat([cache[f"{name}.v"], v_new], dim=-2)
+        new_cache[f"{name}.k"] = k_all[..., 1:, :]
+        new_cache[f"{name}.v"] = v_all[..., 1:, :]
+        k = k_all.reshape(-1, 1, h, W, hd)                        # (rows, 1, h, W, hd)
+        v = v_all.reshape(-1, 1, h, W, hd)
+        q = self.q(x).reshape(-1, n_q, h, hd)                     # (rows, n_q, h, hd)
+        qr = (q @ self.qrot).reshape(-1, n_q, h, W, hd)           # (rows, n_q, h, W, hd): R_{W-1-j} q / sqrt(hd)
+        scores = (qr * k).sum(-1) + bias                          # (rows, n_q, h, W)
         p = torch.softmax(scores, dim=-1)
-        y = (p[..., None] * v).sum(-2).reshape(-1, n_q, d)        # (B, n_q, d)
+        y = (p[..., None] * v).sum(-2).reshape(-1, n_q, d)        # (rows, n_q, d)
         y = self.o(y)
         return y[:, 0, :] if single else y
 
