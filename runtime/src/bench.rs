@@ -222,6 +222,18 @@ pub struct GraphTiming {
     pub ms: Stats,
 }
 
+/// Per-graph statistics from each graph's samples (`names[i]`'s samples in `samples[i]`).
+fn graph_timings(names: &[String], samples: &[Vec<f64>]) -> Vec<GraphTiming> {
+    names
+        .iter()
+        .zip(samples)
+        .map(|(n, v)| GraphTiming {
+            graph: n.clone(),
+            ms: Stats::of(v),
+        })
+        .collect()
+}
+
 /// Single-stream results.
 #[derive(Debug, Clone, Serialize)]
 pub struct SingleStream {
@@ -492,14 +504,7 @@ pub fn run(
         real_time_factor: (chain_stats.median + frontend_ms) / token_ms,
         overhead_ms_median: Stats::of(&overhead).median,
         chain_ms: chain_stats,
-        graphs: names
-            .iter()
-            .zip(&per_graph)
-            .map(|(n, v)| GraphTiming {
-                graph: n.clone(),
-                ms: Stats::of(v),
-            })
-            .collect(),
+        graphs: graph_timings(&names, &per_graph),
         graphs_sum_ms: sum_stats,
         frontend_ms_per_token: frontend_ms,
         chain_samples_ms: chain,
@@ -672,14 +677,7 @@ fn run_batched(
         realtime_streams: nf * token_ms / st.median,
         realtime_streams_with_frontend: nf * token_ms / (st.median + nf * frontend_ms),
         step_ms: st,
-        graphs: names
-            .iter()
-            .zip(&per_graph)
-            .map(|(n, v)| GraphTiming {
-                graph: n.clone(),
-                ms: Stats::of(v),
-            })
-            .collect(),
+        graphs: graph_timings(&names, &per_graph),
     })
 }
 
