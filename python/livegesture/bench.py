@@ -28,10 +28,6 @@ def _times(fn, repeats: int) -> np.ndarray:
     return np.array(ts)
 
 
-def _median_time(fn, repeats: int) -> float:
-    return float(np.median(_times(fn, repeats)))
-
-
 def roofline(repeats: int = 25) -> dict:
     """Single-core f32 matrix-multiply throughput (GFLOP/s) and memory bandwidth (GB/s).
 

@@ -16,7 +16,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from ..config import LiveGestureConfig
-from .layers import CacheSpec, CausalConv1d, check_cache, check_shape, conv_as_gemm
+from .layers import CacheSpec, CausalConv1d, check_cache, check_shape, conv_as_gemm, gemm_weight
 
 
 class AudioEncoder(nn.Module):
@@ -68,8 +68,7 @@ class AudioEncoder(nn.Module):
         # per-token aggregation (kernel M, stride M over the token's M frames) is one Gemm over M * C
         x = (mel - self.mel_mean) / self.mel_std
         x = self._trunk(x, lambda m, x, n: m.step(x, cache, new_cache, n),
-                        lambda m, x: conv_as_gemm(m, x, 1, 1))
+                        conv_as_gemm)
         agg = self.aggregate
-        w = agg.weight.permute(0, 2, 1).reshape(agg.weight.shape[0], -1)   # [o, i*C + c] = W[o, c, i]
-        a = self.norm(F.linear(x.reshape(-1, self.M * x.shape[2]), w, agg.bias))
+        a = self.norm(F.linear(x.reshape(-1, self.M * x.shape[2]), gemm_weight(agg), agg.bias))
         return {"audio": a}, new_cache

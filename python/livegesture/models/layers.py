@@ -71,7 +71,7 @@ class CausalConv1d(nn.Module):
         super().__init__()
         self.conv = nn.Conv1d(c_in, c_out, kernel, dilation=dilation)
         self.pad = (kernel - 1) * dilation
-        self.c_in, self.c_out, self.k, self.dil = c_in, c_out, kernel, dilation
+        self.c_in = c_in
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, C, T)
         return self.conv(F.pad(x, (self.pad, 0)))
@@ -81,27 +81,34 @@ class CausalConv1d(nn.Module):
 
     def step(self, x: torch.Tensor, cache: dict, new_cache: dict, name: str) -> torch.Tensor:
         """x (B, T, C_in) channels-last, the next T frames -> (B, T, C_out)."""
-        return conv_as_gemm(self.conv, x, self.k, self.dil, cache, new_cache, name, self.pad)
+        return conv_as_gemm(self.conv, x, cache, new_cache, name)
 
 
-def conv_as_gemm(conv: nn.Conv1d, x: torch.Tensor, k: int, dil: int, cache: dict | None = None,
-                 new_cache: dict | None = None, name: str = "", pad: int = 0) -> torch.Tensor:
-    """``conv`` (stride 1, no padding of its own) over the cached ``pad`` frames followed by x (B, T, C_in),
-    channels-last, as Gather (im2col with a constant index) + one Gemm: y[t] = sum_i W[:, :, i] xx[t + i*dil]."""
+def gemm_weight(conv: nn.Conv1d) -> torch.Tensor:
+    """A Conv1d weight (C_out, C_in, k) as the (C_out, k * C_in) matrix of a channels-last product:
+    [o, i*C_in + c] = W[o, c, i] (a constant expression, folded into one initializer at export)."""
+    return conv.weight.permute(0, 2, 1).reshape(conv.weight.shape[0], -1)
+
+
+def conv_as_gemm(conv: nn.Conv1d, x: torch.Tensor, cache: dict | None = None, new_cache: dict | None = None,
+                 name: str = "") -> torch.Tensor:
+    """``conv`` (stride 1, no padding of its own) over x (B, T, C_in), channels-last, preceded by the
+    ``(k - 1) * dilation`` frames cached under ``name`` (none for k = 1), as Gather (im2col with a constant
+    index) + one Gemm: y[t] = sum_i W[:, :, i] xx[t + i*dilation]."""
+    k, dil = conv.kernel_size[0], conv.dilation[0]
+    pad = (k - 1) * dil
     T, c_in = int(x.shape[1]), int(x.shape[2])
-    c_out = conv.weight.shape[0]
     if pad > 0:
         xx = torch.cat([cache[name], x], dim=1)               # (B, pad + T, C_in)
         new_cache[name] = xx[:, -pad:, :]                     # constant bounds
     else:
         xx = x
-    w = conv.weight.permute(0, 2, 1).reshape(c_out, k * c_in)  # [o, i*C_in + c] = W[o, c, i] (folded at export)
     if k == 1:
         cols = xx.reshape(-1, c_in)
     else:
         idx = (torch.arange(T)[:, None] + dil * torch.arange(k)[None, :]).to(x.device)   # (T, k), constant
         cols = xx[:, idx].reshape(-1, k * c_in)               # (B*T, k*C_in)
-    return F.linear(cols, w, conv.bias).reshape(-1, T, c_out)
+    return F.linear(cols, gemm_weight(conv), conv.bias).reshape(-1, T, conv.weight.shape[0])
 
 
 def rope_tables(n_pos: int, head_dim: int, base: float = 10000.0, offset: int = 0):

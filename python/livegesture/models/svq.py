@@ -38,7 +38,7 @@ class ResBlock1D(nn.Module):
 
     def step(self, x, cache, new_cache, name):  # channels-last (B, T, C)
         y = F.relu(self.conv.step(F.relu(x), cache, new_cache, name))
-        return x + conv_as_gemm(self.mix, y, 1, 1)
+        return x + conv_as_gemm(self.mix, y)
 
 
 def _dilations(cfg: LiveGestureConfig):
