@@ -1,4 +1,5 @@
-//! Times one graph of a bundle in a tight loop (zero inputs, caches fed back), for profiling a backend.
+//! Times one graph of a bundle in a tight loop (pseudo-random data inputs, caches fed back), for profiling a
+//! backend; `THRASH_MB=n` reads n MiB of other memory between runs, as the other graphs of a step do.
 //!   cargo run --release --example graph_time -- models/default expert_upper 2 ort
 use std::time::Instant;
 
@@ -44,7 +45,7 @@ fn main() -> anyhow::Result<()> {
         .unwrap_or(0);
     let junk = vec![1.0f32; thrash_mb * 262144];
     let mut sink = 0.0f32;
-    for i in 0..400 {
+    for _ in 0..400 {
         sink += junk.iter().step_by(16).sum::<f32>();
         for t in inputs[..n_data].iter_mut() {
             match &mut t.data {
@@ -62,7 +63,6 @@ fn main() -> anyhow::Result<()> {
         for (k, c) in outs[n_out..].iter_mut().enumerate() {
             std::mem::swap(&mut inputs[n_data + k], c);
         }
-        let _ = i;
     }
     std::hint::black_box(sink);
     ts.drain(..100);
