@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # A/B comparison of bundles (or binaries) on one core, interleaved so machine noise hits both sides alike:
-# every round runs every (bundle, backend) once: single-stream chain and batched N=32 step medians.
+# every round runs every (bundle, backend) once, in alternating order: single-stream chain and batched N=32
+# step medians.
 #
 #   scripts/bench_ab.sh BUNDLE_A BUNDLE_B [...]          # e.g. an export before and after a graph change
 #   BIN=/path/to/old/livegesture scripts/bench_ab.sh B   # the same bundle on another build
@@ -17,8 +18,15 @@ BIN="${BIN:-$ROOT/target/release/livegesture}"
 ROUNDS="${ROUNDS:-2}"; BACKENDS="${BACKENDS:-ort tract}"; STREAMS="${STREAMS:-32}"; CPU="${BENCH_CPU:-1}"
 [ $# -ge 1 ] || { echo "usage: scripts/bench_ab.sh BUNDLE [BUNDLE ...]" >&2; exit 2; }
 printf "%-5s %-40s %-6s %12s %14s\n" round bundle backend "chain ms" "N=$STREAMS step ms"
+bundles=("$@")
 for r in $(seq 1 "$ROUNDS"); do
-  for b in "$@"; do
+  # odd rounds run the bundles in the given order, even rounds in reverse, so a host that speeds up or slows
+  # down during the run does not favour one side
+  order=("${bundles[@]}")
+  if (( r % 2 == 0 )); then
+    order=(); for (( i=${#bundles[@]}-1; i>=0; i-- )); do order+=("${bundles[$i]}"); done
+  fi
+  for b in "${order[@]}"; do
     for be in $BACKENDS; do
       out=$(taskset -c "$CPU" "$BIN" bench --bundle "$b" --backend "$be" --threads 1 --steps 150 --warmup 10 \
         --latency-trials 1 --streams "$STREAMS" --batch-steps 10 --batch-warmup 2 --quiet)

@@ -136,10 +136,10 @@ class XARFuse(nn.Module):
         a = self._audio(audio, cond)
         # one additive mask per window, shared by the blocks; the temporal attention runs on B * R rows
         # (stream-major, region-minor), so its mask is repeated per region with a broadcast, not an Expand
-        bias_a = window_bias(step, self.cfg.audio_window)
+        bias_a = window_bias(step, self.cfg.audio_window)[:, None]     # (B, 1, 1, W): R queries per stream
         bias_t = window_bias(step, self.cfg.fuse_window)
-        bias_t = (bias_t[:, None] + torch.zeros((1, R, 1, 1, 1), device=bias_t.device)).reshape(
-            -1, 1, 1, self.cfg.fuse_window)
+        bias_t = (bias_t[:, None] + torch.zeros((1, R, 1, 1), device=bias_t.device)).reshape(
+            -1, 1, self.cfg.fuse_window)
         for i, blk in enumerate(self.blocks):
             x = x + blk.spatial.step(blk.ln_s(x))
             # temporal attention on B * R rows (stream-major, region-minor); its caches keep the region axis

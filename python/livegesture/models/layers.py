@@ -148,7 +148,9 @@ def step_query_rotations(window: int, head_dim: int, rope: bool = True) -> torch
 
 
 def window_bias(step: torch.Tensor, window: int) -> torch.Tensor:
-    """Additive attention mask (B, 1, 1, window) for a step with ``step`` (B,) steps taken before it.
+    """Additive attention mask (B, 1, window) for a step with ``step`` (B,) steps taken before it (heads
+    broadcast on axis 1; insert a query axis, ``[:, None]``, for :meth:`WindowedAttention.step` with several
+    queries).
 
     Cache slot j (oldest first; the current key is slot window - 1) holds time t - (window - 1) + j, which
     exists iff j + t >= window - 1. Valid slots get 0, not-yet-filled ones -inf (``x + -inf == -inf`` and
@@ -157,7 +159,7 @@ def window_bias(step: torch.Tensor, window: int) -> torch.Tensor:
     slot = torch.arange(window, dtype=torch.int64, device=step.device)
     valid = (slot[None, :] + step[:, None]) >= window - 1
     zero = torch.zeros((), dtype=torch.float32, device=step.device)
-    return torch.where(valid, zero, torch.full_like(zero, float("-inf")))[:, None, None, :]
+    return torch.where(valid, zero, torch.full_like(zero, float("-inf")))[:, None, :]
 
 
 class WindowedAttention(nn.Module):
@@ -214,7 +216,8 @@ class WindowedAttention(nn.Module):
     def step(self, x: torch.Tensor, kv_in: torch.Tensor, bias: torch.Tensor, cache: dict, new_cache: dict,
              name: str, lead: tuple[int, ...] = ()) -> torch.Tensor:
         """x (rows, d_model), or (rows, n_q, d_model) for several queries at the current time sharing the keys;
-        kv_in (rows, d_kv) the current key source; bias (rows, 1, 1, window) from :func:`window_bias`.
+        kv_in (rows, d_kv) the current key source; bias from :func:`window_bias`, (rows, 1, window) for one
+        query per row, (rows, 1, 1, window) for n_q queries.
         rows = B * prod(lead): the caches (:meth:`cache_spec`) have the ``lead`` axes after the batch.
 
         Keys and values are separate head-major caches, so the new key and value are appended with one
@@ -238,6 +241,16 @@ class WindowedAttention(nn.Module):
         v_all = torch.cat([cache[f"{name}.v"], v_new], dim=-2)
         new_cache[f"{name}.k"] = k_all[..., 1:, :]
         new_cache[f"{name}.v"] = v_all[..., 1:, :]
+        if single:
+            # one query per row: no query axis, so the caches are used as they are and the output projection
+            # is a 2-D Gemm (fewer nodes; a single stream's step is bound by per-node dispatch)
+            k = k_all.reshape(-1, h, W, hd)                       # (rows, h, W, hd)
+            v = v_all.reshape(-1, h, W, hd)
+            q = self.q(x).reshape(-1, h, hd)                      # (rows, h, hd)
+            qr = (q @ self.qrot).reshape(-1, h, W, hd)            # (rows, h, W, hd): R_{W-1-j} q / sqrt(hd)
+            scores = (qr * k).sum(-1) + bias                      # (rows, h, W)
+            p = torch.softmax(scores, dim=-1)
+            return self.o((p[..., None] * v).sum(-2).reshape(-1, d))
         k = k_all.reshape(-1, 1, h, W, hd)                        # (rows, 1, h, W, hd)
         v = v_all.reshape(-1, 1, h, W, hd)
         q = self.q(x).reshape(-1, n_q, h, hd)                     # (rows, n_q, h, hd)
@@ -245,8 +258,7 @@ class WindowedAttention(nn.Module):
         scores = (qr * k).sum(-1) + bias                          # (rows, n_q, h, W)
         p = torch.softmax(scores, dim=-1)
         y = (p[..., None] * v).sum(-2).reshape(-1, n_q, d)        # (rows, n_q, d)
-        y = self.o(y)
-        return y[:, 0, :] if single else y
+        return self.o(y)
 
 
 class FeedForward(nn.Module):
