@@ -231,8 +231,11 @@ class WindowedAttention(nn.Module):
         tiny product per stream and head), no RoPE on the cached keys, and only constant-size reshapes
         (-1 on the batch axis)."""
         W, h, hd, d = self.w, self.h, self.hd, self.d
-        single = x.dim() == 2
-        n_q = 1 if single else int(x.shape[1])
+        # one query per row (x 2-D) has no query axis at all, so the caches are used as they are and the output
+        # projection is a 2-D Gemm (fewer nodes: a single stream's step is bound by per-node dispatch);
+        # n_q queries get a query axis, and the keys a broadcast axis in its place
+        qa = () if x.dim() == 2 else (int(x.shape[1]),)
+        ka = () if x.dim() == 2 else (1,)
         lead = tuple(lead)
         kv_new = self.kv(kv_in)                                   # (rows, 2d): [k | v]
         k_new = kv_new[:, :d].reshape((-1,) + lead + (h, 1, hd))
@@ -241,23 +244,13 @@ class WindowedAttention(nn.Module):
         v_all = torch.cat([cache[f"{name}.v"], v_new], dim=-2)
         new_cache[f"{name}.k"] = k_all[..., 1:, :]
         new_cache[f"{name}.v"] = v_all[..., 1:, :]
-        if single:
-            # one query per row: no query axis, so the caches are used as they are and the output projection
-            # is a 2-D Gemm (fewer nodes; a single stream's step is bound by per-node dispatch)
-            k = k_all.reshape(-1, h, W, hd)                       # (rows, h, W, hd)
-            v = v_all.reshape(-1, h, W, hd)
-            q = self.q(x).reshape(-1, h, hd)                      # (rows, h, hd)
-            qr = (q @ self.qrot).reshape(-1, h, W, hd)            # (rows, h, W, hd): R_{W-1-j} q / sqrt(hd)
-            scores = (qr * k).sum(-1) + bias                      # (rows, h, W)
-            p = torch.softmax(scores, dim=-1)
-            return self.o((p[..., None] * v).sum(-2).reshape(-1, d))
-        k = k_all.reshape(-1, 1, h, W, hd)                        # (rows, 1, h, W, hd)
-        v = v_all.reshape(-1, 1, h, W, hd)
-        q = self.q(x).reshape(-1, n_q, h, hd)                     # (rows, n_q, h, hd)
-        qr = (q @ self.qrot).reshape(-1, n_q, h, W, hd)           # (rows, n_q, h, W, hd): R_{W-1-j} q / sqrt(hd)
-        scores = (qr * k).sum(-1) + bias                          # (rows, n_q, h, W)
+        k = k_all.reshape((-1,) + ka + (h, W, hd))                # (rows, [1,] h, W, hd)
+        v = v_all.reshape((-1,) + ka + (h, W, hd))
+        q = self.q(x).reshape((-1,) + qa + (h, hd))               # (rows, [n_q,] h, hd)
+        qr = (q @ self.qrot).reshape((-1,) + qa + (h, W, hd))     # (rows, [n_q,] h, W, hd): R_{W-1-j} q / sqrt(hd)
+        scores = (qr * k).sum(-1) + bias                          # (rows, [n_q,] h, W)
         p = torch.softmax(scores, dim=-1)
-        y = (p[..., None] * v).sum(-2).reshape(-1, n_q, d)        # (rows, n_q, d)
+        y = (p[..., None] * v).sum(-2).reshape((-1,) + qa + (d,))  # (rows, [n_q,] d)
         return self.o(y)
 
 
