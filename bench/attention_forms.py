@@ -23,7 +23,7 @@ import onnxruntime as ort
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "python"))
-from livegesture.models.layers import step_query_rotations  # noqa: E402
+from livegesture.models.layers import rope_tables, step_query_rotations  # noqa: E402
 
 ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
 ap.add_argument("--rows", type=int, default=64, help="streams x guidance branches (x regions)")
@@ -38,12 +38,11 @@ rows, n_q, h, hd, W = a.rows, a.queries, a.heads, a.head_dim, a.window
 Path(a.out).parent.mkdir(parents=True, exist_ok=True)
 
 qrot = step_query_rotations(W, hd)
-inv = 10000.0 ** (-torch.arange(0, hd, 2, dtype=torch.float64) / hd)
-ang = (W - 1 - torch.arange(W, dtype=torch.float64))[:, None] * inv[None, :]       # (W, hd/2): m = W-1-j
-C = (torch.cat([torch.cos(ang)] * 2, -1) / math.sqrt(hd)).float()
-sin = torch.sin(ang)
-S_q = (torch.cat([-sin, sin], -1) / math.sqrt(hd)).float()   # R_m q = q cos + swap(q) [-sin, sin]
-S_k = (torch.cat([sin, -sin], -1) / math.sqrt(hd)).float()   # R_-m k = k cos + swap(k) [sin, -sin]
+cos, sin = (t.flip(0) / math.sqrt(hd) for t in rope_tables(W, hd))   # slot j: m = W - 1 - j positions back
+sign = torch.cat([-torch.ones(hd // 2), torch.ones(hd // 2)])
+C = cos
+S_q = sin * sign    # R_m q = q cos + swap(q) [-sin, sin]
+S_k = -S_q          # R_-m k = k cos + swap(k) [sin, -sin]
 swap = torch.cat([torch.arange(hd // 2, hd), torch.arange(hd // 2)])
 
 
