@@ -10,13 +10,13 @@ _lg_req="$_lg_root/python/requirements.txt"
 _lg_hash="$(sha256sum "$_lg_req" | cut -c1-12)"
 LIVEGESTURE_VENV="${LIVEGESTURE_VENV:-$HOME/.cache/livegesture/venv-$_lg_hash}"
 
-# Distribution packages: espeak-ng speaks the synthetic corpus.
-if ! command -v espeak-ng >/dev/null 2>&1; then
-  echo "[env] installing espeak-ng (Debian package)" >&2
+# Distribution packages: espeak-ng and flite speak the synthetic corpus.
+if ! command -v espeak-ng >/dev/null 2>&1 || ! command -v flite >/dev/null 2>&1; then
+  echo "[env] installing espeak-ng and flite (Debian packages)" >&2
   if [ "$(id -u)" = 0 ]; then
-    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq espeak-ng >/dev/null
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq espeak-ng flite >/dev/null
   else
-    sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq espeak-ng >/dev/null
+    sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq espeak-ng flite >/dev/null
   fi
 fi
 

@@ -73,6 +73,7 @@ class TrainConfig:
     log_every: int = 25
     seed: int = 0
     speakers: tuple[int, ...] | None = (2,)
+    augment: int = 0                  # augmented copies of every clip's audio (livegesture.data.augment)
 
     @staticmethod
     def for_model(name: str) -> "TrainConfig":
@@ -114,7 +115,7 @@ def sync_grads(params):
 class TrainData:
     """Training clips in memory: normalised region features, log-mel frames, tokens (after svq2)."""
 
-    def __init__(self, root, cfg, speakers, split="train", stats=None):
+    def __init__(self, root, cfg, speakers, split="train", stats=None, augment=0, seed=0):
         self.corpus = get_corpus(root, cfg.frontend)
         ids = self.corpus.ids(split, speakers)
         if not ids:
@@ -125,7 +126,22 @@ class TrainData:
         self.mel = [c.mel for c in self.clips]
         self.n_tok = np.array([c.n_tokens for c in self.clips])
         self.tokens = None
-        all_mel = np.concatenate(self.mel)
+        # audio augmentation: ``augment`` channel-degraded copies of every clip's audio (noise, reverb, band
+        # limits, codecs, gain, pitch; livegesture.data.augment), drawn once at load time; each training
+        # window reads the clean mel or one of the copies, at random. Motion targets are unchanged (every
+        # effect keeps the length and timing).
+        self.mel_variants = [[m] for m in self.mel]
+        if augment:
+            from .data.augment import augment as augment_wave
+            from .frontend import logmel
+            from .regions import frame_start_sample
+            fcfg = cfg.frontend
+            for ci, c in enumerate(tqdm(self.clips, desc=f"augmenting x{augment}", disable=dist_info()[0] != 0)):
+                x = self.corpus.audio(c.id)[:frame_start_sample(c.n_frames, fcfg.sample_rate, fcfg.fps)]
+                for v in range(augment):
+                    y = augment_wave(x, fcfg.sample_rate, np.random.default_rng([seed, ci, v]))
+                    self.mel_variants[ci].append(logmel(y, fcfg))
+        all_mel = np.concatenate([m for ms in self.mel_variants for m in ms])
         self.mel_mean = all_mel.mean(0)
         self.mel_std = np.maximum(all_mel.std(0), 1e-3)
 
@@ -144,7 +160,11 @@ class TrainData:
 
     def ar_batch(self, rng, n_tokens, batch, device):
         picks = self._pick(rng, n_tokens, batch)
-        mel = np.stack([self.mel[c][8 * s:8 * (s + n_tokens)] for c, s in picks])
+        if len(self.mel_variants[0]) > 1:
+            v = rng.integers(0, len(self.mel_variants[0]), size=len(picks))
+            mel = np.stack([self.mel_variants[c][k][8 * s:8 * (s + n_tokens)] for (c, s), k in zip(picks, v)])
+        else:
+            mel = np.stack([self.mel[c][8 * s:8 * (s + n_tokens)] for c, s in picks])
         tok = np.stack([self.tokens[c][s:s + n_tokens] for c, s in picks])       # (B, N, R)
         return torch.from_numpy(mel).to(device), torch.from_numpy(tok).long().to(device)
 
@@ -372,7 +392,7 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
     logger = Logger(out)
     torch.manual_seed(tcfg.seed)
     model = LiveGesture(cfg).to(device)
-    data = TrainData(data_dir, cfg, tcfg.speakers)
+    data = TrainData(data_dir, cfg, tcfg.speakers, augment=tcfg.augment, seed=tcfg.seed)
     stats = data.stats.to_dict()["regions"]
     stats["mel"] = {"mean": data.mel_mean.tolist(), "std": data.mel_std.tolist()}
     model.set_normalisation(stats)
@@ -433,7 +453,7 @@ def main(argv=None):
     ap.add_argument("--threads", type=int, default=1,
                     help="CPU threads for torch (default 1: on a shared machine more threads can be far slower)")
     ap.add_argument("--speakers", default="2", help="comma-separated speaker numbers, or 'all' (BEAT2 benchmark: 2)")
-    for f in ("steps_svq1", "steps_svq2", "steps_experts", "steps_fuse", "batch_svq", "batch_ar", "seed"):
+    for f in ("steps_svq1", "steps_svq2", "steps_experts", "steps_fuse", "batch_svq", "batch_ar", "seed", "augment"):
         ap.add_argument("--" + f.replace("_", "-"), type=int, default=None)
     for f in ("lr_svq", "lr_ar"):
         ap.add_argument("--" + f.replace("_", "-"), type=float, default=None)
@@ -445,7 +465,7 @@ def main(argv=None):
     if args.threads:
         torch.set_num_threads(args.threads)
     ov = {k: getattr(args, k) for k in ("steps_svq1", "steps_svq2", "steps_experts", "steps_fuse", "batch_svq",
-                                          "batch_ar", "seed", "lr_svq", "lr_ar") if getattr(args, k) is not None}
+                                          "batch_ar", "seed", "lr_svq", "lr_ar", "augment") if getattr(args, k) is not None}
     ov["speakers"] = None if args.speakers == "all" else tuple(int(s) for s in args.speakers.split(","))
     stages = STAGES if args.stage == "all" else STAGES[:STAGES.index(args.stage) + 1]
     train(args.config, args.data, args.out, stages=stages, device=args.device, overrides=ov)

@@ -2,6 +2,7 @@
 own-minus-other gaps; motion that does not (another clip's motion, time-reversed motion) shows none, and
 the check's targets then fail."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -129,3 +130,38 @@ def test_cli_real_split_any_rate_and_generated_folders(tmp_path, clips):
         G.main(["--real-speech", str(rs), "--generated-real", str(good)])
     with pytest.raises(SystemExit, match="no motion for the real set"):
         G.main(["--real-speech", str(rs)])
+
+
+def test_corpus_real_train_clips_and_extra_voices(tmp_path):
+    """The corpus generator adds the real-speech TRAIN split (each channel of a stereo file separately,
+    variants pitch/tempo-changed, motion from the audio) and never a VALIDATION recording."""
+    import shutil
+    from scipy.io import wavfile
+    from livegesture.data.beat2 import read_split_csv, load_motion, load_audio
+
+    rs = tmp_path / "real"
+    rs.mkdir()
+    for k, cid in enumerate(real_speech.TRAIN + real_speech.VALIDATION):
+        a = speechlike(300 + k, 2.5)
+        data = np.stack([a, a[::-1]], 1) if cid == "librispeech_stereo_2utt" else a
+        wavfile.write(rs / f"{cid}.wav", 16000, (data * 20000).astype(np.int16))
+    plans = synth.plan_real_clips(rs, 2, 5, 100)
+    assert {Path(p.source).stem for p in plans} == set(real_speech.TRAIN)
+    assert len(plans) == 2 * (len(real_speech.TRAIN) + 1)          # the stereo file gives two clips
+    assert len({p.id for p in plans}) == len(plans) and all(p.split == "train" for p in plans)
+    engines = (synth.ESPEAK, synth.FLITE) if shutil.which(synth.FLITE) else (synth.ESPEAK,)
+    out = tmp_path / "corpus"
+    plans = synth.generate_corpus(out, minutes=0.15, seed=5, clip_seconds=(4.0, 5.0), progress=False,
+                                  engines=engines, real_train=rs, real_variants=2)
+    table = read_split_csv(out / "train_test_split.csv")
+    real = [p for p in plans if p.source]
+    assert all(table[p.id] == "train" for p in real)
+    for p in real:
+        m = load_motion(out / "smplxflame_30" / f"{p.id}.npz")
+        x = load_audio(out / "wave16k" / f"{p.id}.wav")
+        assert len(m["poses"]) == len(x) * FPS // SAMPLE_RATE
+        if p.variant == 0 and p.channel is None:
+            src = load_audio(p.source)
+            assert np.abs(x - src).max() < 1e-3                    # as recorded
+    with pytest.raises(ValueError, match="engines"):
+        synth.generate_corpus(tmp_path / "x", minutes=0.1, seed=1, engines=("festival",))

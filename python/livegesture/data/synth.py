@@ -9,6 +9,15 @@ writes exactly the BEAT2 layout of SPEC section 3 into ``DIR``: ``smplxflame_30/
 timing) and ``train_test_split.csv``. ``--minutes`` is the total audio duration. Needs the ``espeak-ng``
 program (``apt-get install -y espeak-ng``). The same seed gives byte-identical files, whatever ``--jobs``.
 
+Options for training data that transfers to real speech (issue 16; the defaults give the original corpus):
+``--engines espeak-ng,flite`` adds, per speaker style, more espeak-ng accents and variants and the
+Festival-Lite voices (``flite``: kal at 8 kHz, kal16, awb, rms, slt; :data:`EXTRA_VOICES`); Debian has no
+mbrola voices (non-free), so there are none. ``--real-variants N`` adds the real-speech TRAIN split
+(:mod:`livegesture.data.real_speech`; never its VALIDATION split) N times per recording (variant 0 as
+recorded, the others pitch-shifted and tempo-changed), with motion computed from that audio by the same motion
+model as every synthetic clip. Channel degradations (noise, reverberation, band limits, codecs) are not
+baked in: ``python -m livegesture.train --augment N`` draws them (:mod:`livegesture.data.augment`).
+
 Audio: random sentences from a small grammar and word list, one espeak-ng call per phrase with the clip's
 voice and per-phrase rate/pitch/amplitude jitter, pauses between phrases and sentences (and occasional
 long pauses), resampled 22050 -> 16000 Hz, a random spectral tilt and a low noise floor.
@@ -58,6 +67,8 @@ from ..regions import FPS, N_EXPRESSIONS, N_JOINTS, SAMPLE_RATE
 from ..skeleton import REST_OFFSETS, axis_angle_to_matrix_np
 
 ESPEAK = "espeak-ng"
+FLITE = "flite"
+ENGINES = (ESPEAK, FLITE)
 ESPEAK_RATE = 22050
 
 # ----------------------------------------------------------------------------- text
@@ -172,6 +183,9 @@ class ClipPlan:
     split: str
     n_samples: int
     seed: tuple[int, int]
+    source: str | None = None      # a real recording (real-speech TRAIN split) instead of synthetic speech
+    channel: int | None = None     # its channel (None: mono, or the channels averaged)
+    variant: int = 0               # 0: as recorded; > 0: pitch and tempo changed (motion follows the change)
 
 
 def plan_corpus(minutes: float, seed: int, clip_seconds: tuple[float, float] = (20.0, 60.0),
@@ -255,10 +269,60 @@ def _espeak(text: str, voice: str, rate: int, pitch: int, amp: int, gap: int, tm
     return x
 
 
-def synth_speech(plan: ClipPlan, style: Style, rng: np.random.Generator, tmp: Path):
-    """-> (audio float32 (n_samples,), words [(start_s, end_s, word)])."""
+def _flite(text: str, voice: str, rate: int, pitch: int, amp: int, tmp: Path) -> np.ndarray:
+    """Festival-Lite speech at 16 kHz: espeak's words per minute -> duration stretch, espeak's pitch 0..99
+    -> target mean f0 (70..270 Hz), amplitude in percent."""
+    out = tmp / "phrase.wav"
+    f0 = 70 + 2 * pitch
+    cmd = [FLITE, "-voice", voice, "--setf", f"duration_stretch={175.0 / max(rate, 60):.3f}",
+           "--setf", f"int_f0_target_mean={f0}", "--setf", f"int_f0_target_stddev={0.15 * f0:.0f}",
+           "-t", text, "-o", str(out)]
+    try:
+        subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    except FileNotFoundError:
+        raise RuntimeError("flite not found: install it (apt-get install -y flite) or leave it out of "
+                           "--engines") from None
+    except subprocess.CalledProcessError as e:
+        raise RuntimeError(f"flite failed ({' '.join(cmd)}): {e.stderr.decode(errors='replace')}") from None
+    from scipy.io import wavfile
+    from scipy.signal import resample_poly
+
+    sr, x = wavfile.read(out)
+    x = x.astype(np.float64) / 32768.0 * amp / 100.0
+    if x.ndim == 2:
+        x = x.mean(1)
+    if sr != SAMPLE_RATE:
+        from math import gcd
+        g = gcd(int(sr), SAMPLE_RATE)
+        x = resample_poly(x, SAMPLE_RATE // g, int(sr) // g)
+    return x
+
+
+def _speak(text: str, voice: str, rate: int, pitch: int, amp: int, gap: int, tmp: Path) -> np.ndarray:
+    """``voice`` is an espeak-ng voice (``en-us+m3``) or ``flite:<voice>`` (``flite:slt``)."""
+    if voice.startswith("flite:"):
+        return _flite(text, voice.split(":", 1)[1], rate, pitch, amp, tmp)
+    return _espeak(text, voice, rate, pitch, amp, gap, tmp)
+
+
+# More voices per style for ``--engines espeak-ng,flite`` (``extra_voices``): espeak-ng accents and
+# variants (klatt formant synthesis, other male/female variants) and the Festival-Lite voices (kal is
+# 8 kHz, i.e. narrowband speech). Debian has no mbrola voices (non-free), so none are used.
+EXTRA_VOICES: dict[int, tuple[str, ...]] = {
+    2: ("en-us+klatt", "en-gb-x-gbclan", "en-us+m4", "flite:rms", "flite:kal16", "flite:awb", "flite:kal"),
+    1: ("en-gb-x-gbcwmd", "en+klatt2", "flite:awb", "flite:rms"),
+    3: ("en-gb+m7", "en+croak", "flite:kal16", "flite:kal"),
+    4: ("en-029+m5", "en-us+Andy", "flite:rms", "flite:awb"),
+    6: ("en+f5", "en-us+f1", "flite:slt", "flite:slt"),
+}
+
+
+def synth_speech(plan: ClipPlan, style: Style, rng: np.random.Generator, tmp: Path,
+                 voices: tuple[str, ...] | None = None):
+    """-> (audio float32 (n_samples,), words [(start_s, end_s, word)]). ``voices`` defaults to the style's."""
     n_total = plan.n_samples
-    voice = style.voices[rng.integers(len(style.voices))]
+    voices = voices or style.voices
+    voice = voices[rng.integers(len(voices))]
     rate0 = rng.uniform(*style.rate)
     pitch0 = rng.uniform(*style.pitch)
     audio = np.zeros(n_total, dtype=np.float64)
@@ -274,7 +338,7 @@ def synth_speech(plan: ClipPlan, style: Style, rng: np.random.Generator, tmp: Pa
             if j == 0:
                 ws[0] = ws[0].capitalize()
             text = " ".join(ws) + ("," if j < n_phr - 1 else end_p)
-            x = _espeak(text, voice, int(rate0 * rng.uniform(0.92, 1.08)), int(np.clip(pitch0 + rng.uniform(-6, 6), 0, 99)),
+            x = _speak(text, voice, int(rate0 * rng.uniform(0.92, 1.08)), int(np.clip(pitch0 + rng.uniform(-6, 6), 0, 99)),
                         int(100 * rng.uniform(0.75, 1.25)), int(rng.integers(0, 2)), tmp)
             loud = np.nonzero(np.abs(x) > 0.02 * (np.abs(x).max() + 1e-9))[0]
             if len(loud) == 0:
@@ -899,18 +963,82 @@ def _textgrid(words: list[tuple[float, float, str]], dur: float) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _real_audio(plan: ClipPlan, rng: np.random.Generator) -> np.ndarray:
+    """A real recording's channel at 16 kHz; variants > 0 get a pitch shift (+-3 semitones) and a tempo
+    change (0.85-1.15), both through :mod:`livegesture.data.augment` (the motion is computed afterwards,
+    from the changed audio, so it follows the change)."""
+    from .augment import pitch_shift, time_stretch
+    from .beat2 import load_audio, _resample
+    if plan.channel is None:
+        x = load_audio(plan.source, SAMPLE_RATE).astype(np.float64)
+    else:
+        from scipy.io import wavfile
+        import warnings
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            sr, raw = wavfile.read(plan.source)
+        raw = raw[:, plan.channel]
+        x = raw.astype(np.float64) / (32768.0 if raw.dtype == np.int16 else 1.0)
+        if sr != SAMPLE_RATE:
+            x = _resample(x, int(sr), SAMPLE_RATE).astype(np.float64)
+    if plan.variant > 0:
+        x = pitch_shift(x, float(rng.uniform(-3, 3)), SAMPLE_RATE)
+        x = time_stretch(x, float(rng.uniform(0.85, 1.15)), SAMPLE_RATE)
+    return np.clip(x, -1.0, 1.0)
+
+
+def plan_real_clips(real_dir, variants: int, seed: int, first_index: int) -> list[ClipPlan]:
+    """Clips from the real-speech TRAIN split (never VALIDATION; :mod:`livegesture.data.real_speech`):
+    every recording (each channel of a multi-channel one: they hold different utterances) ``variants``
+    times (variant 0 as recorded, the others pitch- and tempo-changed), with the speaker styles taken in
+    turn. Ids ``{speaker}_{name}_9_{n}_{n}``, split ``train``."""
+    from . import real_speech
+    from .beat2 import load_audio
+    if variants < 1:
+        return []
+    import warnings
+    from scipy.io import wavfile
+    plans, per_spk, i = [], {}, first_index
+    for path in real_speech.split_paths("train", real_dir):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            _, raw = wavfile.read(path, mmap=True)
+        nch = 1 if raw.ndim == 1 else raw.shape[1]
+        del raw
+        channels = [None] if nch == 1 else list(range(nch))
+        for chn in channels:
+            n0 = len(load_audio(path, SAMPLE_RATE))
+            for v in range(variants):
+                style = STYLES[(i + v) % len(STYLES)]
+                k = per_spk.get(style.speaker, 0) + 1
+                per_spk[style.speaker] = k
+                plans.append(ClipPlan(index=i, id=f"{style.speaker}_{style.name}_9_{k}_{k}", speaker=style.speaker,
+                                      split="train", n_samples=n0, seed=(seed, i), source=str(path),
+                                      channel=chn, variant=v))
+                i += 1
+    return plans
+
+
 def _clip_job(args):
-    plan, out = args
+    """(plan, out folder[, extra voices]) -> writes the clip's files, returns its length in samples."""
+    plan, out, *rest = args
+    extra = bool(rest and rest[0])
     import torch
     torch.set_num_threads(1)
     style = STYLE_BY_SPEAKER[plan.speaker]
     rng = np.random.default_rng(list(plan.seed))
-    with tempfile.TemporaryDirectory(prefix="lgsynth_") as tmp:
-        audio, words = synth_speech(plan, style, rng, Path(tmp))
+    if plan.source is not None:
+        audio = _real_audio(plan, rng)
+        words: list = []
+    else:
+        voices = style.voices + EXTRA_VOICES[plan.speaker] if extra else None
+        with tempfile.TemporaryDirectory(prefix="lgsynth_") as tmp:
+            audio, words = synth_speech(plan, style, rng, Path(tmp), voices)
+    n_samples = len(audio)
     # what the loader sees: the int16 file
     pcm_audio = np.clip(np.round(audio.astype(np.float64) * 32767.0), -32768, 32767) / 32768.0
     an = analyse_audio(pcm_audio)
-    T = plan.n_samples * FPS // SAMPLE_RATE
+    T = n_samples * FPS // SAMPLE_RATE
     poses, trans, expr = generate_motion(an, T, style, rng)
     out = Path(out)
     _write_wav(out / "wave16k" / f"{plan.id}.wav", audio)
@@ -920,16 +1048,26 @@ def _clip_job(args):
         "model": np.array("smplx2020"), "gender": np.array("neutral"),
         "mocap_frame_rate": np.array(FPS, dtype=np.int64),
     })
-    (out / "textgrid" / f"{plan.id}.TextGrid").write_text(_textgrid(words, plan.n_samples / SAMPLE_RATE))
-    return plan.n_samples
+    (out / "textgrid" / f"{plan.id}.TextGrid").write_text(_textgrid(words, n_samples / SAMPLE_RATE))
+    return n_samples
 
 
 def generate_corpus(out: str | Path, minutes: float, seed: int, jobs: int = 1,
                     clip_seconds: tuple[float, float] = (20.0, 60.0), progress: bool = True,
-                    overwrite: bool = False) -> list[ClipPlan]:
-    """Write a synthetic corpus in the BEAT2 layout into ``out``; returns the clip plans."""
-    if shutil.which(ESPEAK) is None:
-        raise RuntimeError("espeak-ng not found: install it (apt-get install -y espeak-ng)")
+                    overwrite: bool = False, engines: tuple[str, ...] = (ESPEAK,),
+                    real_train: str | os.PathLike | None = None, real_variants: int = 0) -> list[ClipPlan]:
+    """Write a synthetic corpus in the BEAT2 layout into ``out``; returns the clip plans.
+
+    ``engines``: ``("espeak-ng",)`` (the original corpus, byte for byte) or ``("espeak-ng", "flite")``: every
+    style also speaks with :data:`EXTRA_VOICES`. ``real_variants`` > 0 adds the real-speech TRAIN split
+    (folder ``real_train``, None = the default location) ``real_variants`` times each, with motion from the
+    same motion model (:func:`plan_real_clips`)."""
+    bad = [e for e in engines if e not in ENGINES]
+    if bad or ESPEAK not in engines:
+        raise ValueError(f"--engines {','.join(engines)}: expected espeak-ng, optionally with flite")
+    for e in engines:
+        if shutil.which(e) is None:
+            raise RuntimeError(f"{e} not found: install it (apt-get install -y {e})")
     out = Path(out)
     layout = ("smplxflame_30", "wave16k", "textgrid", "train_test_split.csv")
     existing = [n for n in layout if (out / n).exists()]
@@ -942,7 +1080,9 @@ def generate_corpus(out: str | Path, minutes: float, seed: int, jobs: int = 1,
     for d in layout[:3]:
         (out / d).mkdir(parents=True, exist_ok=True)
     plans = plan_corpus(minutes, seed, clip_seconds)
-    tasks = [(p, str(out)) for p in plans]
+    plans += plan_real_clips(real_train, real_variants, seed, len(plans))
+    extra = FLITE in engines
+    tasks = [(p, str(out), extra) for p in plans]
     bar = None
     if progress:
         from tqdm import tqdm
@@ -976,13 +1116,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--clip-seconds", type=float, nargs=2, default=(20.0, 60.0), metavar=("MIN", "MAX"),
                     help="clip length range (shrunk for tiny corpora so that there are at least 8 clips)")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing corpus in --out")
+    ap.add_argument("--engines", default=ESPEAK, help="comma-separated speech engines: espeak-ng (default, the "
+                    "original corpus) or espeak-ng,flite (more voices per style: EXTRA_VOICES)")
+    ap.add_argument("--real-variants", type=int, default=0, help="add the real-speech TRAIN split (never the "
+                    "validation split) this many times (variant 0 as recorded, others pitch/tempo-changed), "
+                    "motion computed from the audio like the synthetic clips")
+    ap.add_argument("--real-speech", default=None, help="real-speech folder (default $LIVEGESTURE_REAL_SPEECH "
+                    "or shared/data/real-speech beside the repository)")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
     t0 = time.time()
     try:
         plans = generate_corpus(a.out, a.minutes, a.seed, max(1, a.jobs), tuple(a.clip_seconds),
-                                progress=not a.no_progress, overwrite=a.overwrite)
-    except (RuntimeError, FileExistsError, ValueError) as e:
+                                progress=not a.no_progress, overwrite=a.overwrite,
+                                engines=tuple(e.strip() for e in a.engines.split(",") if e.strip()),
+                                real_train=a.real_speech, real_variants=a.real_variants)
+    except (RuntimeError, FileExistsError, FileNotFoundError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     counts: dict[str, int] = {}
