@@ -40,6 +40,7 @@ from tqdm import tqdm
 from . import checkpoint as ckpt
 from .config import get_config
 from .data.beat2 import get_corpus
+from .data.features import NormStats
 from .models.model import LiveGesture
 from .regions import REGION_NAMES
 
@@ -381,7 +382,7 @@ def stage_fuse(model, data, tcfg, device):
 # ----------------------------------------------------------------------------- driver
 
 def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cpu", tcfg: TrainConfig | None = None,
-          overrides: dict | None = None) -> Path:
+          overrides: dict | None = None, svq_from: str | None = None) -> Path:
     cfg = get_config(config)
     tcfg = tcfg or TrainConfig.for_model(cfg.name)
     if overrides:
@@ -393,12 +394,29 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
     torch.manual_seed(tcfg.seed)
     model = LiveGesture(cfg).to(device)
     data = TrainData(data_dir, cfg, tcfg.speakers, augment=tcfg.augment, seed=tcfg.seed)
+    if svq_from:
+        # reuse a trained motion tokenizer (svq1 + svq2 of another checkpoint, with its motion statistics):
+        # the SVQ never sees audio, so only the stages that do (experts, fuse) are trained here
+        src = ckpt.load(svq_from)
+        norm = src.normalisation()
+        data.stats = NormStats(mean={r: np.asarray(norm[r]["mean"], np.float32) for r in REGION_NAMES},
+                               std={r: np.asarray(norm[r]["std"], np.float32) for r in REGION_NAMES},
+                               source=f"svq of {svq_from}")
+        data.feats = [data.stats.normalize(c.features) for c in data.clips]
+        for r in REGION_NAMES:
+            model.svq[r].load_state_dict(src.svq[r].state_dict())
     stats = data.stats.to_dict()["regions"]
     stats["mel"] = {"mean": data.mel_mean.tolist(), "std": data.mel_std.tolist()}
     model.set_normalisation(stats)
+    if svq_from and rank == 0:
+        for name in ("svq1", "svq2"):
+            if not (out / f"{name}.pt").exists():
+                ckpt.save(model, out / f"{name}.pt", provenance={"svq_from": str(svq_from)},
+                          extra={"final_loss": None, "reused_from": str(svq_from)})
     info = {"config": cfg.name, "train_config": asdict(tcfg), "data": str(Path(data_dir).resolve()),
             "train_clips": len(data.clips), "train_tokens": int(data.n_tok.sum()),
-            "train_minutes": round(float(data.n_tok.sum()) * 4 / 30 / 60, 2), "world_size": world}
+            "train_minutes": round(float(data.n_tok.sum()) * 4 / 30 / 60, 2), "world_size": world,
+            "augment": tcfg.augment, **({"svq_from": str(svq_from)} if svq_from else {})}
     prev = None
     builders = {"svq1": stage_svq1, "svq2": stage_svq2, "experts": stage_experts, "fuse": stage_fuse}
     steps = {"svq1": tcfg.steps_svq1, "svq2": tcfg.steps_svq2, "experts": tcfg.steps_experts, "fuse": tcfg.steps_fuse}
@@ -457,6 +475,8 @@ def main(argv=None):
         ap.add_argument("--" + f.replace("_", "-"), type=int, default=None)
     for f in ("lr_svq", "lr_ar"):
         ap.add_argument("--" + f.replace("_", "-"), type=float, default=None)
+    ap.add_argument("--svq-from", help="take svq1/svq2 (the motion tokenizer and its motion statistics) from this "
+                                       "checkpoint instead of training them; experts and fuse are trained")
     args = ap.parse_args(argv)
     if "WORLD_SIZE" in os.environ and int(os.environ["WORLD_SIZE"]) > 1:
         dist.init_process_group("nccl" if args.device.startswith("cuda") else "gloo")
@@ -468,7 +488,7 @@ def main(argv=None):
                                           "batch_ar", "seed", "lr_svq", "lr_ar", "augment") if getattr(args, k) is not None}
     ov["speakers"] = None if args.speakers == "all" else tuple(int(s) for s in args.speakers.split(","))
     stages = STAGES if args.stage == "all" else STAGES[:STAGES.index(args.stage) + 1]
-    train(args.config, args.data, args.out, stages=stages, device=args.device, overrides=ov)
+    train(args.config, args.data, args.out, stages=stages, device=args.device, overrides=ov, svq_from=args.svq_from)
     if dist.is_initialized():
         dist.destroy_process_group()
 

@@ -32,3 +32,20 @@ def test_train_data_augmented_copies(tiny_corpus):
                         if np.array_equal(v[8 * s:8 * s + 32], mel[b].numpy()):
                             seen.add(k)
     assert seen == {0, 1, 2}
+
+
+def test_svq_from_reuses_the_motion_tokenizer(tiny_corpus, tmp_path):
+    """--svq-from: svq1/svq2 come from another checkpoint (weights and motion statistics), the audio-side
+    stages are trained, the mel statistics are this run's."""
+    from livegesture import checkpoint as ckpt
+    from livegesture.train import train
+    ov = dict(steps_svq1=4, steps_svq2=4, steps_experts=3, steps_fuse=3, save_every=100, speakers=None)
+    src = train("tiny", str(tiny_corpus), str(tmp_path / "a"), overrides=ov)
+    final = train("tiny", str(tiny_corpus), str(tmp_path / "b"), overrides={**ov, "augment": 1, "seed": 1},
+                  svq_from=str(src))
+    a, b = ckpt.load(src), ckpt.load(final)
+    for r in a.svq:
+        for k, v in a.svq[r].state_dict().items():
+            assert torch.equal(v, b.svq[r].state_dict()[k]), (r, k)
+    assert not torch.equal(a.audio_encoder.mel_std, b.audio_encoder.mel_std)
+    assert b.provenance["svq_from"] == str(src) and b.provenance["augment"] == 1
