@@ -7,12 +7,13 @@ cd "$(dirname "$0")/.."
 source scripts/env.sh
 bundle=$1 corpus=$2 out=$3 seeds=${4:-2} backend=${5:-tract}
 mkdir -p "$out"
-cargo build --release -q -p livegesture
+bin=${LIVEGESTURE_BIN:-./target/release/livegesture}   # LIVEGESTURE_BIN: use an already built CLI
+[ -n "${LIVEGESTURE_BIN:-}" ] || cargo build --release -q -p livegesture
 gen_args=()
 for s in $(seq 1 "$seeds"); do
   d="$out/generated_seed$s"; mkdir -p "$d"
   for id in $(awk -F, '$2=="test"{print $1}' "$corpus/train_test_split.csv"); do
-    ./target/release/livegesture generate "$corpus/wave16k/$id.wav" -o "$d/$id.npz" --bundle "$bundle" \
+    "$bin" generate "$corpus/wave16k/$id.wav" -o "$d/$id.npz" --bundle "$bundle" \
       --backend "$backend" --seed "$s" 2>/dev/null
   done
   gen_args+=(--generated "$d")
