@@ -7,7 +7,9 @@
 - ``--generated``: a folder of generated ``{id}.npz`` (BEAT2 output layout) for the split's clips; give it
   several times for several realisations of the same audio (needed for the paper's L1 diversity, eq. 2).
 - ``--checkpoint``: generate with a trained model instead (``livegesture.checkpoint.load`` +
-  ``livegesture.stream.generate_clip``), ``--n-realisations`` seeds per clip (``--seed`` upwards).
+  ``livegesture.stream.generate_clip``; either family: a DiffSHEG checkpoint runs the FOPPAS reference
+  sampler ``livegesture.diffsheg.foppas`` with its default options), ``--n-realisations`` seeds per clip
+  (``--seed`` upwards).
 - ``--fgd-encoder``: the FGD feature encoder; trained on the corpus's train split and saved there if the
   file does not exist.
 
