@@ -42,8 +42,9 @@ with SQRT_HALF = 0.7071067811865476 (0x3FE6A09E667F3BCD) and LN2 = 0.69314718055
     else:         q = (o + 1) / 2; a = (1.0 - r) * PI_4;  sign_s = -1
     w = a * a
     c = CC[9]; for j = 8 down to 0: c = c * w + CC[j]            CC[j] = (-1)^j / (2j)!
-    s = SC[9]; for j = 8 down to 0: s = s * w + SC[j]; s = s * a SC[j] = (-1)^j / (2j+1)!
-    s = sign_s * s
+    s = SC[9]; for j = 8 down to 0: s = s * w + SC[j]            SC[j] = (-1)^j / (2j+1)!
+    s = s * a                                                    (once, after the loop)
+    if sign_s < 0: s = -s                                        (exact negation)
     cos_2pi = [c, -s, -c, s][q mod 4]
 
 with PI_4 = 0.7853981633974483 (0x3FE921FB54442D18); the factorials are accumulated in f64
@@ -142,14 +143,20 @@ def _f64(u: np.ndarray) -> np.ndarray:
 def ln_01_vec(x: np.ndarray) -> np.ndarray:
     m, e = np.frexp(x)
     low = m < SQRT_HALF
-    m = np.where(low, m * 2.0, m)
-    e = np.where(low, e - 1, e)
+    m[low] *= 2.0
+    e[low] -= 1
     s = (m - 1.0) / (m + 1.0)
     w = s * s
     p = np.full_like(s, LN_COEF[12])
-    for j in range(11, -1, -1):
-        p = p * w + LN_COEF[j]
-    return e.astype(np.float64) * LN2 + (2.0 * s) * p
+    for j in range(11, -1, -1):     # in-place Horner: the same IEEE operations as the scalar loop
+        p *= w
+        p += LN_COEF[j]
+    s *= 2.0
+    p *= s
+    out = e.astype(np.float64)
+    out *= LN2
+    out += p
+    return out
 
 
 def cos_2pi_vec(u: np.ndarray) -> np.ndarray:
@@ -157,18 +164,24 @@ def cos_2pi_vec(u: np.ndarray) -> np.ndarray:
     o = np.floor(v)
     r = v - o
     o = o.astype(np.int64)
-    odd = (o % 2) == 1
-    q = np.where(odd, (o + 1) // 2, o // 2) % 4
-    a = np.where(odd, (1.0 - r) * PI_4, r * PI_4)
+    odd = (o & 1) == 1
+    q = ((o + odd) >> 1) & 3
+    a = np.where(odd, 1.0 - r, r)
+    a *= PI_4
     w = a * a
     c = np.full_like(a, COS_COEF[9])
+    sn = np.full_like(a, SIN_COEF[9])
     for j in range(8, -1, -1):
-        c = c * w + COS_COEF[j]
-    s = np.full_like(a, SIN_COEF[9])
-    for j in range(8, -1, -1):
-        s = s * w + SIN_COEF[j]
-    s = np.where(odd, -(s * a), s * a)
-    return np.choose(q, [c, -s, -c, s])
+        c *= w
+        c += COS_COEF[j]
+        sn *= w
+        sn += SIN_COEF[j]
+    sn *= a
+    np.negative(sn, out=sn, where=odd)
+    # [c, -s, -c, s][q]: the sine for odd q, negated for q = 1 and 2
+    out = np.where((q & 1) == 1, sn, c)
+    np.negative(out, out=out, where=(q == 1) | (q == 2))
+    return out
 
 
 def normals(seed: int, position: int, count: int) -> np.ndarray:
