@@ -4,6 +4,8 @@
     python export/export.py --checkpoint runs/default/final.pt --out models/default
     python export/export.py --config tiny --random-seed 0 --out /tmp/tiny-bundle          # random weights
     python export/export.py --config paper --random-seed 0 --out /tmp/paper-bundle --rollout-tokens 16
+    python export/export.py --family diffsheg --config tiny --random-seed 0 --out /tmp/diffsheg-tiny
+    python export/export.py --checkpoint runs/diffsheg/final.pt --out models/diffsheg    # family from the checkpoint
 
 The bundle is written to a temporary folder beside ``--out`` and moved into place only after every check
 passed (see verify.py): a failed export leaves no half-written bundle. The format is documented in
@@ -151,13 +153,34 @@ def git_commit() -> str:
         return "unknown"
 
 
+def file_table(tmp: Path) -> dict:
+    """sha256 and size of every file of a bundle folder (the manifest's ``files``)."""
+    return {str(p.relative_to(tmp)): {"sha256": sha256(p), "bytes": p.stat().st_size}
+            for p in sorted(tmp.rglob("*")) if p.is_file()}
+
+
+def write_manifest(tmp: Path, manifest: dict):
+    with open(tmp / "manifest.json", "w") as f:
+        json.dump(manifest, f, indent=1)
+        f.write("\n")
+
+
+def export_provenance(extra: dict | None = None) -> dict:
+    return {"date": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "git_commit": git_commit(), "torch": torch.__version__, "onnx_opset": OPSET,
+            "livegesture": livegesture.__version__, **(extra or {})}
+
+
 def build_bundle(model, out: Path, *, provenance: dict, reference_wav: str | None, ref_seconds: float,
-                 rollout_tokens: int, log=print) -> dict:
+                 rollout_tokens: int, log=print, builder=None, **kw) -> dict:
+    """Write the bundle into a temporary folder beside ``out``, then move it into place (atomic).
+    ``builder(model, tmp, ...)`` writes the folder's contents: ``_build`` (LiveGesture) by default,
+    ``diffsheg_export.build`` for the diffsheg family."""
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     os.chmod(tmp, 0o755)
     try:
-        manifest = _build(model, tmp, provenance=provenance, reference_wav=reference_wav, ref_seconds=ref_seconds,
-                          rollout_tokens=rollout_tokens, log=log)
+        manifest = (builder or _build)(model, tmp, provenance=provenance, reference_wav=reference_wav,
+                                       ref_seconds=ref_seconds, rollout_tokens=rollout_tokens, log=log, **kw)
         if out.exists():
             shutil.rmtree(out)
         os.replace(tmp, out)
@@ -203,12 +226,11 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
                         seed=np.array(ROLLOUT_SEED, dtype=np.uint64), clip_repeats=np.array(reps))
     log(f"  rollout          {len(ro['tokens'])} tokens in {time.time() - t0:.1f}s")
 
-    for p in sorted(tmp.rglob("*")):
-        if p.is_file():
-            files[str(p.relative_to(tmp))] = {"sha256": sha256(p), "bytes": p.stat().st_size}
+    files.update(file_table(tmp))
     manifest = {
         "schema_version": SCHEMA_VERSION,
         "format": "livegesture-bundle",
+        "family": "livegesture",
         "model": {"name": "LiveGesture", "config_name": cfg.name, "config": cfg.to_dict(),
                   "parameters": {g: int(sum(p.numel() for p in c.parameters())) for g, c in model.components().items()}},
         "rates": {"sample_rate": cfg.frontend.sample_rate, "fps": cfg.frontend.fps,
@@ -239,14 +261,9 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
                       "rollout_tokens": int(len(ro["tokens"])), "rollout_guidance": cfg.guidance},
         "checks": checks,
         "files": files,
-        "provenance": {**provenance,
-                       "export": {"date": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-                                  "git_commit": git_commit(), "torch": torch.__version__,
-                                  "onnx_opset": OPSET, "livegesture": livegesture.__version__}},
+        "provenance": {**provenance, "export": export_provenance()},
     }
-    with open(tmp / "manifest.json", "w") as f:
-        json.dump(manifest, f, indent=1)
-        f.write("\n")
+    write_manifest(tmp, manifest)
     return manifest
 
 
@@ -256,20 +273,36 @@ def main(argv=None):
     src.add_argument("--checkpoint", help="trained checkpoint (.pt) written by livegesture.train")
     src.add_argument("--config", help="export random weights of this config (tiny, default, paper)")
     ap.add_argument("--random-seed", type=int, default=0, help="seed of the random weights (with --config)")
+    ap.add_argument("--family", choices=("livegesture", "diffsheg"), default=None,
+                    help="model family of --config (default livegesture); a checkpoint names its own family")
     ap.add_argument("--out", required=True, help="bundle folder to write (replaced atomically)")
     ap.add_argument("--reference-wav", help="reference speech clip (default: a synthetic speech-like signal)")
     ap.add_argument("--reference-seconds", type=float, default=30.0)
     ap.add_argument("--rollout-tokens", type=int, default=1000, help="length of the reference rollout (>= 1000 for CI)")
+    ap.add_argument("--rollout-windows", type=int, default=5,
+                    help="diffsheg: FOPPAS windows of the reference rollout (>= 4; the last one is shorter)")
     ap.add_argument("--provenance", help="JSON file merged into the manifest's provenance (training data "
                                          "description, evaluation figures, commands)")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     if args.checkpoint:
-        model = ckpt.load(args.checkpoint)
+        try:
+            model = ckpt.load(args.checkpoint)
+        except (OSError, ValueError) as e:
+            print(f"export failed: {e}", file=sys.stderr)
+            return 2
+        if args.family and args.family != getattr(model, "family", "livegesture"):
+            print(f"export failed: --family {args.family} but {args.checkpoint} is a "
+                  f"{getattr(model, 'family', 'livegesture')} checkpoint", file=sys.stderr)
+            return 2
         provenance = dict(getattr(model, "provenance", {}))
         provenance.setdefault("checkpoint", Path(args.checkpoint).name)
     else:
-        model = ckpt.random_model(args.config, args.random_seed)
+        try:
+            model = ckpt.random_model(args.config, args.random_seed, family=args.family or "livegesture")
+        except ValueError as e:
+            print(f"export failed: {e}", file=sys.stderr)
+            return 2
         provenance = {"training": f"none: random weights (config {args.config}, seed {args.random_seed}); "
                                   "for tests and benchmarks only, produces meaningless motion"}
     if args.provenance:
@@ -280,10 +313,15 @@ def main(argv=None):
             return 2
     out = Path(args.out).resolve()
     out.parent.mkdir(parents=True, exist_ok=True)
-    print(f"exporting {model.cfg.name} -> {out}")
+    family = getattr(model, "family", "livegesture")
+    print(f"exporting {family} {model.cfg.name} -> {out}")
+    kw = {}
+    if family == "diffsheg":
+        import diffsheg_export
+        kw = {"builder": diffsheg_export.build, "rollout_windows": args.rollout_windows}
     try:
         build_bundle(model, out, provenance=provenance, reference_wav=args.reference_wav,
-                     ref_seconds=args.reference_seconds, rollout_tokens=args.rollout_tokens)
+                     ref_seconds=args.reference_seconds, rollout_tokens=args.rollout_tokens, **kw)
     except ExportCheckError as e:
         print(f"export failed: {e}", file=sys.stderr)
         return 1

@@ -2,7 +2,7 @@
 # The project's test command (README "Test"; .ci/run calls it). Installs what it needs, then runs:
 #   1. the Python test suite (PyTorch reference: step == offline, streaming contract, data, training,
 #      metrics, export);
-#   2. a fresh export of the tiny config (the exporter verifies every graph against torch);
+#   2. fresh exports of the tiny configs of both families (the exporter verifies every graph against torch);
 #   3. the Rust build and the parity checks (torch vs ort vs tract) on that export and on models/default;
 #   4. the Rust tests (runtime numerics, bundles, pipeline, CLI, parity suite incl. its must-fail cases).
 set -euo pipefail
@@ -21,6 +21,10 @@ mkdir -p target/test-bundles
 export LIVEGESTURE_TINY_BUNDLE="$PWD/target/test-bundles/tiny"
 # the runtime tests use the same fresh export instead of exporting a second tiny bundle of their own
 export LIVEGESTURE_TEST_BUNDLE="$LIVEGESTURE_TINY_BUNDLE"
+
+stage "export the DiffSHEG tiny config (random weights) -> target/test-bundles/diffsheg-tiny"
+"$LIVEGESTURE_PY" export/export.py --family diffsheg --config tiny --random-seed 0 --out target/test-bundles/diffsheg-tiny
+export LIVEGESTURE_DIFFSHEG_TINY_BUNDLE="$PWD/target/test-bundles/diffsheg-tiny"
 
 stage "rust build (release)"
 cargo build --release --workspace --all-targets

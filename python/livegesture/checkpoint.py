@@ -20,6 +20,8 @@ def save(model: LiveGesture, path: str | os.PathLike, provenance: dict | None = 
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {"format": FORMAT, "version": VERSION, "config": model.cfg.to_dict(),
                "state_dict": model.state_dict(), "provenance": provenance or {}, "extra": extra or {}}
+    if getattr(model, "family", "livegesture") != "livegesture":
+        payload["family"] = model.family          # absent = livegesture (checkpoints before DiffSHEG)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
     os.close(fd)
     try:
@@ -43,10 +45,23 @@ def load_payload(path: str | os.PathLike) -> dict:
     return payload
 
 
-def load(path: str | os.PathLike) -> LiveGesture:
-    """Load a model (eval mode) from a checkpoint file."""
+def family_of(payload: dict) -> str:
+    return payload.get("family", "livegesture")
+
+
+def load(path: str | os.PathLike):
+    """Load a model (eval mode) from a checkpoint file: a LiveGesture, or a DiffSHEG model for a checkpoint
+    whose ``family`` is ``diffsheg``."""
     payload = load_payload(path)
-    model = LiveGesture(LiveGestureConfig.from_dict(payload["config"]))
+    fam = family_of(payload)
+    if fam == "diffsheg":
+        from .diffsheg.config import DiffSHEGConfig
+        from .diffsheg.model import DiffSHEG
+        model = DiffSHEG(DiffSHEGConfig.from_dict(payload["config"]))
+    elif fam == "livegesture":
+        model = LiveGesture(LiveGestureConfig.from_dict(payload["config"]))
+    else:
+        raise ValueError(f"checkpoint {path}: unknown model family {fam!r} (expected livegesture or diffsheg)")
     missing, unexpected = model.load_state_dict(payload["state_dict"], strict=False)
     missing = [k for k in missing if not k.endswith(("win_cos", "win_sin", "slot"))]
     if missing or unexpected:
@@ -56,8 +71,22 @@ def load(path: str | os.PathLike) -> LiveGesture:
     return model.eval()
 
 
-def random_model(config: str | LiveGestureConfig, seed: int = 0) -> LiveGesture:
+def random_model(config, seed: int = 0, family: str = "livegesture"):
     """A model with random weights (tests, benchmarks of the paper config)."""
+    if family == "diffsheg":
+        from .diffsheg.config import DiffSHEGConfig, get_config as get_diffsheg_config
+        from .diffsheg.model import DiffSHEG
+        cfg = get_diffsheg_config(config) if isinstance(config, str) else config
+        torch.manual_seed(seed)
+        model = DiffSHEG(cfg).eval()
+        with torch.no_grad():   # zero-initialised layers (outputs, AdaIN, null audio) would make eps == 0
+            for p in model.parameters():
+                if bool((p == 0).all()):
+                    p.normal_(0.0, 0.05)
+        model.provenance = {"training": "none: random weights", "seed": seed}
+        return model
+    if family != "livegesture":
+        raise ValueError(f"unknown model family {family!r} (expected livegesture or diffsheg)")
     cfg = get_config(config) if isinstance(config, str) else config
     torch.manual_seed(seed)
     model = LiveGesture(cfg).eval()

@@ -126,6 +126,11 @@ def frames_to_arrays(frames: list[Frame]) -> dict[str, np.ndarray]:
 def generate_clip(model: LiveGesture, audio_16k: np.ndarray, seed: int = 0, guidance: float | None = None,
                   chunk: int | None = None, temperature: float | None = None, top_k: int | None = None) -> dict:
     """Run the streaming loop over a whole clip. Returns dict(poses, trans, expressions, foot_contact, tokens)."""
+    if getattr(model, "family", "livegesture") == "diffsheg":   # the other model family: FOPPAS over the clip
+        from .diffsheg.foppas import generate_clip as diffsheg_generate_clip
+        if temperature is not None or top_k is not None:
+            raise ValueError("diffsheg: temperature and top_k do not apply (diffusion sampling)")
+        return diffsheg_generate_clip(model, audio_16k, seed=seed, guidance=guidance, chunk=chunk)
     s = LiveGestureStream(model, seed=seed, guidance=guidance, temperature=temperature, top_k=top_k)
     audio = np.asarray(audio_16k, dtype=np.float32)
     chunk = chunk or len(audio) or 1

@@ -462,6 +462,8 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--family", default="livegesture", choices=("livegesture", "diffsheg"),
+                    help="model family (diffsheg: livegesture.diffsheg.train, one stage)")
     ap.add_argument("--config", default="default", help="model config: tiny, default or paper")
     ap.add_argument("--data", required=True, help="BEAT2-layout corpus (real BEAT2 or livegesture.data.synth output)")
     ap.add_argument("--out", required=True, help="run folder (checkpoints, train_log.jsonl)")
@@ -477,7 +479,20 @@ def main(argv=None):
         ap.add_argument("--" + f.replace("_", "-"), type=float, default=None)
     ap.add_argument("--svq-from", help="take svq1/svq2 (the motion tokenizer and its motion statistics) from this "
                                        "checkpoint instead of training them; experts and fuse are trained")
+    ap.add_argument("--steps", type=int, default=None, help="diffsheg: training steps")
+    ap.add_argument("--batch", type=int, default=None, help="diffsheg: batch size (windows)")
+    ap.add_argument("--lr", type=float, default=None, help="diffsheg: learning rate")
+    ap.add_argument("--max-minutes", type=float, default=None, help="diffsheg: stop after this training time")
     args = ap.parse_args(argv)
+    if args.family == "diffsheg":
+        from .diffsheg.train import train as train_diffsheg
+        if args.threads:
+            torch.set_num_threads(args.threads)
+        ov = {"steps": args.steps, "batch": args.batch, "lr": args.lr, "seed": args.seed, "max_minutes": args.max_minutes,
+              "speakers": None if args.speakers == "all" else tuple(int(s) for s in args.speakers.split(","))}
+        train_diffsheg(args.config, args.data, args.out, device=args.device,
+                       overrides={k: v for k, v in ov.items() if v is not None or k == "speakers"})
+        return 0
     if "WORLD_SIZE" in os.environ and int(os.environ["WORLD_SIZE"]) > 1:
         dist.init_process_group("nccl" if args.device.startswith("cuda") else "gloo")
         if args.device.startswith("cuda"):
