@@ -19,6 +19,7 @@ pub mod backend;
 pub mod bench;
 pub mod bundle;
 pub mod frontend;
+pub mod model;
 pub mod output;
 pub mod parity;
 pub mod pipeline;
