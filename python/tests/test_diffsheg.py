@@ -312,3 +312,15 @@ def test_stream_generate_clip_dispatches_on_family(tiny):
     assert np.array_equal(g["poses"], h["poses"]) and len(g["poses"]) == n_frames_for(len(a))
     with pytest.raises(ValueError, match="top_k"):
         any_family(tiny, a, top_k=3)
+
+
+def test_batched_clips_equal_their_streams(tiny):
+    from livegesture.diffsheg.foppas import generate_clips
+    audios = [speech(1.0, 1), speech(2.7, 2), speech(0.5, 3), speech(2.7, 4)]
+    seeds = [3, 4, 5, 6]
+    many = generate_clips(tiny, audios, seeds)
+    for a, s, g in zip(audios, seeds, many):
+        one = generate_clip(tiny, a, seed=s)
+        assert len(g["poses"]) == len(one["poses"]) == n_frames_for(len(a))
+        for k in ("poses", "trans", "expressions"):
+            assert np.abs(g[k] - one[k]).max() < 1e-4, k

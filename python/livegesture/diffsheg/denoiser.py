@@ -8,11 +8,13 @@ audio (classifier-free guidance; the unconditional branch).
 1. global condition ``g = MLP(sinusoidal(t)) + MLP(Embed(speaker))`` (fed to every AdaIN);
 2. audio ``a = cond * audio + (1 - cond) * null_audio``;
 3. expression branch (face = jaw rot6d + 100 expressions, the last 106 features):
-   ``h = FusionRes(x_t^E, a)`` -> Linear -> + positions -> style-aware blocks -> Linear -> ``eps^E``;
+   ``h = FusionRes(x_t^E, a)`` -> Linear -> + positions -> style-aware blocks;
+   ``eps^E = Linear(LN(h)) + k(g) * x_t^E`` (k: a per-feature gain from the global condition, initialised to 1;
+   our addition: with d_model below the branch width the noise in x_t cannot pass through the blocks);
 4. predicted clean expression (eq. 5), computed in float32 inside the graph and DETACHED:
    ``x0^E = (x_t^E - sqrt(1 - alpha_bar_t) eps^E) / sqrt(alpha_bar_t)``;
 5. gesture branch (upper + hands + lower, the first 319 features):
-   ``h = FusionRes(x_t^G, concat(x0^E, a))`` -> Linear -> + positions -> blocks -> Linear -> ``eps^G``;
+   ``h = FusionRes(x_t^G, concat(x0^E, a))`` -> Linear -> + positions -> blocks; ``eps^G`` as in 3.;
 6. ``eps = concat(eps^G, eps^E)`` in the layout of ``x_t``.
 
 The expression never sees the gesture (uni-directional flow); gradients of the gesture loss do not reach
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import torch
 import torch.nn as nn
+import torch.nn.functional as F
 
 from .config import DiffSHEGConfig
 from .layers import FusionResidualBlock, StyleTransformerBlock, position_table, sinusoidal
@@ -45,13 +48,19 @@ class Branch(nn.Module):
         self.out = nn.Linear(d, d_x)
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
+        # style-aware skip gain k(g) (ours): eps is mostly the noise already in x_t, and d_model may be smaller
+        # than the branch (319 gesture features through 128 channels in `default`), so the noise cannot pass
+        # through the Transformer; eps = Out(h) + k(g) * x_t, k initialised to 1 (the high-noise solution)
+        self.skip = nn.Linear(d, d_x)
+        nn.init.zeros_(self.skip.weight)
+        nn.init.ones_(self.skip.bias)
 
     def forward(self, x: torch.Tensor, cond: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
         h = self.inp(self.fuse(x, cond))
         h = h + self.pos[: h.shape[1]]
         for b in self.blocks:
             h = b(h, g)
-        return self.out(self.out_norm(h))
+        return self.out(self.out_norm(h)) + self.skip(F.silu(g)).unsqueeze(1) * x
 
 
 class UniEG(nn.Module):

@@ -158,14 +158,27 @@ def guided_eps(backend, x: np.ndarray, t: int, audio: np.ndarray, speaker: int, 
 def sample_window(backend, audio: np.ndarray, speaker: int, noise: NoiseStream, known: np.ndarray | None,
                   opts: SamplerOptions, ab: np.ndarray, trace: list | None = None) -> np.ndarray:
     """One FOPPAS window (module docstring). audio (n, Da); known (L, D) float32 or None -> x0 (n, D) float32.
-    ``trace`` (a list) receives one dict per denoiser call: x, t, eps (guided), noise position after."""
-    n = audio.shape[0]
-    L = 0 if known is None else known.shape[0]
+    ``trace`` (a list) receives one dict per denoiser call: x, t, eps (guided)."""
+    return sample_windows(backend, audio[None], [speaker], [noise], None if known is None else known[None],
+                          opts, ab, trace)[0]
+
+
+def sample_windows(backend, audio: np.ndarray, speakers, noises: list, known: np.ndarray | None,
+                   opts: SamplerOptions, ab: np.ndarray, trace: list | None = None) -> np.ndarray:
+    """M windows of M independent streams at once (same n, all with or all without known frames): audio
+    (M, n, Da), known (M, L, D) or None, one NoiseStream per stream -> (M, n, D). Each stream draws its own
+    normals in the order of the module docstring, and every element's arithmetic is that of one window, so
+    stream m's result equals ``sample_window`` of stream m alone up to the denoiser's batch-size rounding
+    (bit-identical for M = 1); the denoiser runs once per pass on 2M rows (M with 1.0 guidance)."""
+    M, n = audio.shape[0], audio.shape[1]
+    L = 0 if known is None else known.shape[1]
     taus = ddim_timesteps(opts.steps)
     kn = None if known is None else known.astype(np.float64)
     if L:
         w = np.arange(L, dtype=np.float64)[:, None] / (L - 1) if L > 1 else np.zeros((1, 1))
-    x = noise.take((n, MOTION_DIM))
+    take = lambda rows: np.stack([ns.take((rows, MOTION_DIM)) for ns in noises])  # noqa: E731
+    x = take(n)
+    spk = np.asarray(speakers, dtype=np.int64)
     for j in range(opts.steps - 1, -1, -1):
         a_t = float(ab[taus[j]])
         a_p = float(ab[taus[j - 1]]) if j > 0 else 1.0
@@ -173,26 +186,39 @@ def sample_window(backend, audio: np.ndarray, speaker: int, noise: NoiseStream, 
         for u in range(U):
             if L:
                 if j > 0:
-                    xk = math.sqrt(a_p) * kn + math.sqrt(1.0 - a_p) * noise.take((L, MOTION_DIM)).astype(np.float64)
+                    xk = math.sqrt(a_p) * kn + math.sqrt(1.0 - a_p) * take(L).astype(np.float64)
                 else:
                     xk = kn
-            eps = guided_eps(backend, x, int(taus[j]), audio, speaker, opts.guidance)
+            eps = guided_eps_batch(backend, x, int(taus[j]), audio, spk, opts.guidance)
             if trace is not None:
-                trace.append({"x": x.copy(), "t": int(taus[j]), "eps": eps.copy()})
+                trace.append({"x": x[0].copy(), "t": int(taus[j]), "eps": eps[0].copy()})
             x0 = (x.astype(np.float64) - math.sqrt(1.0 - a_t) * eps) / math.sqrt(a_t)
             xp = math.sqrt(a_p) * x0 + math.sqrt(1.0 - a_p) * eps
             if L:
                 if j >= opts.blend_steps:
-                    xp[:L] = xk
+                    xp[:, :L] = xk
                 else:
-                    xp[:L] = (1.0 - w) * xk + w * xp[:L]
+                    xp[:, :L] = (1.0 - w) * xk + w * xp[:, :L]
             if u < U - 1:
                 r = a_t / a_p
-                x = (math.sqrt(r) * xp + math.sqrt(1.0 - r) * noise.take((n, MOTION_DIM)).astype(np.float64)
-                     ).astype(np.float32)
+                x = (math.sqrt(r) * xp + math.sqrt(1.0 - r) * take(n).astype(np.float64)).astype(np.float32)
             else:
                 x = xp.astype(np.float32)
     return x
+
+
+def guided_eps_batch(backend, x: np.ndarray, t: int, audio: np.ndarray, speakers: np.ndarray,
+                     guidance: float) -> np.ndarray:
+    """x (M, n, D) float32 -> guided eps (M, n, D) float64; rows [cond=1 x M, cond=0 x M]."""
+    M = x.shape[0]
+    if guidance == 1.0:
+        return backend.denoise(x, np.full(M, t, np.int64), audio, speakers, np.ones(M, np.float32)).astype(np.float64)
+    out = backend.denoise(np.concatenate([x, x]), np.full(2 * M, t, np.int64), np.concatenate([audio, audio]),
+                          np.concatenate([speakers, speakers]),
+                          np.concatenate([np.ones(M, np.float32), np.zeros(M, np.float32)]))
+    c = out[:M].astype(np.float64)
+    u = out[M:].astype(np.float64)
+    return u + guidance * (c - u)
 
 
 # ----------------------------------------------------------------------------- the stream
@@ -335,3 +361,49 @@ def generate_clip(model: DiffSHEG, audio_16k: np.ndarray, seed: int = 0, speaker
     out = frames_to_arrays(frames)
     out["stream"] = s
     return out
+
+
+def generate_clips(model: DiffSHEG, audios: list, seeds: list, speaker: int | None = None,
+                   guidance: float | None = None, backend=None, **opts) -> list[dict]:
+    """Several whole clips at once (evaluation): the offline window plan of each clip (the same windows and
+    frames as its stream, see ``plan_windows``), with the windows of equal length and overlap state of all
+    clips sampled together in one batch. Returns one dict(poses, trans, expressions, foot_contact) per clip."""
+    options = SamplerOptions.from_config(model.cfg, guidance=guidance, **opts)
+    backend = backend or TorchBackend(model)
+    spk = model.default_speaker() if speaker is None else int(speaker)
+    ab = alphas_cumprod(model.cfg.diffusion_steps, model.cfg.beta_start, model.cfg.beta_end)
+    fc = model.cfg.frontend
+    N, L = options.window, options.overlap
+    clips = []
+    for a, sd in zip(audios, seeds):
+        a = np.asarray(a, dtype=np.float32)
+        T = n_frames_for(len(a))
+        pad = np.concatenate([a, np.zeros(max(0, T * SAMPLE_RATE // FPS - len(a)), np.float32)])
+        clips.append({"audio": pad, "plan": plan_windows(T, N, L), "noise": NoiseStream(sd), "known": None,
+                      "out": []})
+    k = 0
+    while any(k < len(c["plan"]) for c in clips):
+        groups: dict = {}
+        for i, c in enumerate(clips):
+            if k < len(c["plan"]):
+                groups.setdefault((c["plan"][k][1], c["known"] is not None), []).append(i)
+        for (n, has_known), idx in groups.items():
+            mels = np.stack([logmel_frames(clips[i]["audio"], 2 * clips[i]["plan"][k][0], 2 * n, fc) for i in idx])
+            audio = backend.encode(mels)
+            known = np.stack([clips[i]["known"] for i in idx]) if has_known else None
+            x0 = sample_windows(backend, audio, [spk] * len(idx), [clips[i]["noise"] for i in idx], known,
+                                options, ab)
+            for m, i in enumerate(idx):
+                c = clips[i]
+                last = k == len(c["plan"]) - 1
+                c["out"].append(x0[m] if last else x0[m][: n - L])
+                c["known"] = None if last or L == 0 else x0[m][n - L:].copy()
+        k += 1
+    results = []
+    for c in clips:
+        x = np.concatenate(c["out"]) if c["out"] else np.zeros((0, MOTION_DIM), np.float32)
+        feats = model.denormalise(x)
+        regions = {e["region"]: feats[:, e["offset"]:e["offset"] + e["dim"]] for e in motion_layout()}
+        results.append(features_to_motion(regions) if len(x) else frames_to_arrays([]))
+    return results
+

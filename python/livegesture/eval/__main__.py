@@ -74,6 +74,8 @@ def _generate(ckpt: str, ids: list[str], audio: dict, n: int, seed: int, guidanc
         raise SystemExit(f"--checkpoint needs livegesture.checkpoint.load and livegesture.stream.generate_clip, "
                          f"which cannot be imported here ({e}); generate the clips and pass --generated DIR") from e
     model = load_checkpoint(ckpt)
+    if getattr(model, "family", "livegesture") == "diffsheg":
+        return _generate_diffsheg(model, ids, audio, n, seed, guidance, save_dir)
     out = []
     for k, cid in enumerate(ids):
         x = audio[cid]
@@ -94,6 +96,29 @@ def _generate(ckpt: str, ids: list[str], audio: dict, n: int, seed: int, guidanc
                  f"({k + 1}/{len(ids)})")
         out.append(reals)
     return out
+
+
+def _generate_diffsheg(model, ids, audio, n, seed, guidance, save_dir) -> list[list[dict]]:
+    """DiffSHEG: every clip and seed sampled together (``livegesture.diffsheg.foppas.generate_clips``: the
+    windows of all clips batched; each clip's frames are those of its own stream)."""
+    from ..diffsheg.foppas import generate_clips
+    from ..motion import beat2_npz_dict
+    t0 = time.time()
+    jobs = [(cid, r) for cid in ids for r in range(n)]
+    gens = generate_clips(model, [audio[cid].astype(np.float32) for cid, _ in jobs], [seed + r for _, r in jobs],
+                          guidance=guidance)
+    out = {cid: [] for cid in ids}
+    for (cid, r), g in zip(jobs, gens):
+        m = {"poses": np.asarray(g["poses"], np.float64).reshape(len(g["poses"]), -1),
+             "trans": np.asarray(g["trans"], np.float64).reshape(-1, 3),
+             "expressions": np.asarray(g["expressions"], np.float64).reshape(len(g["expressions"]), -1)}
+        out[cid].append(m)
+        if save_dir:
+            d = Path(save_dir) / (f"seed{seed + r}" if n > 1 else "")
+            d.mkdir(parents=True, exist_ok=True)
+            np.savez(d / f"{cid}.npz", **beat2_npz_dict(m))
+    _log(f"generated {len(jobs)} clips (diffsheg, batched) in {time.time() - t0:.1f} s")
+    return [out[cid] for cid in ids]
 
 
 def _load_face_model(spec: str | None):
