@@ -14,7 +14,7 @@ use livegesture::model::diffsheg::foppas::{
 };
 use livegesture::model::diffsheg::noise::{fill_normals, NoiseStream};
 use livegesture::model::diffsheg::reference::RolloutReference;
-use livegesture::model::diffsheg::sections::DiffshegSections;
+use livegesture::bundle::DiffshegManifest as DiffshegSections;
 
 fn bundle() -> PathBuf {
     let p = std::env::var_os("LIVEGESTURE_DIFFSHEG_TINY_BUNDLE")

@@ -8,7 +8,7 @@ use clap::ValueEnum;
 use livegesture::audio::AudioError;
 use livegesture::backend::{self, BackendKind, BackendOptions};
 use livegesture::bundle::{default_bundle_dir, Bundle, BundleError};
-use livegesture::pipeline::{Pipeline, StreamOptions};
+use livegesture::model::{self, MotionModel, StreamOptions};
 
 /// An error caused by the user's input or arguments (exit code 2).
 #[derive(Debug, thiserror::Error)]
@@ -34,6 +34,15 @@ pub enum BackendArg {
     Tract,
     /// ONNX Runtime, loaded from ORT_DYLIB_PATH or an installed onnxruntime Python package.
     Ort,
+}
+
+impl From<BackendArg> for BackendKind {
+    fn from(b: BackendArg) -> Self {
+        match b {
+            BackendArg::Tract => BackendKind::Tract,
+            BackendArg::Ort => BackendKind::Ort,
+        }
+    }
 }
 
 /// Bundle and backend selection.
@@ -71,6 +80,24 @@ pub struct GenArgs {
     /// Keep the K most likely tokens, 0 = all (default: the bundle's).
     #[arg(long, value_name = "K")]
     pub top_k: Option<usize>,
+    /// DiffSHEG: DDIM steps, must divide 1000 (default: the bundle's; the paper's 25).
+    #[arg(long, value_name = "S")]
+    pub ddim_steps: Option<usize>,
+    /// DiffSHEG: RePaint jumps per DDIM step, >= 1 (default: the bundle's, 2).
+    #[arg(long, value_name = "U")]
+    pub jumps: Option<usize>,
+    /// DiffSHEG: window length in frames, <= the bundle's max window (default: the bundle's; 88 at 30 fps).
+    #[arg(long, value_name = "N")]
+    pub window: Option<usize>,
+    /// DiffSHEG: overlap of consecutive windows in frames, < window (default: the bundle's; 10).
+    #[arg(long, value_name = "L")]
+    pub overlap: Option<usize>,
+    /// DiffSHEG: last DDIM steps that blend the overlap linearly (default: the bundle's, 2).
+    #[arg(long, value_name = "B")]
+    pub blend_steps: Option<usize>,
+    /// DiffSHEG: style (speaker) id (default: the bundle's).
+    #[arg(long, value_name = "ID")]
+    pub speaker: Option<usize>,
 }
 
 impl GenArgs {
@@ -94,6 +121,12 @@ impl GenArgs {
             temperature: self.temperature,
             top_k: self.top_k,
             record_logits: false,
+            ddim_steps: self.ddim_steps,
+            jumps: self.jumps,
+            window: self.window,
+            overlap: self.overlap,
+            blend_steps: self.blend_steps,
+            speaker: self.speaker,
         })
     }
 }
@@ -105,13 +138,11 @@ impl ModelArgs {
         Ok(Bundle::load(&dir)?)
     }
 
-    /// Creates the backend and loads the pipeline.
-    pub fn pipeline(&self, bundle: &Bundle) -> Result<Pipeline> {
+    /// The backend settings of these arguments (a non-CPU execution provider without ort is an
+    /// input error).
+    pub fn backend_options(&self) -> Result<BackendOptions> {
         let opts = BackendOptions {
-            kind: match self.backend {
-                BackendArg::Tract => BackendKind::Tract,
-                BackendArg::Ort => BackendKind::Ort,
-            },
+            kind: self.backend.into(),
             execution_provider: self.ep.clone(),
             intra_threads: self.threads.max(1),
             ort_library: self.ort_lib.clone(),
@@ -123,8 +154,13 @@ impl ModelArgs {
             ))
             .into());
         }
-        let be = backend::create(&opts)?;
-        Pipeline::new(bundle, be.as_ref()).with_context(|| {
+        Ok(opts)
+    }
+
+    /// Creates the backend and loads the bundle's model (whichever its family).
+    pub fn model(&self, bundle: &Bundle) -> Result<Box<dyn MotionModel>> {
+        let be = backend::create(&self.backend_options()?)?;
+        model::load(bundle, be.as_ref()).with_context(|| {
             format!(
                 "loading the bundle {} with {}",
                 bundle.dir().display(),
@@ -132,4 +168,15 @@ impl ModelArgs {
             )
         })
     }
+}
+
+/// A new stream of `model`; options the model refuses (out of range, or of another family) are input
+/// errors (exit code 2).
+pub fn new_stream(
+    model: &dyn livegesture::model::MotionModel,
+    opts: &StreamOptions,
+) -> Result<Box<dyn livegesture::model::MotionStream>> {
+    model
+        .new_stream(opts)
+        .map_err(|e| InputError(format!("{e:#}")).into())
 }

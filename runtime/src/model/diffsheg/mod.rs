@@ -5,12 +5,15 @@
 //! - [`foppas`]: DDIM + classifier-free guidance + FOPPAS for one window, operation by operation;
 //! - [`stream`]: one stream's windowing, buffer and carried state (`foppas.state`);
 //! - [`graphs`]: the window's graph chain on a backend;
-//! - [`sections`]: the manifest's DiffSHEG sections.
+//! - [`model`]: [`DiffshegModel`] and [`DiffshegStream`], the family behind the [`crate::model`] traits.
+//!
+//! The manifest sections are [`crate::bundle::DiffshegManifest`].
 
 pub mod foppas;
 pub mod graphs;
+pub mod model;
 pub mod noise;
 pub mod reference;
 pub mod schedule;
-pub mod sections;
 pub mod stream;
+pub use model::{describe, DiffshegModel, DiffshegStream};
