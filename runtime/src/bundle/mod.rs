@@ -639,14 +639,13 @@ mod tests {
             e.contains("family livegesture") && e.contains("regions"),
             "{e}"
         );
-        // the common part alone is a valid diffsheg manifest (its own section is its implementation's)
-        let m = edited(|v| {
+        // a diffsheg manifest needs its own sections (diffusion, foppas, ...), not LiveGesture's
+        let e = edited(|v| {
             strip(v);
             v["family"] = "diffsheg".into();
         })
-        .unwrap();
-        assert_eq!(m.family, Family::DiffSheg);
-        assert!(m.livegesture.is_none());
+        .unwrap_err();
+        assert!(e.contains("family diffsheg") && e.contains("diffusion"), "{e}");
         // the common part stays required for every family
         let e = edited(|v| {
             v["family"] = "diffsheg".into();
