@@ -55,6 +55,7 @@ fn opts(
         temperature,
         top_k,
         record_logits: seed.is_multiple_of(2),
+        ..Default::default()
     }
 }
 

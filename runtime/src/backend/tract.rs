@@ -1,9 +1,11 @@
 //! The tract backend (pure Rust, no native dependency; the default).
 //!
-//! A graph is parsed once into a decluttered typed model with a symbolic batch dimension (the ONNX
-//! `batch` dim parameter). The first run with batch size `b` specialises the model to `b`
-//! (`set_symbols`), optimises it (`into_optimized`) and keeps the runnable plan and its state in a
-//! per-batch-size cache, so streaming with a fixed batch optimises once.
+//! A graph is parsed once into a decluttered typed model with symbolic dimensions (the ONNX dim
+//! parameters: `batch`, and DiffSHEG's window length `frames`). The first run with a given set of
+//! sizes (batch, and `frames` where the graph has it) specialises the model to them (`set_symbols`),
+//! optimises it (`into_optimized`) and keeps the runnable plan and its state in a cache keyed by those
+//! sizes, so streaming with a fixed batch optimises once (a DiffSHEG stream sees at most two window
+//! lengths, so at most two plans per batch size).
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -45,17 +47,19 @@ impl Backend for TractBackend {
 pub struct TractGraph {
     spec: GraphSpec,
     path: String,
-    /// Decluttered model with a symbolic batch.
+    /// Decluttered model with symbolic dimensions.
     typed: TypedModel,
-    batch_symbol: Option<Symbol>,
-    plans: HashMap<usize, TypedSimpleState>,
+    /// Every symbol of the inputs' shapes, with the first (input, axis) where it appears.
+    symbols: Vec<(Symbol, usize, usize)>,
+    /// Plans per size of each symbol (in `symbols` order).
+    plans: HashMap<Vec<usize>, TypedSimpleState>,
 }
 
 impl std::fmt::Debug for TractGraph {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("TractGraph")
             .field("graph", &self.spec.name)
-            .field("batch_sizes", &self.plans.keys().collect::<Vec<_>>())
+            .field("plans", &self.plans.keys().collect::<Vec<_>>())
             .finish()
     }
 }
@@ -75,49 +79,67 @@ impl TractGraph {
             .into_typed()
             .and_then(|m| m.into_decluttered())
             .with_context(what)?;
-        // The batch dimension of the first input (a symbol named after the ONNX dim parameter).
-        let batch_symbol = typed
-            .input_fact(0)
-            .ok()
-            .and_then(|f| f.shape.iter().next().cloned())
-            .and_then(|d| match d {
-                TDim::Sym(s) => Some(s),
-                _ => None,
-            });
+        // every symbolic input dimension (batch, frames, mel_frames when it is its own symbol)
+        let mut symbols: Vec<(Symbol, usize, usize)> = Vec::new();
+        for i in 0..typed.inputs.len() {
+            let fact = typed.input_fact(i).with_context(what)?;
+            for (axis, d) in fact.shape.iter().enumerate() {
+                if let TDim::Sym(sym) = d {
+                    if !symbols.iter().any(|(s, _, _)| s == sym) {
+                        symbols.push((sym.clone(), i, axis));
+                    }
+                }
+            }
+        }
         Ok(Self {
             spec: spec.clone(),
             path: path.display().to_string(),
             typed,
-            batch_symbol,
+            symbols,
             plans: HashMap::new(),
         })
     }
 
-    fn state_for(&mut self, batch: usize) -> Result<&mut TypedSimpleState> {
-        if !self.plans.contains_key(&batch) {
+    fn state_for(&mut self, inputs: &[LgTensor]) -> Result<&mut TypedSimpleState> {
+        let key: Vec<usize> = self
+            .symbols
+            .iter()
+            .map(|&(_, i, axis)| {
+                inputs
+                    .get(i)
+                    .and_then(|t| t.shape.get(axis))
+                    .copied()
+                    .unwrap_or(1)
+            })
+            .collect();
+        if !self.plans.contains_key(&key) {
             let what = || {
                 format!(
-                    "tract: optimising graph '{}' ({}) for batch {batch}",
+                    "tract: optimising graph '{}' ({}) for sizes {key:?}",
                     self.spec.name, self.path
                 )
             };
-            let model = match &self.batch_symbol {
-                Some(sym) => {
-                    let subs = HashMap::from([(sym.clone(), TDim::Val(batch as i64))]);
-                    self.typed.set_symbols(&subs).with_context(what)?
-                }
-                None => self.typed.clone(),
+            let model = if self.symbols.is_empty() {
+                self.typed.clone()
+            } else {
+                let subs: HashMap<Symbol, TDim> = self
+                    .symbols
+                    .iter()
+                    .zip(&key)
+                    .map(|((s, _, _), &v)| (s.clone(), TDim::Val(v as i64)))
+                    .collect();
+                self.typed.set_symbols(&subs).with_context(what)?
             };
             let plan = model
                 .into_optimized()
                 .and_then(|m| m.into_runnable())
                 .with_context(what)?;
             let state = plan.spawn().with_context(what)?;
-            self.plans.insert(batch, state);
+            self.plans.insert(key.clone(), state);
         }
         self.plans
-            .get_mut(&batch)
-            .ok_or_else(|| anyhow!("tract: no plan for batch {batch}"))
+            .get_mut(&key)
+            .ok_or_else(|| anyhow!("tract: no plan for sizes {key:?}"))
     }
 }
 
@@ -163,7 +185,7 @@ impl GraphRunner for TractGraph {
         let batch = check_inputs(&self.spec, inputs)?;
         let tv: TVec<TValue> = inputs.iter().map(to_tract).collect::<Result<_>>()?;
         let name = self.spec.name.clone();
-        let state = self.state_for(batch)?;
+        let state = self.state_for(inputs)?;
         let outs = super::flush_denormals(|| state.run(tv))
             .with_context(|| format!("tract: running graph '{name}' (batch {batch})"))?;
         let specs = self.spec.all_outputs();

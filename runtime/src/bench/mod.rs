@@ -31,6 +31,7 @@ use crate::bundle::{Bundle, Family};
 use crate::frontend::StreamingLogMel;
 use crate::model::livegesture::{state_bytes, Pipeline, StreamId, StreamOptions};
 
+pub mod diffsheg;
 mod machine;
 mod table;
 mod timing;
@@ -250,13 +251,12 @@ pub fn run(
     cfg: &BenchConfig,
     mut progress: impl FnMut(&str),
 ) -> Result<BenchReport> {
-    // the figures below are the LiveGesture family's; another family adds its own here
-    match bundle.family() {
-        Family::LiveGesture => {}
-        other => anyhow::bail!(
-            "{}: bench has no benchmarks for family '{other}' yet",
+    // the figures below are the LiveGesture family's; [`run_family`] dispatches
+    if bundle.family() != Family::LiveGesture {
+        anyhow::bail!(
+            "{}: bench::run measures LiveGesture bundles; use bench::run_family",
             bundle.dir().display()
-        ),
+        );
     }
     let wall = Instant::now();
     let load_start = loadavg();
@@ -507,5 +507,43 @@ fn run_batched(
         realtime_streams_with_frontend: nf * token_ms / (st.median + nf * frontend_ms),
         step_ms: st,
         graphs: graph_timings(&names, &per_graph),
+    })
+}
+
+/// A benchmark report of either family.
+#[derive(Debug, Clone, Serialize)]
+#[serde(untagged)]
+pub enum FamilyReport {
+    /// [`run`]'s report.
+    LiveGesture(BenchReport),
+    /// [`diffsheg::run`]'s report.
+    DiffSheg(diffsheg::DiffshegBenchReport),
+}
+
+impl FamilyReport {
+    /// The report as a text table.
+    pub fn table(&self) -> String {
+        match self {
+            FamilyReport::LiveGesture(r) => format_table(r),
+            FamilyReport::DiffSheg(r) => diffsheg::format_table(r),
+        }
+    }
+}
+
+/// Runs the benchmark of `bundle`'s family: [`run`] (LiveGesture) or [`diffsheg::run`] (DiffSHEG,
+/// which also reads `d`; the shared settings of `cfg` are the audio, seed, guidance and latency
+/// trials).
+pub fn run_family(
+    bundle: &Bundle,
+    backend: &dyn Backend,
+    cfg: &BenchConfig,
+    d: &diffsheg::DiffshegBenchConfig,
+    progress: impl FnMut(&str),
+) -> Result<FamilyReport> {
+    Ok(match bundle.family() {
+        Family::LiveGesture => FamilyReport::LiveGesture(run(bundle, backend, cfg, progress)?),
+        Family::DiffSheg => {
+            FamilyReport::DiffSheg(diffsheg::run(bundle, backend, cfg, d, progress)?)
+        }
     })
 }

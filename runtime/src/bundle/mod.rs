@@ -25,9 +25,8 @@
 //! [`parse_manifest`] into a field of [`Manifest`]:
 //!
 //! - `livegesture`: `regions`, `vocab`, `sampling` ([`LiveGestureManifest`], in [`livegesture`]);
-//! - `diffsheg`: none yet; its implementation adds its section (e.g. `diffusion`) the same way: a
-//!   `bundle/diffsheg.rs` with the section type and its `check`, a `diffsheg: Option<...>` field in
-//!   [`Manifest`], and one arm in [`parse_manifest`] and [`Manifest::check`].
+//! - `diffsheg`: `diffusion`, `foppas`, `noise`, `motion`, `speakers`, `regions`, `normalisation`
+//!   ([`DiffshegManifest`], in [`diffsheg`]; parsed and checked together in [`parse_manifest`]).
 //!
 //! Everything the runtime needs (frontend configuration, cache shapes, the family's sections) is then
 //! read from the manifest: initial caches are zeros of the shapes listed there ([`CacheSpec::zeros`]),
@@ -46,10 +45,12 @@ use sha2::{Digest, Sha256};
 
 use crate::frontend::FrontendConfig;
 
+pub mod diffsheg;
 mod graph;
 pub mod livegesture;
 mod onnx;
 
+pub use diffsheg::DiffshegManifest;
 pub use graph::{
     concrete_shape, has_named_axis, shape_fits, shape_string, CacheSpec, Dim, GraphSpec, TensorSpec,
 };
@@ -246,6 +247,9 @@ pub struct Manifest {
     /// The LiveGesture sections: `Some` exactly when `family` is `livegesture`.
     #[serde(skip)]
     pub livegesture: Option<LiveGestureManifest>,
+    /// The DiffSHEG sections: `Some` exactly when `family` is `diffsheg`.
+    #[serde(skip)]
+    pub diffsheg: Option<DiffshegManifest>,
 }
 
 /// A verified bundle.
@@ -304,6 +308,17 @@ impl Bundle {
         self.manifest.livegesture.as_ref().ok_or_else(|| {
             self.manifest_err(format!(
                 "family '{}' has no LiveGesture sections (regions, vocab, sampling)",
+                self.manifest.family
+            ))
+        })
+    }
+
+    /// The DiffSHEG sections (diffusion, FOPPAS, noise, motion layout, speakers, normalisation), or
+    /// an error naming the manifest when the bundle is of another family.
+    pub fn diffsheg(&self) -> Result<&DiffshegManifest, BundleError> {
+        self.manifest.diffsheg.as_ref().ok_or_else(|| {
+            self.manifest_err(format!(
+                "family '{}' has no DiffSHEG sections (diffusion, foppas, noise)",
                 self.manifest.family
             ))
         })
@@ -476,8 +491,11 @@ impl Manifest {
                 Some(lg) => lg.check(self),
                 None => Err("family livegesture: the LiveGesture sections were not parsed".into()),
             },
-            // the DiffSHEG implementation checks its own section here
-            Family::DiffSheg => Ok(()),
+            // parsed and checked together in `parse_manifest` (DiffshegManifest::parse)
+            Family::DiffSheg => match &self.diffsheg {
+                Some(_) => Ok(()),
+                None => Err("family diffsheg: the DiffSHEG sections were not parsed".into()),
+            },
         }
     }
 }
@@ -529,8 +547,11 @@ pub fn parse_manifest(text: &str, path: &Path) -> Result<Manifest, BundleError> 
                 .map_err(|e| err(format!("family livegesture: {e}")))?;
             manifest.livegesture = Some(lg);
         }
-        // the DiffSHEG implementation parses its own section here
-        Family::DiffSheg => {}
+        Family::DiffSheg => {
+            let d = DiffshegManifest::parse(&value)
+                .map_err(|e| err(format!("family diffsheg: {e:#}")))?;
+            manifest.diffsheg = Some(d);
+        }
     }
     Ok(manifest)
 }
@@ -618,14 +639,13 @@ mod tests {
             e.contains("family livegesture") && e.contains("regions"),
             "{e}"
         );
-        // the common part alone is a valid diffsheg manifest (its own section is its implementation's)
-        let m = edited(|v| {
+        // a diffsheg manifest needs its own sections (diffusion, foppas, ...), not LiveGesture's
+        let e = edited(|v| {
             strip(v);
             v["family"] = "diffsheg".into();
         })
-        .unwrap();
-        assert_eq!(m.family, Family::DiffSheg);
-        assert!(m.livegesture.is_none());
+        .unwrap_err();
+        assert!(e.contains("family diffsheg") && e.contains("diffusion"), "{e}");
         // the common part stays required for every family
         let e = edited(|v| {
             v["family"] = "diffsheg".into();

@@ -6,7 +6,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 
-use livegesture::bench::{format_table, run as run_bench, BenchConfig};
+use livegesture::bench::diffsheg::DiffshegBenchConfig;
+use livegesture::bench::{run_family, BenchConfig};
 
 use super::common::{InputError, ModelArgs};
 
@@ -53,6 +54,30 @@ pub struct Args {
     /// Batched stepping without churn (by default one stream leaves and a fresh one joins every step).
     #[arg(long)]
     pub no_churn: bool,
+    /// DiffSHEG: DDIM steps of the main figures (default: the bundle's).
+    #[arg(long, value_name = "S")]
+    pub ddim_steps: Option<usize>,
+    /// DiffSHEG: RePaint jumps of the main figures (default: the bundle's).
+    #[arg(long, value_name = "U")]
+    pub jumps: Option<usize>,
+    /// DiffSHEG: window length in frames (default: the bundle's).
+    #[arg(long, value_name = "N")]
+    pub window: Option<usize>,
+    /// DiffSHEG: overlap in frames (default: the bundle's).
+    #[arg(long, value_name = "L")]
+    pub overlap: Option<usize>,
+    /// DiffSHEG: timed outpainting windows (after two untimed ones).
+    #[arg(long, default_value_t = 5)]
+    pub windows: usize,
+    /// DiffSHEG: DDIM steps of the steps x jumps table, comma-separated (empty: no table).
+    #[arg(long, value_name = "S,S,...", default_value = "10,25,50")]
+    pub table_steps: String,
+    /// DiffSHEG: jumps of the steps x jumps table, comma-separated.
+    #[arg(long, value_name = "U,U,...", default_value = "1,2,3")]
+    pub table_jumps: String,
+    /// DiffSHEG: timed outpainting windows per table cell.
+    #[arg(long, default_value_t = 2)]
+    pub table_windows: usize,
     /// Write the results as JSON here.
     #[arg(long, value_name = "FILE")]
     pub json: Option<PathBuf>,
@@ -61,18 +86,31 @@ pub struct Args {
     pub quiet: bool,
 }
 
+fn positive_list(flag: &str, v: &str) -> Result<Vec<usize>> {
+    Ok(v.split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            s.parse::<usize>()
+                .ok()
+                .filter(|&n| n > 0)
+                .ok_or_else(|| InputError(format!("{flag}: '{s}' is not a positive integer")))
+        })
+        .collect::<Result<Vec<_>, _>>()?)
+}
+
 pub fn run(a: Args) -> Result<()> {
-    let streams =
-        a.streams
-            .split(',')
-            .map(str::trim)
-            .filter(|s| !s.is_empty())
-            .map(|s| {
-                s.parse::<usize>().ok().filter(|&n| n > 0).ok_or_else(|| {
-                    InputError(format!("--streams: '{s}' is not a positive integer"))
-                })
-            })
-            .collect::<Result<Vec<_>, _>>()?;
+    let streams = positive_list("--streams", &a.streams)?;
+    let dcfg = DiffshegBenchConfig {
+        ddim_steps: a.ddim_steps,
+        jumps: a.jumps,
+        window: a.window,
+        overlap: a.overlap,
+        windows: a.windows.max(1),
+        table_steps: positive_list("--table-steps", &a.table_steps)?,
+        table_jumps: positive_list("--table-jumps", &a.table_jumps)?,
+        table_windows: a.table_windows.max(1),
+    };
     if a.steps == 0 {
         return Err(InputError("--steps must be at least 1".into()).into());
     }
@@ -99,13 +137,13 @@ pub fn run(a: Args) -> Result<()> {
     // the backend alone: the bench wraps it to time each graph
     let be = livegesture::backend::create(&a.model.backend_options()?)?;
     let quiet = a.quiet;
-    let report = run_bench(&bundle, be.as_ref(), &cfg, |what| {
+    let report = run_family(&bundle, be.as_ref(), &cfg, &dcfg, |what| {
         if !quiet {
             eprintln!("[bench] {what}");
         }
     })
     .with_context(|| format!("benchmarking {} on {}", bundle.dir().display(), be.name()))?;
-    print!("{}", format_table(&report));
+    print!("{}", report.table());
     if let Some(p) = &a.json {
         std::fs::write(p, serde_json::to_string_pretty(&report)?)
             .with_context(|| format!("writing {}", p.display()))?;

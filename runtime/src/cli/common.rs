@@ -80,6 +80,24 @@ pub struct GenArgs {
     /// Keep the K most likely tokens, 0 = all (default: the bundle's).
     #[arg(long, value_name = "K")]
     pub top_k: Option<usize>,
+    /// DiffSHEG: DDIM steps, must divide 1000 (default: the bundle's; the paper's 25).
+    #[arg(long, value_name = "S")]
+    pub ddim_steps: Option<usize>,
+    /// DiffSHEG: RePaint jumps per DDIM step, >= 1 (default: the bundle's, 2).
+    #[arg(long, value_name = "U")]
+    pub jumps: Option<usize>,
+    /// DiffSHEG: window length in frames, <= the bundle's max window (default: the bundle's; 88 at 30 fps).
+    #[arg(long, value_name = "N")]
+    pub window: Option<usize>,
+    /// DiffSHEG: overlap of consecutive windows in frames, < window (default: the bundle's; 10).
+    #[arg(long, value_name = "L")]
+    pub overlap: Option<usize>,
+    /// DiffSHEG: last DDIM steps that blend the overlap linearly (default: the bundle's, 2).
+    #[arg(long, value_name = "B")]
+    pub blend_steps: Option<usize>,
+    /// DiffSHEG: style (speaker) id (default: the bundle's).
+    #[arg(long, value_name = "ID")]
+    pub speaker: Option<usize>,
 }
 
 impl GenArgs {
@@ -103,6 +121,12 @@ impl GenArgs {
             temperature: self.temperature,
             top_k: self.top_k,
             record_logits: false,
+            ddim_steps: self.ddim_steps,
+            jumps: self.jumps,
+            window: self.window,
+            overlap: self.overlap,
+            blend_steps: self.blend_steps,
+            speaker: self.speaker,
         })
     }
 }
@@ -144,4 +168,15 @@ impl ModelArgs {
             )
         })
     }
+}
+
+/// A new stream of `model`; options the model refuses (out of range, or of another family) are input
+/// errors (exit code 2).
+pub fn new_stream(
+    model: &dyn livegesture::model::MotionModel,
+    opts: &StreamOptions,
+) -> Result<Box<dyn livegesture::model::MotionStream>> {
+    model
+        .new_stream(opts)
+        .map_err(|e| InputError(format!("{e:#}")).into())
 }

@@ -57,7 +57,7 @@ pub fn run(a: Args) -> Result<()> {
     let mut wav = WavStream::open(&a.input)?;
     let bundle = a.model.bundle()?;
     let model = a.model.model(&bundle)?;
-    let mut stream = model.new_stream(&opts)?;
+    let mut stream = super::common::new_stream(model.as_ref(), &opts)?;
     let total = wav.output_len();
     let bar = if std::io::stderr().is_terminal() {
         let b = ProgressBar::new(total);

@@ -62,7 +62,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     let bundle = a.model.bundle()?;
     let model = a.model.model(&bundle)?;
-    let mut stream = model.new_stream(&opts)?;
+    let mut stream = super::common::new_stream(model.as_ref(), &opts)?;
     let stdin = std::io::stdin().lock();
     let mut input = RawPcmStream::new(stdin, a.format, a.rate, a.channels, "<stdin>")?;
     let out = BufWriter::new(std::io::stdout().lock());

@@ -26,7 +26,7 @@
 //! | family | module | look-ahead | batched stepping |
 //! |---|---|---|---|
 //! | `livegesture` | [`livegesture`] | 0 (causal, one token = 4 frames) | [`livegesture::StreamBatch`] |
-//! | `diffsheg` | not implemented yet | its window | - |
+//! | `diffsheg` | [`diffsheg`] | its window N (first frame after N frames of audio; then every N - L frames) | CFG rows on the denoiser's batch axis |
 //!
 //! # Adding a family
 //!
@@ -47,6 +47,7 @@ use crate::backend::Backend;
 use crate::bundle::{Bundle, Family};
 use crate::output::Frame;
 
+pub mod diffsheg;
 pub mod livegesture;
 pub mod regions;
 
@@ -63,6 +64,36 @@ pub struct StreamOptions {
     pub top_k: Option<usize>,
     /// Keep each step's logits (LiveGesture's [`livegesture::TokenStep::logits`], for parity tools).
     pub record_logits: bool,
+    /// DDIM steps, must divide the training steps (DiffSHEG).
+    pub ddim_steps: Option<usize>,
+    /// RePaint jumps per DDIM step, >= 1 (DiffSHEG).
+    pub jumps: Option<usize>,
+    /// Window length in frames, <= the bundle's `foppas.max_window` (DiffSHEG).
+    pub window: Option<usize>,
+    /// Overlap of consecutive windows in frames, < window (DiffSHEG).
+    pub overlap: Option<usize>,
+    /// Last DDIM steps that blend the overlap linearly (DiffSHEG).
+    pub blend_steps: Option<usize>,
+    /// Style (speaker) id, < the bundle's `speakers.count` (DiffSHEG).
+    pub speaker: Option<usize>,
+}
+
+impl StreamOptions {
+    /// The DiffSHEG-only options that are set (for a family that refuses them).
+    pub fn diffsheg_options_set(&self) -> Vec<&'static str> {
+        [
+            ("--ddim-steps", self.ddim_steps.is_some()),
+            ("--jumps", self.jumps.is_some()),
+            ("--window", self.window.is_some()),
+            ("--overlap", self.overlap.is_some()),
+            ("--blend-steps", self.blend_steps.is_some()),
+            ("--speaker", self.speaker.is_some()),
+        ]
+        .into_iter()
+        .filter(|(_, set)| *set)
+        .map(|(n, _)| n)
+        .collect()
+    }
 }
 
 /// A loaded bundle of one family: its graphs on one backend. Makes [`MotionStream`]s.
@@ -131,13 +162,7 @@ pub struct Description {
 pub fn describe(bundle: &Bundle) -> Result<Description> {
     match bundle.family() {
         Family::LiveGesture => livegesture::describe(bundle),
-        Family::DiffSheg => Ok(Description {
-            lines: vec![(
-                "family".into(),
-                "diffsheg (not implemented by this runtime yet)".into(),
-            )],
-            ..Default::default()
-        }),
+        Family::DiffSheg => diffsheg::describe(bundle),
     }
 }
 
@@ -148,10 +173,7 @@ pub fn load(bundle: &Bundle, backend: &dyn Backend) -> Result<Box<dyn MotionMode
         Family::LiveGesture => Ok(Box::new(livegesture::LiveGestureModel::load(
             bundle, backend,
         )?)),
-        Family::DiffSheg => anyhow::bail!(
-            "{}: family 'diffsheg' is not implemented by this runtime yet (runtime/src/model/diffsheg/)",
-            bundle.manifest_path().display()
-        ),
+        Family::DiffSheg => Ok(Box::new(diffsheg::DiffshegModel::load(bundle, backend)?)),
     }
 }
 

@@ -43,6 +43,7 @@ use ndarray_npy::{NpzReader, ReadNpyExt};
 use serde::Serialize;
 
 mod compare;
+mod diffsheg;
 mod divergence;
 mod graphs;
 mod invariance;
@@ -220,14 +221,6 @@ impl Default for ParityOptions {
 pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Result<Report> {
     let t0 = Instant::now();
     let bundle = Bundle::load(dir)?;
-    // the checks below are the LiveGesture family's; another family adds its own here
-    match bundle.family() {
-        Family::LiveGesture => {}
-        other => anyhow::bail!(
-            "{}: the parity suite has no checks for family '{other}' yet",
-            bundle.dir().display()
-        ),
-    }
     let mut kinds = opts.backends.clone();
     kinds.sort_by_key(|k| match k {
         BackendKind::Ort => 0,
@@ -256,6 +249,22 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
     let mut notes = Vec::new();
     let mut divergences = Vec::new();
     let want = |c: Check| opts.checks.contains(&c);
+
+    // the checks below are the LiveGesture family's; DiffSHEG's are in `diffsheg`
+    match bundle.family() {
+        Family::LiveGesture => {}
+        Family::DiffSheg => {
+            diffsheg::run(&bundle, &backends, opts, &mut rows, &mut notes, log)?;
+            return Ok(Report {
+                bundle: bundle.dir().to_path_buf(),
+                backends: kinds.iter().map(|k| k.to_string()).collect(),
+                rows,
+                notes,
+                divergences,
+                seconds: t0.elapsed().as_secs_f64(),
+            });
+        }
+    }
 
     let clip_rel = bundle
         .reference()

@@ -65,6 +65,13 @@ impl MotionModel for LiveGestureModel {
     }
 
     fn new_stream(&self, opts: &StreamOptions) -> Result<Box<dyn MotionStream>> {
+        let set = opts.diffsheg_options_set();
+        if !set.is_empty() {
+            anyhow::bail!(
+                "{} only apply to DiffSHEG bundles; a LiveGesture bundle samples tokens (--guidance, --temperature, --top-k)",
+                set.join(", ")
+            );
+        }
         let stream = lock(&self.pipeline)?.new_stream(opts)?;
         Ok(Box::new(LiveGestureStream {
             pipeline: Arc::clone(&self.pipeline),

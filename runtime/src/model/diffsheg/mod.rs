@@ -1,0 +1,19 @@
+//! DiffSHEG (export/BUNDLE.md "DiffSHEG bundles"): windowed diffusion with outpainting (FOPPAS).
+//!
+//! - [`noise`]: the portable Gaussian noise (bit-identical to Python);
+//! - [`schedule`]: the linear-beta table (from the manifest's exact bits) and DDIM timesteps;
+//! - [`foppas`]: DDIM + classifier-free guidance + FOPPAS for one window, operation by operation;
+//! - [`stream`]: one stream's windowing, buffer and carried state (`foppas.state`);
+//! - [`graphs`]: the window's graph chain on a backend;
+//! - [`model`]: [`DiffshegModel`] and [`DiffshegStream`], the family behind the [`crate::model`] traits.
+//!
+//! The manifest sections are [`crate::bundle::DiffshegManifest`].
+
+pub mod foppas;
+pub mod graphs;
+pub mod model;
+pub mod noise;
+pub mod reference;
+pub mod schedule;
+pub mod stream;
+pub use model::{describe, DiffshegModel, DiffshegStream};
