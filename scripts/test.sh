@@ -32,8 +32,10 @@ stage "parity: fresh tiny export, both backends"
 ./target/release/livegesture parity --bundle target/test-bundles/tiny --backends ort,tract
 stage "parity: models/default, both backends"
 ./target/release/livegesture parity --bundle models/default --backends ort,tract
-stage "parity: fresh DiffSHEG tiny export, tract (ort cannot run graphs with a named frames output axis yet)"
-./target/release/livegesture parity --bundle target/test-bundles/diffsheg-tiny --backends tract
+stage "parity: fresh DiffSHEG tiny export, both backends"
+./target/release/livegesture parity --bundle target/test-bundles/diffsheg-tiny --backends ort,tract
+stage "parity: models/diffsheg, both backends"
+./target/release/livegesture parity --bundle models/diffsheg --backends ort,tract
 
 stage "rust tests"
 if command -v cargo-nextest >/dev/null 2>&1; then

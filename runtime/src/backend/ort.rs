@@ -35,7 +35,7 @@ use ort::value::{DynValueRef, DynValueRefMut, TensorRef, TensorRefMut};
 use ort::AsPointer;
 
 use super::{
-    check_inputs, check_outputs, Backend, BackendOptions, GraphRunner, Tensor, TensorData,
+    check_inputs, check_outputs, Backend, BackendOptions, DType, GraphRunner, Tensor, TensorData,
 };
 use crate::bundle::{concrete_shape, has_named_axis, GraphSpec};
 
@@ -417,6 +417,54 @@ impl OrtGraph {
     }
 }
 
+impl OrtGraph {
+    /// Runs with outputs allocated by ONNX Runtime (ort's safe `Session::run`) and copies them into
+    /// `outputs`: the path for graphs whose output sizes are not known before the run.
+    fn run_allocated(
+        &mut self,
+        values: Vec<DynValueRef<'_>>,
+        outputs: &mut Vec<Tensor>,
+        batch: usize,
+    ) -> Result<()> {
+        let name = self.spec.name.clone();
+        let input_names = self.spec.input_names();
+        let named: Vec<(&str, DynValueRef<'_>)> = input_names.into_iter().zip(values).collect();
+        let specs: Vec<(String, DType)> = self
+            .spec
+            .all_outputs()
+            .into_iter()
+            .map(|(n, d, _)| (n.to_string(), d))
+            .collect();
+        let session = &mut self.session;
+        let result = super::flush_denormals(|| session.run(named));
+        let got = result.map_err(|err| anyhow!("ort: running graph '{name}': {err}"))?;
+        outputs.clear();
+        for (out_name, dtype) in &specs {
+            let v = got
+                .get(out_name.as_str())
+                .with_context(|| format!("ort: graph '{name}' returned no output '{out_name}'"))?;
+            let t = match dtype {
+                DType::F32 => {
+                    let (shape, data) = v.try_extract_tensor::<f32>().map_err(|err| {
+                        anyhow!("ort: graph '{name}', output '{out_name}': {err}")
+                    })?;
+                    Tensor::f32(shape.iter().map(|&d| d as usize).collect(), data.to_vec())?
+                }
+                DType::I64 => {
+                    let (shape, data) = v.try_extract_tensor::<i64>().map_err(|err| {
+                        anyhow!("ort: graph '{name}', output '{out_name}': {err}")
+                    })?;
+                    Tensor::i64(shape.iter().map(|&d| d as usize).collect(), data.to_vec())?
+                }
+            };
+            outputs.push(t);
+        }
+        check_outputs(&self.spec, outputs, batch)
+            .with_context(|| format!("ort: graph '{name}'"))?;
+        Ok(())
+    }
+}
+
 impl GraphRunner for OrtGraph {
     fn spec(&self) -> &GraphSpec {
         &self.spec
@@ -444,12 +492,12 @@ impl GraphRunner for OrtGraph {
             values.push(v);
         }
         let specs = self.spec.all_outputs();
-        // preallocation needs every output's size; a named axis (a window length) is not known here
-        ensure!(
-            !specs.iter().any(|(_, _, s)| has_named_axis(s)),
-            "ort: graph '{name}' has an output with a named dynamic axis; run_into preallocates outputs \
-             and needs every size (resolve the axis from the inputs before preparing the outputs)"
-        );
+        // Preallocation needs every output's size. An output with a named axis (DiffSHEG's window
+        // length `frames`, which ONNX Runtime derives from the inputs) cannot be sized here: such a
+        // graph runs with outputs allocated by ONNX Runtime and copied out (one copy per output).
+        if specs.iter().any(|(_, _, s)| has_named_axis(s)) {
+            return self.run_allocated(values, outputs, batch);
+        }
         outputs.truncate(specs.len());
         outputs.resize_with(specs.len(), Tensor::default);
         for (t, (_, dtype, shape)) in outputs.iter_mut().zip(&specs) {
