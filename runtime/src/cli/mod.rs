@@ -10,6 +10,7 @@ pub mod common;
 pub mod generate;
 pub mod info;
 pub mod parity;
+pub mod serve;
 pub mod stream;
 
 pub use common::exit_code;
@@ -46,6 +47,8 @@ pub enum Command {
     /// Benchmark a bundle on one core: step times per graph and whole chain, first-frame latency,
     /// state bytes, peak RSS, real-time streams per core with batched stepping.
     Bench(bench::Args),
+    /// Serve live sessions over WebSocket (SPEC 12), stepped together in batches; the browser page at /.
+    Serve(serve::Args),
 }
 
 /// Runs the parsed command.
@@ -56,5 +59,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Info(a) => info::run(a),
         Command::Parity(a) => parity::run(a),
         Command::Bench(a) => bench::run(a),
+        Command::Serve(a) => serve::run(a),
     }
 }
