@@ -52,7 +52,7 @@ try {
   await page.waitForFunction(() => window.lgState && window.lgState.ready, null, { timeout: 30000 });
   await page.click('#mic');
   await page.waitForFunction(() => window.lgState.frames >= 90 || window.lgState.error, null, { timeout: 90000 })
-    .catch(() => fail(`no frames within 90 s: ${JSON.stringify(await page.evaluate(() => window.lgState))}\n${consoleLines.join('\n')}`));
+    .catch(async () => fail(`no frames within 90 s: ${JSON.stringify(await page.evaluate(() => window.lgState))}\n${consoleLines.join('\n')}`));
   const live = await page.evaluate(() => ({ ...window.lgState }));
   console.log('live state:', JSON.stringify(live));
   if (live.error) fail(`page error: ${live.error}`);
@@ -82,7 +82,7 @@ try {
   if (stats.fg < 200 || stats.colours < 4) fail('the screenshot of the 3D view is blank');
   await page.click('#stop');
   await page.waitForFunction(() => /^done/.test(window.lgState.status), null, { timeout: 30000 })
-    .catch(() => fail(`no done after stop: ${JSON.stringify(window.lgState)}`));
+    .catch(async () => fail(`no done after stop: ${JSON.stringify(await page.evaluate(() => window.lgState))}`));
   // file mode: the WAV streamed through the server at its own pace
   const before = await page.evaluate(() => window.lgState.frames);
   await page.setInputFiles('#wav', resolve(wav));
