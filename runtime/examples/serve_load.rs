@@ -35,7 +35,9 @@ fn arg(args: &[String], name: &str, default: &str) -> String {
 
 fn load_audio(path: &str) -> Vec<i16> {
     let a = livegesture::audio::read_wav_16k_mono(path).expect("audio");
-    a.iter().map(|&x| (x * 32767.0).round().clamp(-32768.0, 32767.0) as i16).collect()
+    a.iter()
+        .map(|&x| (x * 32767.0).round().clamp(-32768.0, 32767.0) as i16)
+        .collect()
 }
 
 #[derive(Default, Debug)]
@@ -46,10 +48,21 @@ struct Result_ {
 }
 
 /// One real-time session of `seconds` of audio; returns its token latencies.
-async fn session(url: String, audio: Arc<Vec<i16>>, offset: usize, seconds: f64, delay: Duration, seed: u64) -> Result_ {
+async fn session(
+    url: String,
+    audio: Arc<Vec<i16>>,
+    offset: usize,
+    seconds: f64,
+    delay: Duration,
+    seed: u64,
+) -> Result_ {
     tokio::time::sleep(delay).await;
     let mut r = Result_::default();
-    let (ws, _) = match tokio_tungstenite::connect_async(format!("{url}/v1/stream?seed={seed}&output=binary")).await {
+    let (ws, _) = match tokio_tungstenite::connect_async(format!(
+        "{url}/v1/stream?seed={seed}&output=binary"
+    ))
+    .await
+    {
         Ok(x) => x,
         Err(e) => {
             r.failed = Some(format!("connect: {e}"));
@@ -88,7 +101,9 @@ async fn session(url: String, audio: Arc<Vec<i16>>, offset: usize, seconds: f64,
             sent += n;
             log2.lock().unwrap().push((sent as u64, Instant::now()));
         }
-        tx.send(Message::Text(r#"{"type":"end"}"#.into())).await.map_err(|e| e.to_string())?;
+        tx.send(Message::Text(r#"{"type":"end"}"#.into()))
+            .await
+            .map_err(|e| e.to_string())?;
         Ok(tx)
     });
     let mut done = false;
@@ -155,7 +170,10 @@ async fn main() {
     let args: Vec<String> = std::env::args().collect();
     let mode = args.get(1).cloned().unwrap_or_else(|| "ramp".into());
     let url = arg(&args, "--url", "ws://127.0.0.1:8765");
-    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../models/default/reference/clip.wav");
+    let root = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../models/default/reference/clip.wav"
+    );
     let audio = Arc::new(load_audio(&arg(&args, "--audio", root)));
     let p99_max: f64 = arg(&args, "--p99-ms", "150").parse().unwrap();
     if mode == "ramp" {
@@ -173,7 +191,14 @@ async fn main() {
                 // start phases spread over one token (133 ms)
                 let delay = Duration::from_micros((i as u64 * 133_333 / n as u64) % 133_333);
                 let off = (i * 7919 * 16) % audio.len();
-                hs.push(tokio::spawn(session(url.clone(), audio.clone(), off, hold, delay, i as u64)));
+                hs.push(tokio::spawn(session(
+                    url.clone(),
+                    audio.clone(),
+                    off,
+                    hold,
+                    delay,
+                    i as u64,
+                )));
             }
             let mut lat = Vec::new();
             let mut failed = Vec::new();
@@ -187,7 +212,11 @@ async fn main() {
             let n_tok = lat.len();
             let (p50, p99, mx) = (pct(&mut lat, 0.5), pct(&mut lat, 0.99), pct(&mut lat, 1.0));
             let ok = failed.is_empty() && p99 < p99_max;
-            println!("| {n} | {n_tok} | {p50:.1} | {p99:.1} | {mx:.1} | {} | {} |", failed.len(), if ok { "yes" } else { "no" });
+            println!(
+                "| {n} | {n_tok} | {p50:.1} | {p99:.1} | {mx:.1} | {} | {} |",
+                failed.len(),
+                if ok { "yes" } else { "no" }
+            );
             if let Some(f) = failed.first() {
                 eprintln!("  first failure: {f}");
             }
@@ -209,7 +238,13 @@ async fn main() {
         let lats = Arc::new(Mutex::new(Vec::<f64>::new()));
         let mut workers = Vec::new();
         for w in 0..n {
-            let (url, audio, started, failed, lats) = (url.clone(), audio.clone(), started.clone(), failed.clone(), lats.clone());
+            let (url, audio, started, failed, lats) = (
+                url.clone(),
+                audio.clone(),
+                started.clone(),
+                failed.clone(),
+                lats.clone(),
+            );
             workers.push(tokio::spawn(async move {
                 let mut k = 0u64;
                 let mut first = true;
@@ -217,10 +252,22 @@ async fn main() {
                     // 3..20 s sessions, deterministic per worker
                     let len = 3.0 + ((w as u64 * 31 + k * 17) % 18) as f64;
                     let len = len.min((end - Instant::now()).as_secs_f64());
-                    let delay = if first { Duration::from_millis(w as u64 * 137 % 2000) } else { Duration::ZERO };
+                    let delay = if first {
+                        Duration::from_millis(w as u64 * 137 % 2000)
+                    } else {
+                        Duration::ZERO
+                    };
                     first = false;
                     started.fetch_add(1, Ordering::Relaxed);
-                    let r = session(url.clone(), audio.clone(), (k as usize * 4001) % audio.len(), len, delay, k).await;
+                    let r = session(
+                        url.clone(),
+                        audio.clone(),
+                        (k as usize * 4001) % audio.len(),
+                        len,
+                        delay,
+                        k,
+                    )
+                    .await;
                     if r.failed.is_some() {
                         failed.fetch_add(1, Ordering::Relaxed);
                         eprintln!("soak: session failed: {:?}", r.failed);
@@ -236,11 +283,20 @@ async fn main() {
         loop {
             let rss = rss_kib(pid).unwrap_or(0);
             peak = peak.max(rss);
-            println!("| {:.0} | {:.1} | {} | {} |", t0.elapsed().as_secs_f64(), rss as f64 / 1024.0, started.load(Ordering::Relaxed), failed.load(Ordering::Relaxed));
+            println!(
+                "| {:.0} | {:.1} | {} | {} |",
+                t0.elapsed().as_secs_f64(),
+                rss as f64 / 1024.0,
+                started.load(Ordering::Relaxed),
+                failed.load(Ordering::Relaxed)
+            );
             if Instant::now() >= end {
                 break;
             }
-            tokio::time::sleep(Duration::from_secs(10).min(end - Instant::now() + Duration::from_millis(10))).await;
+            tokio::time::sleep(
+                Duration::from_secs(10).min(end - Instant::now() + Duration::from_millis(10)),
+            )
+            .await;
         }
         for w in workers {
             let _ = w.await;

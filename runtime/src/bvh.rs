@@ -78,14 +78,21 @@ fn write_joint(out: &mut String, j: usize, depth: usize, off: &[[f64; 3]; N_JOIN
         o[2] * BVH_SCALE
     );
     if PARENTS[j] < 0 {
-        let _ = writeln!(out, "{ind}  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation");
+        let _ = writeln!(
+            out,
+            "{ind}  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation"
+        );
     } else {
         let _ = writeln!(out, "{ind}  CHANNELS 3 Zrotation Xrotation Yrotation");
     }
     let kids = children(j);
     if kids.is_empty() {
         let e = off[j].map(|v| v * 0.5 * BVH_SCALE);
-        let _ = writeln!(out, "{ind}  End Site\n{ind}  {{\n{ind}    OFFSET {:.6} {:.6} {:.6}\n{ind}  }}", e[0], e[1], e[2]);
+        let _ = writeln!(
+            out,
+            "{ind}  End Site\n{ind}  {{\n{ind}    OFFSET {:.6} {:.6} {:.6}\n{ind}  }}",
+            e[0], e[1], e[2]
+        );
     }
     for c in kids {
         write_joint(out, c, depth + 1, off);
@@ -113,7 +120,12 @@ pub fn bvh_text(motion: &Beat2Motion) -> Result<String> {
     let mut s = String::with_capacity(8192 + motion.len() * N_JOINTS * 3 * 12);
     s.push_str("HIERARCHY\n");
     write_joint(&mut s, 0, 0, &off);
-    let _ = writeln!(s, "MOTION\nFrames: {}\nFrame Time: {:.7}", motion.len(), 1.0 / FPS as f64);
+    let _ = writeln!(
+        s,
+        "MOTION\nFrames: {}\nFrame Time: {:.7}",
+        motion.len(),
+        1.0 / FPS as f64
+    );
     let order = channel_order();
     for t in 0..motion.len() {
         let tr = motion.trans.row(t);
@@ -126,7 +138,13 @@ pub fn bvh_text(motion: &Beat2Motion) -> Result<String> {
             let aa = [p[3 * j] as f64, p[3 * j + 1] as f64, p[3 * j + 2] as f64];
             let [z, x, y] = matrix_to_euler_zxy(&axis_angle_to_matrix(aa));
             let sep = if n + 1 == order.len() { "" } else { " " };
-            let _ = write!(line, "{:.6} {:.6} {:.6}{sep}", z.to_degrees(), x.to_degrees(), y.to_degrees());
+            let _ = write!(
+                line,
+                "{:.6} {:.6} {:.6}{sep}",
+                z.to_degrees(),
+                x.to_degrees(),
+                y.to_degrees()
+            );
         }
         s.push_str(&line);
         s.push('\n');
@@ -137,19 +155,27 @@ pub fn bvh_text(motion: &Beat2Motion) -> Result<String> {
 /// Writes `motion` as BVH to `path`, atomically.
 pub fn write_bvh(path: impl AsRef<Path>, motion: &Beat2Motion) -> Result<()> {
     let path = path.as_ref();
-    let text = bvh_text(motion).with_context(|| format!("output: refusing to write {}", path.display()))?;
+    let text = bvh_text(motion)
+        .with_context(|| format!("output: refusing to write {}", path.display()))?;
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => std::path::PathBuf::from("."),
     };
-    let mut tmp = tempfile::NamedTempFile::new_in(&dir)
-        .with_context(|| format!("output: cannot create a temporary file in {}", dir.display()))?;
+    let mut tmp = tempfile::NamedTempFile::new_in(&dir).with_context(|| {
+        format!(
+            "output: cannot create a temporary file in {}",
+            dir.display()
+        )
+    })?;
     tmp.write_all(text.as_bytes())
         .and_then(|_| tmp.as_file().sync_all())
         .with_context(|| format!("output: writing {}", path.display()))?;
-    tmp.persist(path)
-        .map_err(|e| e.error)
-        .with_context(|| format!("output: cannot move the finished file to {}", path.display()))?;
+    tmp.persist(path).map_err(|e| e.error).with_context(|| {
+        format!(
+            "output: cannot move the finished file to {}",
+            path.display()
+        )
+    })?;
     Ok(())
 }
 
@@ -163,7 +189,9 @@ mod tests {
         let mut worst: f64 = 0.0;
         let mut seed = 1u64;
         let mut rnd = || {
-            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
         };
         for _ in 0..2000 {

@@ -26,7 +26,14 @@ fn info(bin: &Path, env_bundle: Option<&Path>) -> (bool, String) {
         c.env("LIVEGESTURE_BUNDLE", b);
     }
     let o = c.output().unwrap();
-    (o.status.success(), format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr)))
+    (
+        o.status.success(),
+        format!(
+            "{}{}",
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr)
+        ),
+    )
 }
 
 #[test]
@@ -42,7 +49,11 @@ fn a_copied_binary_finds_the_bundle_installed_beside_it() {
     let (ok, out) = info(&bin, None);
     assert!(ok, "{out}");
     let shown = share.canonicalize().unwrap();
-    assert!(out.contains("share/livegesture/models/default"), "{} not used:\n{out}", shown.display());
+    assert!(
+        out.contains("share/livegesture/models/default"),
+        "{} not used:\n{out}",
+        shown.display()
+    );
     // $LIVEGESTURE_BUNDLE wins over the installed one
     let other = tmp.path().join("other");
     copy_dir(&common::bundle_dir(), &other);
@@ -57,5 +68,8 @@ fn a_copied_binary_finds_the_bundle_installed_beside_it() {
     copy_dir(&common::bundle_dir(), &flat.join("models/default"));
     let (ok, out) = info(&bin2, None);
     assert!(ok && out.contains("models/default"), "{out}");
-    assert!(out.contains(&flat.canonicalize().unwrap().display().to_string()), "{out}");
+    assert!(
+        out.contains(&flat.canonicalize().unwrap().display().to_string()),
+        "{out}"
+    );
 }

@@ -66,7 +66,9 @@ fn stereo(rate: u32, seconds: f64) -> Vec<[f32; 2]> {
             let t = i as f64 / rate as f64;
             let env = (0.5 + 0.5 * (t * 3.1).sin()).powi(2);
             let f0 = 140.0 + 30.0 * (t * 1.7).sin();
-            let v = env * ((2.0 * std::f64::consts::PI * f0 * t).sin() * 0.4 + (2.0 * std::f64::consts::PI * 3.0 * f0 * t).sin() * 0.1);
+            let v = env
+                * ((2.0 * std::f64::consts::PI * f0 * t).sin() * 0.4
+                    + (2.0 * std::f64::consts::PI * 3.0 * f0 * t).sin() * 0.1);
             [v as f32, (0.7 * v + 0.05 * (t * 9000.0).sin()) as f32]
         })
         .collect()
@@ -77,7 +79,11 @@ fn write_wav(path: &Path, rate: u32, channels: u16, float: bool, samples: &[f32]
         channels,
         sample_rate: rate,
         bits_per_sample: if float { 32 } else { 16 },
-        sample_format: if float { hound::SampleFormat::Float } else { hound::SampleFormat::Int },
+        sample_format: if float {
+            hound::SampleFormat::Float
+        } else {
+            hound::SampleFormat::Int
+        },
     };
     let mut w = hound::WavWriter::create(path, spec).unwrap();
     for &s in samples {
@@ -123,7 +129,10 @@ fn reference(samples: &[f32], rate: u32, channels: u16, float: bool, seed: u64) 
         audio.resize(need, 0.0);
     }
     let mut s = p
-        .new_stream(&StreamOptions { seed, ..Default::default() })
+        .new_stream(&StreamOptions {
+            seed,
+            ..Default::default()
+        })
         .unwrap();
     let mut out = p.push(&mut s, &audio).unwrap();
     out.truncate(frames as usize);
@@ -143,10 +152,13 @@ fn url(addr: SocketAddr, q: &str) -> String {
     format!("ws://{addr}/v1/stream{q}")
 }
 
-type Ws = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+type Ws =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
 
 async fn connect(addr: SocketAddr, q: &str) -> Ws {
-    let (ws, resp) = tokio_tungstenite::connect_async(url(addr, q)).await.expect("upgrade");
+    let (ws, resp) = tokio_tungstenite::connect_async(url(addr, q))
+        .await
+        .expect("upgrade");
     assert_eq!(resp.status(), 101);
     ws
 }
@@ -160,10 +172,14 @@ async fn collect(ws: &mut Ws, out: &mut Outcome) {
                     Some("ready") => out.ready = Some(v),
                     Some("done") => out.done = v["frames"].as_u64(),
                     Some(other) => panic!("unexpected control message {other}"),
-                    None => out.frames.push(Frame::from_json_line(&t).expect("frame JSON")),
+                    None => out
+                        .frames
+                        .push(Frame::from_json_line(&t).expect("frame JSON")),
                 }
             }
-            Ok(Message::Binary(b)) => out.frames.push(Frame::decode_binary(&b).expect("frame record")),
+            Ok(Message::Binary(b)) => out
+                .frames
+                .push(Frame::decode_binary(&b).expect("frame record")),
             Ok(Message::Close(c)) => {
                 out.close = c.map(|c| (u16::from(c.code), c.reason.to_string()));
             }
@@ -180,11 +196,15 @@ async fn session(addr: SocketAddr, q: &str, bytes: &[u8], cuts: &[usize]) -> Out
     let mut k = 0;
     while i < bytes.len() {
         let n = cuts[k % cuts.len()].min(bytes.len() - i);
-        ws.send(Message::Binary(bytes[i..i + n].to_vec().into())).await.unwrap();
+        ws.send(Message::Binary(bytes[i..i + n].to_vec().into()))
+            .await
+            .unwrap();
         i += n;
         k += 1;
     }
-    ws.send(Message::Text(r#"{"type":"end"}"#.into())).await.unwrap();
+    ws.send(Message::Text(r#"{"type":"end"}"#.into()))
+        .await
+        .unwrap();
     let mut out = Outcome::default();
     collect(&mut ws, &mut out).await;
     out
@@ -196,19 +216,36 @@ fn assert_equal(got: &[Frame], want: &[Frame], what: &str) {
     for (g, w) in got.iter().zip(want) {
         assert_eq!(g.index, w.index, "{what}: index");
         assert!((g.time_s - w.time_s).abs() < 1e-12, "{what}: time_s");
-        for (a, b) in g.poses.iter().chain(&g.trans).chain(&g.expressions).zip(w.poses.iter().chain(&w.trans).chain(&w.expressions)) {
+        for (a, b) in g
+            .poses
+            .iter()
+            .chain(&g.trans)
+            .chain(&g.expressions)
+            .zip(w.poses.iter().chain(&w.trans).chain(&w.expressions))
+        {
             worst = worst.max((a - b).abs());
         }
     }
-    assert!(worst <= 1e-4, "{what}: frames differ from generate by {worst} (bound 1e-4)");
+    assert!(
+        worst <= 1e-4,
+        "{what}: frames differ from generate by {worst} (bound 1e-4)"
+    );
 }
 
 fn rt() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap()
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap()
 }
 
 fn within<F: std::future::Future>(secs: u64, f: F) -> F::Output {
-    rt().block_on(async { tokio::time::timeout(Duration::from_secs(secs), f).await.expect("test timed out") })
+    rt().block_on(async {
+        tokio::time::timeout(Duration::from_secs(secs), f)
+            .await
+            .expect("test timed out")
+    })
 }
 
 #[test]
@@ -219,7 +256,12 @@ fn frames_equal_generate_whatever_the_split() {
     let want = reference(&audio, 16000, 1, false, 3);
     let bytes = pcm_bytes(&audio, false);
     // whole, odd sizes (a sample's two bytes straddle messages), 10 ms, 1 byte then larger
-    for cuts in [vec![bytes.len()], vec![333, 7, 1001], vec![320], vec![1, 4097, 3]] {
+    for cuts in [
+        vec![bytes.len()],
+        vec![333, 7, 1001],
+        vec![320],
+        vec![1, 4097, 3],
+    ] {
         let got = within(60, session(addr, "?seed=3", &bytes, &cuts));
         let ready = got.ready.as_ref().expect("ready message");
         assert_eq!(ready["fps"], 30);
@@ -232,7 +274,11 @@ fn frames_equal_generate_whatever_the_split() {
     // a different seed gives different motion (the comparison above can fail)
     let other = within(60, session(addr, "?seed=4", &bytes, &[3200]));
     assert_eq!(other.frames.len(), want.len());
-    assert!(other.frames.iter().zip(&want).any(|(a, b)| a.poses != b.poses));
+    assert!(other
+        .frames
+        .iter()
+        .zip(&want)
+        .any(|(a, b)| a.poses != b.poses));
     server.shutdown();
     server.join().unwrap();
 }
@@ -244,16 +290,39 @@ fn stereo_44k_f32_binary_equals_generate() {
     let st = stereo(44100, 1.9);
     let inter: Vec<f32> = st.iter().flat_map(|f| *f).collect();
     let want = reference(&inter, 44100, 2, true, 9);
-    assert_eq!(want.len() as u64, frames_for_samples(st.len() as u64, 44100, 30));
+    assert_eq!(
+        want.len() as u64,
+        frames_for_samples(st.len() as u64, 44100, 30)
+    );
     let bytes = pcm_bytes(&inter, true);
     for cuts in [vec![4410 * 8], vec![8191, 5, 3]] {
-        let got = within(60, session(addr, "?rate=44100&channels=2&format=f32le&output=binary&seed=9", &bytes, &cuts));
-        assert_equal(&got.frames, &want, &format!("44.1 kHz stereo f32le, split {cuts:?}"));
+        let got = within(
+            60,
+            session(
+                addr,
+                "?rate=44100&channels=2&format=f32le&output=binary&seed=9",
+                &bytes,
+                &cuts,
+            ),
+        );
+        assert_equal(
+            &got.frames,
+            &want,
+            &format!("44.1 kHz stereo f32le, split {cuts:?}"),
+        );
         assert_eq!(got.close.as_ref().map(|c| c.0), Some(1000));
     }
     // s16le stereo 44.1 kHz, JSON
     let want16 = reference(&inter, 44100, 2, false, 9);
-    let got = within(60, session(addr, "?rate=44100&channels=2&seed=9", &pcm_bytes(&inter, false), &[1234]));
+    let got = within(
+        60,
+        session(
+            addr,
+            "?rate=44100&channels=2&seed=9",
+            &pcm_bytes(&inter, false),
+            &[1234],
+        ),
+    );
     assert_equal(&got.frames, &want16, "44.1 kHz stereo s16le");
     server.shutdown();
     server.join().unwrap();
@@ -268,19 +337,42 @@ fn frames_equal_the_generate_binary() {
     write_wav(&wav, 16000, 1, false, &audio);
     let npz = dir.path().join("a.npz");
     let st = std::process::Command::new(env!("CARGO_BIN_EXE_livegesture"))
-        .args(["generate", wav.to_str().unwrap(), "-o", npz.to_str().unwrap(), "--seed", "5", "--backend", "tract", "--bundle"])
+        .args([
+            "generate",
+            wav.to_str().unwrap(),
+            "-o",
+            npz.to_str().unwrap(),
+            "--seed",
+            "5",
+            "--backend",
+            "tract",
+            "--bundle",
+        ])
         .arg(common::bundle_dir())
         .output()
         .unwrap();
-    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
     let m = livegesture::output::read_beat2_npz(&npz).unwrap();
-    let got = within(60, session(server.addr(), "?seed=5", &pcm_bytes(&audio, false), &[640]));
+    let got = within(
+        60,
+        session(server.addr(), "?seed=5", &pcm_bytes(&audio, false), &[640]),
+    );
     // generate writes every frame it makes; serve covers the whole audio (SPEC 8)
-    assert_eq!(got.frames.len() as u64, frames_for_samples(audio.len() as u64, 16000, 30));
+    assert_eq!(
+        got.frames.len() as u64,
+        frames_for_samples(audio.len() as u64, 16000, 30)
+    );
     assert!(m.len() <= got.frames.len() && m.len() + 4 > got.frames.len());
     for (t, f) in got.frames.iter().take(m.len()).enumerate() {
         for j in 0..165 {
-            assert!((f.poses[j] - m.poses[[t, j]]).abs() <= 1e-4, "frame {t} pose {j}");
+            assert!(
+                (f.poses[j] - m.poses[[t, j]]).abs() <= 1e-4,
+                "frame {t} pose {j}"
+            );
         }
         for j in 0..100 {
             assert!((f.expressions[j] - m.expressions[[t, j]]).abs() <= 1e-4);
@@ -292,11 +384,17 @@ fn frames_equal_the_generate_binary() {
 
 #[test]
 fn two_sessions_joining_at_different_times_each_equal_their_generate() {
-    let server = start(ServeConfig { batch_wait: Duration::from_millis(40), ..Default::default() });
+    let server = start(ServeConfig {
+        batch_wait: Duration::from_millis(40),
+        ..Default::default()
+    });
     let addr = server.addr();
     let a = speech(3.0);
     let b: Vec<f32> = speech(4.0)[16000..].to_vec();
-    let (wa, wb) = (reference(&a, 16000, 1, false, 1), reference(&b, 16000, 1, false, 2));
+    let (wa, wb) = (
+        reference(&a, 16000, 1, false, 1),
+        reference(&b, 16000, 1, false, 2),
+    );
     let (ba, bb) = (pcm_bytes(&a, false), pcm_bytes(&b, false));
     let (ga, gb) = within(120, async move {
         let mut sa = connect(addr, "?seed=1").await;
@@ -304,7 +402,9 @@ fn two_sessions_joining_at_different_times_each_equal_their_generate() {
         let mut ia = 0;
         // A alone for a while
         while ia < ba.len() / 3 {
-            sa.send(Message::Binary(ba[ia..ia + chunk].to_vec().into())).await.unwrap();
+            sa.send(Message::Binary(ba[ia..ia + chunk].to_vec().into()))
+                .await
+                .unwrap();
             ia += chunk;
         }
         let mut sb = connect(addr, "?seed=2").await;
@@ -313,18 +413,24 @@ fn two_sessions_joining_at_different_times_each_equal_their_generate() {
         while ia < ba.len() || ib < bb.len() {
             if ia < ba.len() {
                 let n = chunk.min(ba.len() - ia);
-                sa.send(Message::Binary(ba[ia..ia + n].to_vec().into())).await.unwrap();
+                sa.send(Message::Binary(ba[ia..ia + n].to_vec().into()))
+                    .await
+                    .unwrap();
                 ia += n;
             }
             if ib < bb.len() {
                 let n = chunk.min(bb.len() - ib);
-                sb.send(Message::Binary(bb[ib..ib + n].to_vec().into())).await.unwrap();
+                sb.send(Message::Binary(bb[ib..ib + n].to_vec().into()))
+                    .await
+                    .unwrap();
                 ib += n;
             }
             tokio::time::sleep(Duration::from_millis(2)).await;
         }
         for s in [&mut sa, &mut sb] {
-            s.send(Message::Text(r#"{"type":"end"}"#.into())).await.unwrap();
+            s.send(Message::Text(r#"{"type":"end"}"#.into()))
+                .await
+                .unwrap();
         }
         let (mut oa, mut ob) = (Outcome::default(), Outcome::default());
         tokio::join!(collect(&mut sa, &mut oa), collect(&mut sb, &mut ob));
@@ -380,7 +486,15 @@ fn bad_parameters_are_refused_with_400_and_a_reason() {
             assert_eq!(status, 400, "{q}");
             assert!(body.contains(word), "{q}: {body}");
         }
-        assert_eq!(http_status(addr, "?rate=48000&channels=2&format=f32le&seed=1&guidance=1.0&output=binary").await.0, 101);
+        assert_eq!(
+            http_status(
+                addr,
+                "?rate=48000&channels=2&format=f32le&seed=1&guidance=1.0&output=binary"
+            )
+            .await
+            .0,
+            101
+        );
     });
     assert_eq!(server.metrics().refusals("bad_request"), 8);
     server.shutdown();
@@ -395,7 +509,10 @@ async fn close_of(ws: &mut Ws) -> (u16, String) {
 
 #[test]
 fn malformed_unknown_and_oversize_messages_are_closed_with_reasons() {
-    let server = start(ServeConfig { max_message_bytes: 4096, ..Default::default() });
+    let server = start(ServeConfig {
+        max_message_bytes: 4096,
+        ..Default::default()
+    });
     let addr = server.addr();
     within(30, async {
         for (msg, code, word) in [
@@ -413,17 +530,25 @@ fn malformed_unknown_and_oversize_messages_are_closed_with_reasons() {
         }
         // non-finite f32 samples
         let mut ws = connect(addr, "?format=f32le").await;
-        ws.send(Message::Binary(f32::NAN.to_le_bytes().to_vec().into())).await.unwrap();
+        ws.send(Message::Binary(f32::NAN.to_le_bytes().to_vec().into()))
+            .await
+            .unwrap();
         assert_eq!(close_of(&mut ws).await.0, 1007);
         // the stream ends in the middle of a sample
         let mut ws = connect(addr, "").await;
-        ws.send(Message::Binary(vec![1, 2, 3].into())).await.unwrap();
-        ws.send(Message::Text(r#"{"type":"end"}"#.into())).await.unwrap();
+        ws.send(Message::Binary(vec![1, 2, 3].into()))
+            .await
+            .unwrap();
+        ws.send(Message::Text(r#"{"type":"end"}"#.into()))
+            .await
+            .unwrap();
         let (c, reason) = close_of(&mut ws).await;
         assert_eq!(c, 1007, "{reason}");
         // audio after the end
         let mut ws = connect(addr, "").await;
-        ws.send(Message::Text(r#"{"type":"end"}"#.into())).await.unwrap();
+        ws.send(Message::Text(r#"{"type":"end"}"#.into()))
+            .await
+            .unwrap();
         let mut out = Outcome::default();
         collect(&mut ws, &mut out).await;
         assert_eq!(out.done, Some(0));
@@ -461,9 +586,18 @@ fn capacity_idle_and_health() {
         let body = reqwest_like(addr, "/healthz").await;
         assert!(body.starts_with("HTTP/1.1 200"), "{body}");
         let body = reqwest_like(addr, "/metrics").await;
-        assert!(body.contains("livegesture_refusals_total{reason=\"idle\"} "), "{body}");
-        assert!(!body.contains("livegesture_refusals_total{reason=\"idle\"} 0"), "{body}");
-        assert!(body.contains("livegesture_refusals_total{reason=\"capacity\"} 1"), "{body}");
+        assert!(
+            body.contains("livegesture_refusals_total{reason=\"idle\"} "),
+            "{body}"
+        );
+        assert!(
+            !body.contains("livegesture_refusals_total{reason=\"idle\"} 0"),
+            "{body}"
+        );
+        assert!(
+            body.contains("livegesture_refusals_total{reason=\"capacity\"} 1"),
+            "{body}"
+        );
     });
     server.shutdown();
     server.join().unwrap();
@@ -473,7 +607,9 @@ fn capacity_idle_and_health() {
 async fn reqwest_like(addr: SocketAddr, path: &str) -> String {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
-    s.write_all(format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").as_bytes()).await.unwrap();
+    s.write_all(format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").as_bytes())
+        .await
+        .unwrap();
     let mut buf = Vec::new();
     s.read_to_end(&mut buf).await.unwrap();
     String::from_utf8_lossy(&buf).into_owned()
@@ -504,7 +640,10 @@ fn a_slow_client_is_disconnected_and_memory_stays_bounded() {
         assert_eq!(m.refusals("slow_client"), 1);
         let mut out = Outcome::default();
         collect(&mut ws, &mut out).await;
-        assert!((out.frames.len() as u64) < 90 * 30, "the slow client got everything");
+        assert!(
+            (out.frames.len() as u64) < 90 * 30,
+            "the slow client got everything"
+        );
         if let Some((c, reason)) = out.close {
             assert_eq!(c, 1008, "{reason}");
             assert!(reason.contains("slow"), "{reason}");
@@ -518,7 +657,16 @@ fn a_slow_client_is_disconnected_and_memory_stays_bounded() {
 fn sigterm_drains_arrived_tokens_closes_1001_and_exits_0() {
     use std::io::{BufRead, BufReader};
     let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_livegesture"))
-        .args(["serve", "--addr", "127.0.0.1:0", "--backend", "tract", "--max-pending-tokens", "256", "--bundle"])
+        .args([
+            "serve",
+            "--addr",
+            "127.0.0.1:0",
+            "--backend",
+            "tract",
+            "--max-pending-tokens",
+            "256",
+            "--bundle",
+        ])
         .arg(common::bundle_dir())
         .stderr(std::process::Stdio::piped())
         .spawn()
@@ -527,7 +675,10 @@ fn sigterm_drains_arrived_tokens_closes_1001_and_exits_0() {
     let mut line = String::new();
     let addr: SocketAddr = loop {
         line.clear();
-        assert!(err.read_line(&mut line).unwrap() > 0, "serve ended before listening");
+        assert!(
+            err.read_line(&mut line).unwrap() > 0,
+            "serve ended before listening"
+        );
         if let Some(rest) = line.split("listening on http://").nth(1) {
             break rest.split_whitespace().next().unwrap().parse().unwrap();
         }
@@ -544,12 +695,16 @@ fn sigterm_drains_arrived_tokens_closes_1001_and_exits_0() {
     let pid = child.id() as i32;
     let got = within(60, async move {
         let mut ws = connect(addr, "?seed=2").await;
-        ws.send(Message::Binary(pcm_bytes(&audio, false).into())).await.unwrap();
+        ws.send(Message::Binary(pcm_bytes(&audio, false).into()))
+            .await
+            .unwrap();
         let mut out = Outcome::default();
         // the first frame proves the whole message was read (it is forwarded before the next read)
         while out.frames.is_empty() {
             match ws.next().await.unwrap().unwrap() {
-                Message::Text(t) if t.contains("\"index\"") => out.frames.push(Frame::from_json_line(&t).unwrap()),
+                Message::Text(t) if t.contains("\"index\"") => {
+                    out.frames.push(Frame::from_json_line(&t).unwrap())
+                }
                 _ => {}
             }
         }
@@ -562,7 +717,10 @@ fn sigterm_drains_arrived_tokens_closes_1001_and_exits_0() {
     assert!(status.success(), "serve exited with {status}\n{log}");
     assert_eq!(got.close.as_ref().map(|c| c.0), Some(1001), "{got:?}");
     let want = reference(&speech(3.1), 16000, 1, false, 2);
-    let f = Bundle::load(common::bundle_dir()).unwrap().frontend().clone();
+    let f = Bundle::load(common::bundle_dir())
+        .unwrap()
+        .frontend()
+        .clone();
     let whole = f.n_tokens((3.1 * 16000.0) as u64); // the complete tokens of the audio sent
     assert!(whole >= 20);
     assert_equal(&got.frames, &want[..(whole * 4) as usize], "drained frames");

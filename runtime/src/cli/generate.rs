@@ -94,7 +94,10 @@ pub fn run(a: Args) -> Result<()> {
         ))
         .into());
     }
-    if a.output.extension().is_some_and(|e| e.eq_ignore_ascii_case("bvh")) {
+    if a.output
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("bvh"))
+    {
         livegesture::bvh::write_bvh(&a.output, &writer.motion()?)?; // SPEC 8: face stays in the npz
     } else {
         writer.finish()?;

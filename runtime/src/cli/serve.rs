@@ -47,12 +47,19 @@ fn secs(name: &str, v: f64) -> Result<Duration> {
     if v.is_finite() && v > 0.0 && v < 1e7 {
         Ok(Duration::from_secs_f64(v))
     } else {
-        Err(InputError(format!("--{name} must be a positive number of seconds, got {v}")).into())
+        Err(InputError(format!(
+            "--{name} must be a positive number of seconds, got {v}"
+        ))
+        .into())
     }
 }
 
 pub fn run(a: Args) -> Result<()> {
-    if a.max_sessions == 0 || a.max_message_bytes == 0 || a.queue_frames == 0 || a.max_pending_tokens == 0 {
+    if a.max_sessions == 0
+        || a.max_message_bytes == 0
+        || a.queue_frames == 0
+        || a.max_pending_tokens == 0
+    {
         return Err(InputError(
             "--max-sessions, --max-message-bytes, --queue-frames and --max-pending-tokens must be at least 1".into(),
         )

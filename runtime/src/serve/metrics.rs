@@ -39,11 +39,7 @@ impl Histogram {
     }
 
     fn render(&self, out: &mut String, name: &str, help: &str) {
-        let s = self
-            .inner
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .clone();
+        let s = self.inner.lock().unwrap_or_else(|e| e.into_inner()).clone();
         let _ = writeln!(out, "# HELP {name} {help}\n# TYPE {name} histogram");
         let mut cum = 0;
         for (b, c) in self.bounds.iter().zip(&s.counts) {
@@ -115,7 +111,9 @@ impl Metrics {
             steps_total: AtomicU64::new(0),
             audio_samples_total: AtomicU64::new(0),
             refusals: Default::default(),
-            batch_size: Histogram::new(&[1.0, 2.0, 4.0, 8.0, 16.0, 24.0, 32.0, 48.0, 64.0, 96.0, 128.0, 256.0]),
+            batch_size: Histogram::new(&[
+                1.0, 2.0, 4.0, 8.0, 16.0, 24.0, 32.0, 48.0, 64.0, 96.0, 128.0, 256.0,
+            ]),
             step_seconds: Histogram::new(&lat),
             token_latency_seconds: Histogram::new(&lat),
         }
@@ -144,19 +142,67 @@ impl Metrics {
             let _ = writeln!(o, "# HELP {name} {help}\n# TYPE {name} {kind}\n{name} {v}");
         };
         let ld = |a: &AtomicU64| a.load(Ordering::Relaxed);
-        g(&mut o, "livegesture_sessions_active", "gauge", "Live WebSocket sessions.", ld(&self.sessions_active));
-        g(&mut o, "livegesture_sessions_total", "counter", "Sessions accepted since start.", ld(&self.sessions_total));
-        g(&mut o, "livegesture_tokens_total", "counter", "Motion tokens generated (one per session per token step).", ld(&self.tokens_total));
-        g(&mut o, "livegesture_frames_total", "counter", "Motion frames sent.", ld(&self.frames_total));
-        g(&mut o, "livegesture_steps_total", "counter", "Batched token steps (one run of every graph).", ld(&self.steps_total));
-        g(&mut o, "livegesture_audio_samples_total", "counter", "16 kHz audio samples received.", ld(&self.audio_samples_total));
+        g(
+            &mut o,
+            "livegesture_sessions_active",
+            "gauge",
+            "Live WebSocket sessions.",
+            ld(&self.sessions_active),
+        );
+        g(
+            &mut o,
+            "livegesture_sessions_total",
+            "counter",
+            "Sessions accepted since start.",
+            ld(&self.sessions_total),
+        );
+        g(
+            &mut o,
+            "livegesture_tokens_total",
+            "counter",
+            "Motion tokens generated (one per session per token step).",
+            ld(&self.tokens_total),
+        );
+        g(
+            &mut o,
+            "livegesture_frames_total",
+            "counter",
+            "Motion frames sent.",
+            ld(&self.frames_total),
+        );
+        g(
+            &mut o,
+            "livegesture_steps_total",
+            "counter",
+            "Batched token steps (one run of every graph).",
+            ld(&self.steps_total),
+        );
+        g(
+            &mut o,
+            "livegesture_audio_samples_total",
+            "counter",
+            "16 kHz audio samples received.",
+            ld(&self.audio_samples_total),
+        );
         let _ = writeln!(o, "# HELP livegesture_refusals_total Requests refused and sessions closed by the server, by reason.\n# TYPE livegesture_refusals_total counter");
         for (r, c) in REFUSAL_REASONS.iter().zip(&self.refusals) {
             let _ = writeln!(o, "livegesture_refusals_total{{reason=\"{r}\"}} {}", ld(c));
         }
-        self.batch_size.render(&mut o, "livegesture_batch_size", "Sessions stepped together per token step.");
-        self.step_seconds.render(&mut o, "livegesture_step_seconds", "Wall time of one batched token step (all graphs).");
-        self.token_latency_seconds.render(&mut o, "livegesture_token_latency_seconds", "From the message completing a token's audio to its frames queued for sending.");
+        self.batch_size.render(
+            &mut o,
+            "livegesture_batch_size",
+            "Sessions stepped together per token step.",
+        );
+        self.step_seconds.render(
+            &mut o,
+            "livegesture_step_seconds",
+            "Wall time of one batched token step (all graphs).",
+        );
+        self.token_latency_seconds.render(
+            &mut o,
+            "livegesture_token_latency_seconds",
+            "From the message completing a token's audio to its frames queued for sending.",
+        );
         o
     }
 }

@@ -268,7 +268,11 @@ async fn serve_until_shutdown(
 
 async fn healthz(State(st): State<Arc<AppState>>) -> Response {
     if st.draining.load(Ordering::SeqCst) {
-        (StatusCode::SERVICE_UNAVAILABLE, "draining: the server is shutting down\n").into_response()
+        (
+            StatusCode::SERVICE_UNAVAILABLE,
+            "draining: the server is shutting down\n",
+        )
+            .into_response()
     } else {
         (
             StatusCode::OK,

@@ -155,12 +155,8 @@ pub enum ClientText {
 
 /// Why a text message was refused: (close code, reason).
 pub fn parse_client_text(text: &str) -> Result<ClientText, (u16, String)> {
-    let v: serde_json::Value = serde_json::from_str(text).map_err(|e| {
-        (
-            CLOSE_INVALID,
-            format!("malformed message: not JSON ({e})"),
-        )
-    })?;
+    let v: serde_json::Value = serde_json::from_str(text)
+        .map_err(|e| (CLOSE_INVALID, format!("malformed message: not JSON ({e})")))?;
     let obj = v.as_object().ok_or_else(|| {
         (
             CLOSE_INVALID,
@@ -177,7 +173,10 @@ pub fn parse_client_text(text: &str) -> Result<ClientText, (u16, String)> {
         "end" => Ok(ClientText::End),
         other => Err((
             CLOSE_UNSUPPORTED,
-            format!("unknown message type {:?}; the client sends binary PCM and {{\"type\":\"end\"}}", truncate(other, 40)),
+            format!(
+                "unknown message type {:?}; the client sends binary PCM and {{\"type\":\"end\"}}",
+                truncate(other, 40)
+            ),
         )),
     }
 }
@@ -199,20 +198,41 @@ mod tests {
     use super::*;
 
     fn q(s: &[(&str, &str)]) -> Vec<(String, String)> {
-        s.iter().map(|(a, b)| (a.to_string(), b.to_string())).collect()
+        s.iter()
+            .map(|(a, b)| (a.to_string(), b.to_string()))
+            .collect()
     }
 
     #[test]
     fn defaults_and_values() {
         let p = SessionParams::parse(&[]).unwrap();
-        assert_eq!((p.rate, p.channels, p.format, p.seed, p.guidance, p.output),
-            (16000, 1, RawFormat::S16Le, 0, None, OutputKind::Json));
-        let p = SessionParams::parse(&q(&[("rate", "44100"), ("channels", "2"), ("format", "f32le"),
-            ("seed", "7"), ("guidance", "1.5"), ("output", "binary")])).unwrap();
-        assert_eq!((p.rate, p.channels, p.format, p.seed, p.guidance, p.output),
-            (44100, 2, RawFormat::F32Le, 7, Some(1.5), OutputKind::Binary));
-        for bad in [("rate", "0"), ("rate", "x"), ("channels", "0"), ("format", "s32le"), ("seed", "-1"),
-            ("guidance", "nan"), ("output", "xml"), ("volume", "3")] {
+        assert_eq!(
+            (p.rate, p.channels, p.format, p.seed, p.guidance, p.output),
+            (16000, 1, RawFormat::S16Le, 0, None, OutputKind::Json)
+        );
+        let p = SessionParams::parse(&q(&[
+            ("rate", "44100"),
+            ("channels", "2"),
+            ("format", "f32le"),
+            ("seed", "7"),
+            ("guidance", "1.5"),
+            ("output", "binary"),
+        ]))
+        .unwrap();
+        assert_eq!(
+            (p.rate, p.channels, p.format, p.seed, p.guidance, p.output),
+            (44100, 2, RawFormat::F32Le, 7, Some(1.5), OutputKind::Binary)
+        );
+        for bad in [
+            ("rate", "0"),
+            ("rate", "x"),
+            ("channels", "0"),
+            ("format", "s32le"),
+            ("seed", "-1"),
+            ("guidance", "nan"),
+            ("output", "xml"),
+            ("volume", "3"),
+        ] {
             let e = SessionParams::parse(&q(&[bad])).unwrap_err();
             assert!(e.contains(bad.0), "{e}");
         }
@@ -233,7 +253,13 @@ mod tests {
         assert_eq!(parse_client_text(r#"{"type":"end"}"#), Ok(ClientText::End));
         assert_eq!(parse_client_text("nope").unwrap_err().0, CLOSE_INVALID);
         assert_eq!(parse_client_text("[1]").unwrap_err().0, CLOSE_INVALID);
-        assert_eq!(parse_client_text(r#"{"type":3}"#).unwrap_err().0, CLOSE_INVALID);
-        assert_eq!(parse_client_text(r#"{"type":"pause"}"#).unwrap_err().0, CLOSE_UNSUPPORTED);
+        assert_eq!(
+            parse_client_text(r#"{"type":3}"#).unwrap_err().0,
+            CLOSE_INVALID
+        );
+        assert_eq!(
+            parse_client_text(r#"{"type":"pause"}"#).unwrap_err().0,
+            CLOSE_UNSUPPORTED
+        );
     }
 }

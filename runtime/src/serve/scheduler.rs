@@ -32,7 +32,9 @@ use super::protocol::{CLOSE_GOING_AWAY, CLOSE_INTERNAL, CLOSE_POLICY};
 pub enum Out {
     Frame(Box<Frame>),
     /// All frames sent: `{"type":"done","frames":N}`, then close 1000.
-    Done { frames: u64 },
+    Done {
+        frames: u64,
+    },
     /// Close with this code and reason.
     Close(u16, String),
 }
@@ -88,13 +90,20 @@ pub enum Cmd {
         reply: oneshot::Sender<Result<Joined, String>>,
     },
     /// 16 kHz mono samples; `at` is when the message carrying them arrived.
-    Audio { sid: u64, samples: Vec<f32>, at: Instant },
+    Audio {
+        sid: u64,
+        samples: Vec<f32>,
+        at: Instant,
+    },
     /// The end of the audio: `frames` = ceil(n_in * 30 / rate_in).
     End { sid: u64, frames: u64 },
     /// Shutdown: step the tokens whose audio has arrived, then close 1001.
     Drain { sid: u64 },
     /// The client is gone (or was refused): drop the session; `stats` gets its figures.
-    Leave { sid: u64, stats: oneshot::Sender<SessionStats> },
+    Leave {
+        sid: u64,
+        stats: oneshot::Sender<SessionStats>,
+    },
 }
 
 struct Sess {
@@ -186,7 +195,9 @@ impl Scheduler {
                             }
                         }
                     } else {
-                        match rt.block_on(async { tokio::time::timeout(deadline - now, rx.recv()).await }) {
+                        match rt.block_on(async {
+                            tokio::time::timeout(deadline - now, rx.recv()).await
+                        }) {
                             Ok(Some(c)) => Some(c),
                             Ok(None) => break,
                             Err(_) => None,
@@ -402,9 +413,7 @@ impl Scheduler {
         let t0 = Instant::now();
         let r = self.pipeline.step_stream_batch(&mut self.batch, &mels);
         let done = Instant::now();
-        self.metrics
-            .step_seconds
-            .observe((done - t0).as_secs_f64());
+        self.metrics.step_seconds.observe((done - t0).as_secs_f64());
         self.metrics.steps_total.fetch_add(1, Ordering::Relaxed);
         self.metrics.batch_size.observe(order.len() as f64);
         match r {

@@ -5,9 +5,9 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Instant;
 
-use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, WebSocketUpgrade};
 use axum::extract::rejection::QueryRejection;
 use axum::extract::ws::rejection::WebSocketUpgradeRejection;
+use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, WebSocketUpgrade};
 use axum::extract::{ConnectInfo, Query, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
@@ -47,7 +47,12 @@ pub(crate) async fn upgrade(
     let pairs = match query {
         Ok(Query(p)) => p,
         Err(e) => {
-            return refuse(&st, StatusCode::BAD_REQUEST, "bad_request", format!("bad query string: {e}"))
+            return refuse(
+                &st,
+                StatusCode::BAD_REQUEST,
+                "bad_request",
+                format!("bad query string: {e}"),
+            )
         }
     };
     let params = match SessionParams::parse(&pairs) {
@@ -104,7 +109,12 @@ struct Ending {
     reason: String,
 }
 
-async fn run_session(socket: WebSocket, st: Arc<AppState>, params: SessionParams, peer: SocketAddr) {
+async fn run_session(
+    socket: WebSocket,
+    st: Arc<AppState>,
+    params: SessionParams,
+    peer: SocketAddr,
+) {
     let sid = st.next_sid.fetch_add(1, Ordering::SeqCst);
     let started = Instant::now();
     let (mut sink, mut source) = socket.split();
@@ -126,14 +136,20 @@ async fn run_session(socket: WebSocket, st: Arc<AppState>, params: SessionParams
         reply: reply_tx,
     };
     let joined = match st.cmd.send(join).await {
-        Ok(()) => reply_rx.await.map_err(|_| "the scheduler is gone".to_string()).and_then(|r| r),
+        Ok(()) => reply_rx
+            .await
+            .map_err(|_| "the scheduler is gone".to_string())
+            .and_then(|r| r),
         Err(_) => Err("the scheduler is gone".to_string()),
     };
     let joined = match joined {
         Ok(j) => j,
         Err(e) => {
             let _ = sink
-                .send(close_msg(CLOSE_INTERNAL, &format!("cannot start the session: {e}")))
+                .send(close_msg(
+                    CLOSE_INTERNAL,
+                    &format!("cannot start the session: {e}"),
+                ))
                 .await;
             eprintln!("livegesture serve: session {sid} from {peer}: refused: {e}");
             return;
@@ -170,8 +186,17 @@ async fn run_session(socket: WebSocket, st: Arc<AppState>, params: SessionParams
         "max_message_bytes": st.cfg.max_message_bytes,
         "idle_timeout_s": st.cfg.idle_timeout.as_secs_f64(),
     });
-    let ready_ok = sink.send(Message::Text(ready.to_string().into())).await.is_ok();
-    let writer = tokio::spawn(write_loop(sink, out_rx, ctl.clone(), params.output, ready_ok));
+    let ready_ok = sink
+        .send(Message::Text(ready.to_string().into()))
+        .await
+        .is_ok();
+    let writer = tokio::spawn(write_loop(
+        sink,
+        out_rx,
+        ctl.clone(),
+        params.output,
+        ready_ok,
+    ));
     let ending = read_loop(&mut source, &st, &params, sid, &ctl, &credits, writer).await;
     let (stx, srx) = oneshot::channel();
     let _ = st.cmd.send(Cmd::Leave { sid, stats: stx }).await;
@@ -243,7 +268,13 @@ async fn write_loop(
                     Ok(s) => (Message::Text(s.into()), None),
                     Err(e) => {
                         let r = format!("internal error: {e:#}");
-                        (close_msg(CLOSE_INTERNAL, &r), Some(Ending { code: CLOSE_INTERNAL, reason: r }))
+                        (
+                            close_msg(CLOSE_INTERNAL, &r),
+                            Some(Ending {
+                                code: CLOSE_INTERNAL,
+                                reason: r,
+                            }),
+                        )
                     }
                 },
                 OutputKind::Binary => {
@@ -255,10 +286,19 @@ async fn write_loop(
             Out::Done { frames } => {
                 let done = serde_json::json!({"type": "done", "frames": frames}).to_string();
                 if sink.send(Message::Text(done.into())).await.is_err() {
-                    return Ending { code: 1006, reason: "client gone".into() };
+                    return Ending {
+                        code: 1006,
+                        reason: "client gone".into(),
+                    };
                 }
                 let r = format!("done: {frames} frames");
-                (close_msg(CLOSE_NORMAL, &r), Some(Ending { code: CLOSE_NORMAL, reason: r }))
+                (
+                    close_msg(CLOSE_NORMAL, &r),
+                    Some(Ending {
+                        code: CLOSE_NORMAL,
+                        reason: r,
+                    }),
+                )
             }
             Out::Close(code, reason) => (close_msg(code, &reason), Some(Ending { code, reason })),
         };
@@ -272,7 +312,10 @@ async fn write_loop(
             }
         };
         if !sent {
-            return Ending { code: 1006, reason: "client gone".into() };
+            return Ending {
+                code: 1006,
+                reason: "client gone".into(),
+            };
         }
         if let Some(e) = end {
             return e;
@@ -329,7 +372,10 @@ async fn read_loop(
             Ok(None) => return client_gone(st, ctl, writer).await,
             Ok(Some(Err(e))) => {
                 let text = e.to_string();
-                if text.contains("too long") || text.contains("Space limit") || text.contains("size") {
+                if text.contains("too long")
+                    || text.contains("Space limit")
+                    || text.contains("size")
+                {
                     st.metrics.refuse("oversize");
                     let r = format!("message over the size limit of {limit} bytes");
                     return cut(st, ctl, writer, CLOSE_TOO_BIG, r, None).await;
@@ -360,12 +406,23 @@ async fn read_loop(
                     Ok(m) => m,
                     Err(e) => {
                         st.metrics.refuse("malformed");
-                        return cut(st, ctl, writer, CLOSE_INVALID, format!("malformed audio: {e}"), Some(sid)).await;
+                        return cut(
+                            st,
+                            ctl,
+                            writer,
+                            CLOSE_INVALID,
+                            format!("malformed audio: {e}"),
+                            Some(sid),
+                        )
+                        .await;
                     }
                 };
                 let s16 = match resampler.push(&mono) {
                     Ok(s) => s,
-                    Err(e) => return cut(st, ctl, writer, CLOSE_INTERNAL, format!("{e}"), Some(sid)).await,
+                    Err(e) => {
+                        return cut(st, ctl, writer, CLOSE_INTERNAL, format!("{e}"), Some(sid))
+                            .await
+                    }
                 };
                 if !forward(st, sid, credits, &fcfg, &mut sent_16k, s16, at).await {
                     return client_gone(st, ctl, writer).await;
@@ -375,11 +432,22 @@ async fn read_loop(
                 Ok(ClientText::End) if !ended => {
                     if let Err(e) = decoder.finish() {
                         st.metrics.refuse("malformed");
-                        return cut(st, ctl, writer, CLOSE_INVALID, format!("malformed audio: {e}"), Some(sid)).await;
+                        return cut(
+                            st,
+                            ctl,
+                            writer,
+                            CLOSE_INVALID,
+                            format!("malformed audio: {e}"),
+                            Some(sid),
+                        )
+                        .await;
                     }
                     let tail = match resampler.finish() {
                         Ok(s) => s,
-                        Err(e) => return cut(st, ctl, writer, CLOSE_INTERNAL, format!("{e}"), Some(sid)).await,
+                        Err(e) => {
+                            return cut(st, ctl, writer, CLOSE_INTERNAL, format!("{e}"), Some(sid))
+                                .await
+                        }
                     };
                     if !forward(st, sid, credits, &fcfg, &mut sent_16k, tail, at).await {
                         return client_gone(st, ctl, writer).await;
@@ -395,7 +463,11 @@ async fn read_loop(
                     return cut(st, ctl, writer, CLOSE_UNSUPPORTED, r, Some(sid)).await;
                 }
                 Err((code, r)) => {
-                    st.metrics.refuse(if code == CLOSE_UNSUPPORTED { "unknown_message" } else { "malformed" });
+                    st.metrics.refuse(if code == CLOSE_UNSUPPORTED {
+                        "unknown_message"
+                    } else {
+                        "malformed"
+                    });
                     return cut(st, ctl, writer, code, r, Some(sid)).await;
                 }
             },
@@ -430,7 +502,11 @@ async fn forward(
             }
         }
         let (piece, tail) = rest.split_at(take);
-        let cmd = Cmd::Audio { sid, samples: piece.to_vec(), at };
+        let cmd = Cmd::Audio {
+            sid,
+            samples: piece.to_vec(),
+            at,
+        };
         if st.cmd.send(cmd).await.is_err() {
             return false;
         }

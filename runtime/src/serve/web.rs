@@ -17,7 +17,13 @@ const APP_JS: &[u8] = include_bytes!("../../web/dist/assets/app.js");
 const WORKLET_JS: &[u8] = include_bytes!("../../web/dist/worklet.js");
 
 fn asset(body: &'static [u8], mime: &'static str) -> impl IntoResponse {
-    ([(header::CONTENT_TYPE, mime), (header::CACHE_CONTROL, "no-cache")], body)
+    (
+        [
+            (header::CONTENT_TYPE, mime),
+            (header::CACHE_CONTROL, "no-cache"),
+        ],
+        body,
+    )
 }
 
 /// The skeleton as JSON: `names`, `parents` (-1 for the root), `offsets` (metres, from the parent).
@@ -33,12 +39,29 @@ pub fn skeleton_json() -> String {
 
 pub(crate) fn routes() -> Router<Arc<AppState>> {
     Router::new()
-        .route("/", get(|| async { asset(INDEX_HTML, "text/html; charset=utf-8") }))
-        .route("/index.html", get(|| async { asset(INDEX_HTML, "text/html; charset=utf-8") }))
-        .route("/assets/app.js", get(|| async { asset(APP_JS, "text/javascript; charset=utf-8") }))
-        .route("/worklet.js", get(|| async { asset(WORKLET_JS, "text/javascript; charset=utf-8") }))
+        .route(
+            "/",
+            get(|| async { asset(INDEX_HTML, "text/html; charset=utf-8") }),
+        )
+        .route(
+            "/index.html",
+            get(|| async { asset(INDEX_HTML, "text/html; charset=utf-8") }),
+        )
+        .route(
+            "/assets/app.js",
+            get(|| async { asset(APP_JS, "text/javascript; charset=utf-8") }),
+        )
+        .route(
+            "/worklet.js",
+            get(|| async { asset(WORKLET_JS, "text/javascript; charset=utf-8") }),
+        )
         .route(
             "/skeleton.json",
-            get(|| async { ([(header::CONTENT_TYPE, "application/json")], skeleton_json()) }),
+            get(|| async {
+                (
+                    [(header::CONTENT_TYPE, "application/json")],
+                    skeleton_json(),
+                )
+            }),
         )
 }
