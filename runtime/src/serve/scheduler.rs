@@ -67,7 +67,10 @@ impl SessionCtl {
 pub struct SessionStats {
     pub tokens: u64,
     pub frames: u64,
+    /// 16 kHz samples, the end-of-stream silence included.
     pub samples_16k: u64,
+    /// The silence added at the end to complete the last token.
+    pub padding_16k: u64,
     /// Token latencies in seconds (message completing the token's audio -> frames queued).
     pub latencies: Vec<f64>,
 }
@@ -258,6 +261,7 @@ impl Scheduler {
                     // complete the last partial token with silence (SPEC 8)
                     let need_samples = self.fcfg.token_end(need_tokens - 1);
                     let pad = need_samples.saturating_sub(s.stats.samples_16k) as usize;
+                    s.stats.padding_16k = pad as u64;
                     self.push(sid, &vec![0.0; pad], Instant::now(), false);
                 }
                 self.finish_if_complete(sid);

@@ -220,7 +220,7 @@ fn log_end(sid: u64, started: Instant, s: &SessionStats, e: &Ending) {
         e.code,
         e.reason,
         started.elapsed().as_secs_f64(),
-        s.samples_16k as f64 / 16000.0,
+        (s.samples_16k - s.padding_16k) as f64 / 16000.0,
         s.tokens,
         s.frames,
         q(0.5),
