@@ -20,9 +20,8 @@ stage "python tests"
 stage "export the tiny config (random weights) -> target/test-bundles/tiny"
 mkdir -p target/test-bundles
 "$LIVEGESTURE_PY" export/export.py --config tiny --random-seed 0 --out target/test-bundles/tiny
-export LIVEGESTURE_TINY_BUNDLE="$PWD/target/test-bundles/tiny"
-# the runtime tests use the same fresh export instead of exporting a second tiny bundle of their own
-export LIVEGESTURE_TEST_BUNDLE="$LIVEGESTURE_TINY_BUNDLE"
+# the Rust tests (runtime and parity suite) use this fresh export (parity-tests/src/lib.rs)
+export LIVEGESTURE_TEST_BUNDLE="$PWD/target/test-bundles/tiny"
 
 stage "rust build (release)"
 cargo build --release --workspace --all-targets

@@ -1,17 +1,21 @@
-//! Helpers of the parity suite's integration tests (`tests/*.rs`).
+//! The project's one test fixture, used by the parity suite's integration tests (`tests/*.rs` here)
+//! and by the runtime's (`runtime/tests/*.rs`, a dev-dependency):
 //!
-//! The tests run [`livegesture::parity`] (the library behind `livegesture parity`) on
+//! - the shipped bundle `models/default` ([`default_bundle`], read-only);
+//! - a tiny random-weight bundle ([`tiny_bundle`]): the test command exports it once and passes its
+//!   folder in [`TEST_BUNDLE_ENV`] (`LIVEGESTURE_TEST_BUNDLE`); without that variable the first test
+//!   that needs it exports one with `$LIVEGESTURE_PY export/export.py` ([`EXPORT_ARGS`], the same
+//!   arguments as `scripts/test.sh`) into `target/tmp/test-bundles/tiny-<hash of the exporter's and
+//!   the model's sources>` (under a file lock, so parallel test processes export it once; a change to
+//!   the exporter or the model re-exports); without either variable the tests fail saying so (they
+//!   never skip);
+//! - copies of a bundle to corrupt ([`copy_bundle`]) or with one graph broken by
+//!   `tools/break_bundle.py` ([`break_bundle`]);
+//! - the bundle's reference rollout through the library's own reader
+//!   ([`livegesture::parity::ReferenceRollout::load`], via [`reference_rollout`]).
 //!
-//! - the shipped bundle `models/default` ([`default_bundle`]);
-//! - a tiny random-weight bundle exported in the same run ([`tiny_bundle`]): the test command
-//!   exports it and passes its folder in `LIVEGESTURE_TINY_BUNDLE`; without that variable the first
-//!   test that needs it exports one with `$LIVEGESTURE_PY export/export.py --config tiny --out DIR`
-//!   into `target/tmp/parity-tests/tiny-<hash of the exporter's sources>` (under a file lock, so
-//!   parallel test processes export it once; a change to the exporter or the model re-exports);
-//!   without either variable the tests fail saying so (they never skip);
-//! - copies of a bundle with one graph broken by `tools/break_bundle.py` ([`break_bundle`]).
-//!
-//! Both backends run: ort needs ONNX Runtime (`ORT_DYLIB_PATH`, set by `source scripts/env.sh`).
+//! Both backends run: ort needs ONNX Runtime (`ORT_DYLIB_PATH`, set by `source scripts/env.sh`;
+//! [`require_ort`]).
 
 use std::fs::File;
 use std::hash::{Hash, Hasher};
@@ -19,10 +23,14 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
-use livegesture::parity::{self, Check, ParityOptions, Report};
+use livegesture::bundle::Bundle;
+use livegesture::parity::{self, Check, ParityOptions, ReferenceRollout, Report};
 
-/// Environment variable naming a tiny bundle exported by the test command.
-pub const TINY_BUNDLE_ENV: &str = "LIVEGESTURE_TINY_BUNDLE";
+/// Environment variable naming the tiny test bundle exported by the test command.
+pub const TEST_BUNDLE_ENV: &str = "LIVEGESTURE_TEST_BUNDLE";
+
+/// `export/export.py` arguments of the tiny test bundle (as `scripts/test.sh` exports it).
+pub const EXPORT_ARGS: &[&str] = &["--config", "tiny", "--random-seed", "0"];
 
 /// The repository root.
 pub fn repo_root() -> PathBuf {
@@ -75,9 +83,10 @@ fn hash_sources(h: &mut impl Hasher, dir: &Path) {
 fn export_tiny() -> PathBuf {
     let root = repo_root();
     let mut h = std::collections::hash_map::DefaultHasher::new();
+    EXPORT_ARGS.hash(&mut h);
     hash_sources(&mut h, &root.join("export"));
     hash_sources(&mut h, &root.join("python").join("livegesture"));
-    let base = root.join("target").join("tmp").join("parity-tests");
+    let base = root.join("target").join("tmp").join("test-bundles");
     std::fs::create_dir_all(&base)
         .unwrap_or_else(|e| panic!("cannot create {}: {e}", base.display()));
     let dir = base.join(format!("tiny-{:016x}", h.finish()));
@@ -85,20 +94,22 @@ fn export_tiny() -> PathBuf {
     lock.lock().expect("lock the export lock file");
     if !dir.join("manifest.json").exists() {
         let py = python(&format!(
-            "exporting the tiny bundle (or set {TINY_BUNDLE_ENV} to one exported with \
-             `$LIVEGESTURE_PY export/export.py --config tiny --out DIR`)"
+            "exporting the tiny test bundle (or set {TEST_BUNDLE_ENV} to one exported with \
+             `$LIVEGESTURE_PY export/export.py {} --out DIR`)",
+            EXPORT_ARGS.join(" ")
         ));
-        eprintln!("exporting a tiny bundle into {} ...", dir.display());
+        eprintln!("exporting the tiny test bundle into {} ...", dir.display());
         let out = Command::new(&py)
             .arg(root.join("export").join("export.py"))
-            .args(["--config", "tiny", "--out"])
+            .args(EXPORT_ARGS)
+            .arg("--out")
             .arg(&dir)
             .current_dir(&root)
             .output()
             .unwrap_or_else(|e| panic!("cannot run {}: {e}", py.display()));
         assert!(
             out.status.success(),
-            "exporting the tiny bundle failed ({}):\n{}\n{}",
+            "exporting the tiny test bundle failed ({}):\n{}\n{}",
             out.status,
             String::from_utf8_lossy(&out.stdout),
             String::from_utf8_lossy(&out.stderr)
@@ -108,18 +119,19 @@ fn export_tiny() -> PathBuf {
     dir
 }
 
-/// The tiny bundle of this run (see the crate docs).
+/// The tiny test bundle of this run (see the crate docs).
 pub fn tiny_bundle() -> PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(
-        || match std::env::var_os(TINY_BUNDLE_ENV).filter(|v| !v.is_empty()) {
+        || match std::env::var_os(TEST_BUNDLE_ENV).filter(|v| !v.is_empty()) {
             Some(p) => {
                 let p = PathBuf::from(p);
                 assert!(
                     p.join("manifest.json").is_file(),
-                    "{TINY_BUNDLE_ENV}={} has no manifest.json (export one with \
-                 `$LIVEGESTURE_PY export/export.py --config tiny --out DIR`)",
-                    p.display()
+                    "{TEST_BUNDLE_ENV}={} has no manifest.json (export one with \
+                     `$LIVEGESTURE_PY export/export.py {} --out DIR`)",
+                    p.display(),
+                    EXPORT_ARGS.join(" ")
                 );
                 p
             }
@@ -127,6 +139,71 @@ pub fn tiny_bundle() -> PathBuf {
         },
     )
     .clone()
+}
+
+/// Copies the tiny test bundle into `to/bundle` (for corruption tests); returns the copy's folder.
+pub fn copy_bundle(to: &Path) -> PathBuf {
+    fn copy_dir(from: &Path, to: &Path) {
+        std::fs::create_dir_all(to).unwrap();
+        for e in std::fs::read_dir(from).unwrap() {
+            let e = e.unwrap();
+            let p = e.path();
+            if p.is_dir() {
+                copy_dir(&p, &to.join(e.file_name()));
+            } else {
+                std::fs::copy(&p, to.join(e.file_name())).unwrap();
+            }
+        }
+    }
+    let dst = to.join("bundle");
+    copy_dir(&tiny_bundle(), &dst);
+    dst
+}
+
+/// The bundle's reference rollout (read by the library's own reader) and the seed it was made with
+/// (the manifest's `reference.rollout_seed`, checked against the one stored in the npz).
+pub fn reference_rollout(bundle: &Bundle) -> (ReferenceRollout, u64) {
+    let rel = bundle
+        .reference()
+        .and_then(|r| r.rollout.clone())
+        .unwrap_or_else(|| "reference/rollout.npz".into());
+    let ro = ReferenceRollout::load(&bundle.path(&rel))
+        .unwrap_or_else(|e| panic!("reading the reference rollout: {e}"));
+    let seed = bundle
+        .reference()
+        .and_then(|r| r.rollout_seed)
+        .expect("the manifest names the rollout seed");
+    if let Some(s) = ro.seed {
+        assert_eq!(
+            s, seed,
+            "the rollout npz and the manifest disagree on the seed"
+        );
+    }
+    (ro, seed)
+}
+
+/// The ort library for tests: `ORT_DYLIB_PATH` must be set (`source scripts/env.sh`).
+pub fn require_ort() {
+    match std::env::var_os("ORT_DYLIB_PATH") {
+        Some(p) if Path::new(&p).is_file() => {}
+        Some(p) => panic!(
+            "ORT_DYLIB_PATH={} does not exist; `source scripts/env.sh`",
+            Path::new(&p).display()
+        ),
+        None => panic!(
+            "ORT_DYLIB_PATH is not set: the ort backend tests need ONNX Runtime \
+             (`source scripts/env.sh` sets it)"
+        ),
+    }
+}
+
+/// Max abs difference of two equally shaped arrays.
+pub fn max_abs(a: &ndarray::Array2<f32>, b: &ndarray::Array2<f32>) -> f32 {
+    assert_eq!(a.dim(), b.dim(), "shapes differ");
+    a.iter()
+        .zip(b.iter())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
 }
 
 /// How `tools/break_bundle.py` breaks the copy.

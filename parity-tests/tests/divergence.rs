@@ -2,8 +2,8 @@
 //! first diverging step and region, the two tokens and the sampling margin, and tell a numerical
 //! near-tie from a real difference.
 
+use livegesture::model::livegesture::StepLogits;
 use livegesture::parity::{find_divergence, replay_uniform, RolloutTrace, SamplingParams};
-use livegesture::pipeline::StepLogits;
 use livegesture::sampling::{sample_token, SplitMix64};
 
 const K: usize = 16;

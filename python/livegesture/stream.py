@@ -113,6 +113,25 @@ class LiveGestureStream:
             frames += self.step_token(mel)
         return frames
 
+    def finish(self, n_in: int | None = None, rate_in: int | None = None) -> list[Frame]:
+        """End of the audio (SPEC 8): completes the last partial token with silence and returns its frames
+        cut at the audio's end, so that ceil(duration x fps) frames were emitted in total, computed in
+        integers from the input's own sample count and rate: ``(n_in * fps + rate_in - 1) // rate_in``
+        (default: the samples pushed, at the frontend's rate). The Rust runtime's ``finish`` is the same."""
+        cfg = self.cfg.frontend
+        if n_in is None:
+            n_in, rate_in = self.frontend.n_samples, cfg.sample_rate
+        total = (n_in * cfg.fps + rate_in - 1) // rate_in
+        needed = -(-total // cfg.frames_per_token)
+        produced = self.frontend.next_token
+        if produced * cfg.frames_per_token > total or needed > produced + 1:
+            raise ValueError(f"finish: the input ({n_in} samples at {rate_in} Hz, {total} frames) does not match "
+                             f"the {self.frontend.n_samples} samples pushed ({produced} tokens)")
+        frames = []
+        if needed > produced:
+            frames = self.push(np.zeros(cfg.token_end(needed - 1) - self.frontend.n_samples, np.float32))
+        return [f for f in frames if f.index < total]
+
 
 def frames_to_arrays(frames: list[Frame]) -> dict[str, np.ndarray]:
     if not frames:
@@ -124,14 +143,20 @@ def frames_to_arrays(frames: list[Frame]) -> dict[str, np.ndarray]:
 
 
 def generate_clip(model: LiveGesture, audio_16k: np.ndarray, seed: int = 0, guidance: float | None = None,
-                  chunk: int | None = None, temperature: float | None = None, top_k: int | None = None) -> dict:
-    """Run the streaming loop over a whole clip. Returns dict(poses, trans, expressions, foot_contact, tokens)."""
+                  chunk: int | None = None, temperature: float | None = None, top_k: int | None = None,
+                  finish: bool = False) -> dict:
+    """Run the streaming loop over a whole clip. Returns dict(poses, trans, expressions, foot_contact, tokens).
+
+    ``finish=True`` covers the whole audio as the runtime's ``generate`` does (SPEC 8, ``LiveGestureStream.finish``);
+    the default stops at the last complete token, as the exported reference rollout does."""
     s = LiveGestureStream(model, seed=seed, guidance=guidance, temperature=temperature, top_k=top_k)
     audio = np.asarray(audio_16k, dtype=np.float32)
     chunk = chunk or len(audio) or 1
     frames = []
     for i in range(0, len(audio), chunk):
         frames += s.push(audio[i:i + chunk])
+    if finish:
+        frames += s.finish()
     out = frames_to_arrays(frames)
     out["tokens"] = np.array([[t[r] for r in REGION_NAMES] for t in s.tokens], dtype=np.int64).reshape(-1, len(REGION_NAMES))
     return out

@@ -129,3 +129,27 @@ def test_step_rejects_bad_shapes(tiny):
         tiny.svq["face"].step(torch.zeros(1), tiny.svq["face"].init_cache(1))
     with pytest.raises(ValueError, match="NaN or Inf"):
         LiveGestureStream(tiny).push(np.array([0.0, np.nan], dtype=np.float32))
+
+
+def test_finish_covers_the_whole_audio(tiny):
+    """SPEC 8: the last partial token is completed with silence and cut at the audio's end, so
+    ceil(duration x 30) frames come out; the same rule as the runtime's finish (runtime/tests/coverage.rs)."""
+    cfg = FrontendConfig()
+    audio = speechy(1.0, seed=4)
+    for n in (1, 1000, cfg.token_end(3), cfg.token_end(3) + 1, cfg.token_end(3) - 1):
+        out = generate_clip(tiny, audio[:n], seed=7, finish=True)
+        assert out["poses"].shape[0] == (n * 30 + 15999) // 16000, n
+        # the complete tokens are those of the plain run; finishing only appends
+        plain = generate_clip(tiny, audio[:n], seed=7)
+        assert np.array_equal(out["poses"][:len(plain["poses"])], plain["poses"])
+    n = cfg.token_end(5) + 1
+    ref = generate_clip(tiny, audio[:n], seed=7, finish=True)
+    for chunk in (1, 160, 3331):
+        assert np.array_equal(generate_clip(tiny, audio[:n], seed=7, chunk=chunk, finish=True)["poses"], ref["poses"])
+    # the input's own rate fixes the count: 44.1 kHz input of 30 001 samples -> ceil(30001 * 30 / 44100) frames
+    s = LiveGestureStream(tiny, seed=0)
+    frames = s.push(audio[:30001 * 16000 // 44100])
+    frames += s.finish(30001, 44100)
+    assert len(frames) == (30001 * 30 + 44099) // 44100
+    with pytest.raises(ValueError):
+        LiveGestureStream(tiny).finish(16000, 16000)       # claims a second of audio never pushed

@@ -1,29 +1,47 @@
 //! LiveGesture runtime: streaming speech-to-gesture generation from exported ONNX bundles.
 //!
-//! Graph-independent numerics and IO:
+//! The library API, for running a bundle:
 //!
+//! - [`bundle`]: loading and verifying a model bundle (`manifest.json` with its `family`, sha256 of
+//!   every file, graph I/O);
+//! - [`backend`]: the [`backend::Tensor`], the `Backend` trait and its two implementations, tract
+//!   (default) and ort;
+//! - [`model`]: the family-independent streaming API ([`model::MotionModel`],
+//!   [`model::MotionStream`], [`model::load`] picks the family's implementation) and the families
+//!   ([`model::livegesture`]: streams, batched token steps);
+//! - [`audio`]: WAV and raw PCM input, converted to 16 kHz mono, and [`audio::AudioSpan`] (how many
+//!   frames cover an input);
 //! - [`frontend`]: the log-mel audio frontend (the Python training frontend's definition, within 1e-4);
 //! - [`sampling`]: the portable seeded sampler (SplitMix64 + guided top-k sampling);
 //! - [`rotation`]: rot6d / matrix / quaternion / axis-angle conversions;
-//! - [`audio`]: WAV and raw PCM input, converted to 16 kHz mono;
-//! - [`output`]: BEAT2 `.npz` files and per-frame live records (JSON lines and binary).
+//! - [`output`]: frames, BEAT2 `.npz` files and live records (JSON lines and binary);
+//! - [`skeleton`] and [`bvh`]: the project's own skeleton (SMPL-X joint names and hierarchy) and BVH
+//!   output on it.
 //!
-//! Bundles and inference:
+//! Tools, behind cargo features that are on by default (the `livegesture` binary uses them; a program
+//! that only runs bundles can depend on the crate with `default-features = false, features = ["ort"]`):
 //!
-//! - [`bundle`]: loading and verifying a model bundle (`manifest.json`, sha256 of every file, graph I/O);
-//! - [`backend`]: the `Backend` trait and its two implementations, tract (default) and ort;
-//! - [`pipeline`]: the streaming pipeline (streams, batched token steps, frames).
+//! - `parity` ([`parity`]): the parity suite of SPEC section 7;
+//! - `bench` ([`bench`]): the benchmarks of SPEC section 11;
+//! - `serve` ([`serve`]): live serving over WebSocket (SPEC 12), sessions stepped together in batches.
 
 pub mod audio;
 pub mod backend;
+#[cfg(feature = "bench")]
 pub mod bench;
 pub mod bundle;
 pub mod bvh;
 pub mod frontend;
+pub mod model;
 pub mod output;
+#[cfg(feature = "parity")]
 pub mod parity;
-pub mod pipeline;
 pub mod rotation;
 pub mod sampling;
+#[cfg(feature = "serve")]
 pub mod serve;
 pub mod skeleton;
+
+/// The former path of [`model::livegesture`] (streams, [`model::livegesture::StreamBatch`]), kept so
+/// code written against it still builds; new code names [`model::livegesture`].
+pub use model::livegesture as pipeline;

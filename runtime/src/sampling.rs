@@ -91,6 +91,119 @@ pub fn guide(cond: &[f32], uncond: Option<&[f32]>, gamma: f64) -> Result<Vec<f64
     }
 }
 
+/// The guided, tempered and top-k-truncated distribution of one region's token: steps 1-4 of the
+/// module docs, built once and then drawn from ([`TokenDistribution::draw`], step 5). The sampler
+/// ([`sample_token`]) and the parity report's sampling margins use this one definition.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TokenDistribution {
+    /// Guided logits divided by the temperature, by token index (all finite).
+    pub logits: Vec<f64>,
+    /// Every token index, by logit descending, ties by index ascending.
+    pub order: Vec<usize>,
+    /// How many indices of `order` are kept (top-k; all when `top_k` is 0 or `>= K`).
+    pub kept: usize,
+    /// `exp(g_j - g_first)` of the kept indices, in `order`.
+    pub weights: Vec<f64>,
+    /// The sum of `weights`, accumulated in order.
+    pub total: f64,
+}
+
+/// A draw from a [`TokenDistribution`]: the token and its interval `[lo, hi)` of cumulative weight
+/// (in units of [`TokenDistribution::total`]) that contained `r = u * total`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Draw {
+    pub token: usize,
+    pub r: f64,
+    pub lo: f64,
+    pub hi: f64,
+}
+
+impl TokenDistribution {
+    /// Steps 1-4 from one region's logits (length K). Errors when `temperature <= 0` or not finite,
+    /// when the logits are empty or of different lengths, or when a guided logit is NaN or infinite.
+    pub fn new(
+        cond: &[f32],
+        uncond: Option<&[f32]>,
+        gamma: f64,
+        temperature: f64,
+        top_k: usize,
+    ) -> Result<Self> {
+        // NaN is rejected too (Python rejects it through the finiteness check of the scaled logits).
+        if temperature.is_nan() || temperature <= 0.0 {
+            bail!("sampler: temperature must be > 0, got {temperature}");
+        }
+        ensure!(!cond.is_empty(), "sampler: logits are empty");
+        let mut g = guide(cond, uncond, gamma)?;
+        for x in g.iter_mut() {
+            *x /= temperature;
+        }
+        if let Some(i) = g.iter().position(|x| !x.is_finite()) {
+            bail!(
+                "sampler: logits contain NaN or Inf (guided logit {i} is {})",
+                g[i]
+            );
+        }
+        let k = g.len();
+        let mut order: Vec<usize> = (0..k).collect();
+        // g descending, index ascending. All values are finite, so partial_cmp is total here, and it
+        // treats -0.0 == 0.0 as numpy's sort does.
+        order.sort_unstable_by(|&a, &b| {
+            g[b].partial_cmp(&g[a])
+                .unwrap_or(std::cmp::Ordering::Equal)
+                .then(a.cmp(&b))
+        });
+        let kept = if top_k > 0 && top_k < k { top_k } else { k };
+        let g0 = g[order[0]];
+        let weights: Vec<f64> = order[..kept].iter().map(|&i| (g[i] - g0).exp()).collect();
+        let mut total = 0.0f64;
+        for &x in &weights {
+            total += x;
+        }
+        Ok(Self {
+            logits: g,
+            order,
+            kept,
+            weights,
+            total,
+        })
+    }
+
+    /// Step 5 for the uniform `u` in `[0, 1)`: `r = u * total`; walking the kept indices in order
+    /// and accumulating their weights, the token is the first whose running sum exceeds `r` (the
+    /// last kept index if rounding leaves none).
+    pub fn draw(&self, u: f64) -> Draw {
+        let r = u * self.total;
+        let mut acc = 0.0f64;
+        for (&i, &x) in self.order.iter().zip(&self.weights) {
+            let lo = acc;
+            acc += x;
+            if acc > r {
+                return Draw {
+                    token: i,
+                    r,
+                    lo,
+                    hi: acc,
+                };
+            }
+        }
+        Draw {
+            token: self.order[self.kept - 1],
+            r,
+            lo: 0.0,
+            hi: self.total,
+        }
+    }
+
+    /// The probability of `token` (0 when top-k left it out or it is out of range).
+    pub fn probability(&self, token: i64) -> f64 {
+        self.order[..self.kept]
+            .iter()
+            .zip(&self.weights)
+            .find(|(&i, _)| i as i64 == token)
+            .map_or(0.0, |(_, &x)| x / self.total)
+    }
+}
+
 /// Draws one token from one region's logits (length K). See the module docs for the exact definition.
 ///
 /// Errors (without drawing from `rng`) when `temperature <= 0` or not finite, when the logits are
@@ -103,48 +216,8 @@ pub fn sample_token(
     temperature: f64,
     top_k: usize,
 ) -> Result<usize> {
-    // NaN is rejected too (Python rejects it through the finiteness check of the scaled logits).
-    if temperature.is_nan() || temperature <= 0.0 {
-        bail!("sampler: temperature must be > 0, got {temperature}");
-    }
-    ensure!(!cond.is_empty(), "sampler: logits are empty");
-    let mut g = guide(cond, uncond, gamma)?;
-    for x in g.iter_mut() {
-        *x /= temperature;
-    }
-    if let Some(i) = g.iter().position(|x| !x.is_finite()) {
-        bail!(
-            "sampler: logits contain NaN or Inf (guided logit {i} is {})",
-            g[i]
-        );
-    }
-    let k = g.len();
-    let mut order: Vec<usize> = (0..k).collect();
-    // g descending, index ascending. All values are finite, so partial_cmp is total here, and it
-    // treats -0.0 == 0.0 as numpy's sort does.
-    order.sort_unstable_by(|&a, &b| {
-        g[b].partial_cmp(&g[a])
-            .unwrap_or(std::cmp::Ordering::Equal)
-            .then(a.cmp(&b))
-    });
-    if top_k > 0 && top_k < k {
-        order.truncate(top_k);
-    }
-    let g0 = g[order[0]];
-    let w: Vec<f64> = order.iter().map(|&i| (g[i] - g0).exp()).collect();
-    let mut s = 0.0f64;
-    for &x in &w {
-        s += x;
-    }
-    let r = rng.next_f64() * s;
-    let mut acc = 0.0f64;
-    for (&i, &x) in order.iter().zip(&w) {
-        acc += x;
-        if acc > r {
-            return Ok(i);
-        }
-    }
-    Ok(order[order.len() - 1])
+    let d = TokenDistribution::new(cond, uncond, gamma, temperature, top_k)?;
+    Ok(d.draw(rng.next_f64()).token)
 }
 
 #[cfg(test)]

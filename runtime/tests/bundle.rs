@@ -1,6 +1,6 @@
 //! Bundle loading: verification of files, hashes, schema version and graph I/O; state from the manifest.
 
-mod common;
+use livegesture_parity_tests as common;
 
 use livegesture::backend::DType;
 use livegesture::bundle::{concrete_shape, Bundle, BundleError, Dim};
@@ -25,11 +25,13 @@ fn edit_manifest(dir: &std::path::Path, f: impl FnOnce(&mut serde_json::Value)) 
 
 #[test]
 fn test_bundle_loads_and_describes_itself() {
-    let b = Bundle::load(common::bundle_dir()).expect("test bundle loads");
-    assert_eq!(b.region_names(), ["upper", "hands", "lower", "face"]);
+    let b = Bundle::load(common::tiny_bundle()).expect("test bundle loads");
+    assert_eq!(b.family(), livegesture::bundle::Family::LiveGesture);
+    let lg = b.livegesture().unwrap();
+    assert_eq!(lg.region_names(), ["upper", "hands", "lower", "face"]);
     assert_eq!(b.graphs().len(), 10);
-    assert!(b.vocab().bos_token >= b.vocab().codebook_size as i64);
-    assert!(b.sampling().temperature > 0.0);
+    assert!(lg.vocab.bos_token >= lg.vocab.codebook_size as i64);
+    assert!(lg.sampling.temperature > 0.0);
     // initial state comes from the manifest's cache shapes
     for g in b.graphs() {
         assert!(!g.caches.is_empty(), "graph {} has caches", g.name);

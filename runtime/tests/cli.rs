@@ -1,11 +1,12 @@
 //! The `livegesture` binary end to end: generate (both backends), stream, info, bad input, bad bundles.
 
-mod common;
+use livegesture_parity_tests as common;
 
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
+use livegesture::audio::AudioSpan;
 use livegesture::frontend::FrontendConfig;
 use livegesture::output::{read_beat2_npz, BinaryFrameReader, Frame};
 
@@ -25,7 +26,7 @@ fn stderr(o: &Output) -> String {
 
 /// The first `seconds` of the bundle's reference clip as a 16 kHz mono 16-bit WAV.
 fn short_wav(dir: &Path, seconds: f64) -> (PathBuf, Vec<i16>) {
-    let mut r = hound::WavReader::open(common::bundle_dir().join("reference/clip.wav")).unwrap();
+    let mut r = hound::WavReader::open(common::tiny_bundle().join("reference/clip.wav")).unwrap();
     let n = (seconds * 16000.0) as usize;
     let samples: Vec<i16> = r.samples::<i16>().take(n).map(|s| s.unwrap()).collect();
     let p = dir.join("short.wav");
@@ -68,11 +69,11 @@ fn raw_wav(p: &Path, format_tag: u16, channels: u16, rate: u32, bits: u16, data:
 }
 
 fn bundle_arg() -> String {
-    common::bundle_dir().display().to_string()
+    common::tiny_bundle().display().to_string()
 }
 
 fn frontend() -> FrontendConfig {
-    livegesture::bundle::Bundle::load(common::bundle_dir())
+    livegesture::bundle::Bundle::load(common::tiny_bundle())
         .unwrap()
         .frontend()
         .clone()
@@ -129,12 +130,38 @@ fn generate(wav: &Path, out: &Path, extra: &[&str]) -> Output {
     run(&args)
 }
 
+/// Runs `livegesture stream ARGS --bundle <test bundle>` with `pcm` written to its stdin in pieces of
+/// `piece` bytes (from a thread: the child's stdout must be drained meanwhile or both block).
+fn stream_stdin(args: &[&str], pcm: Vec<u8>, piece: usize) -> Output {
+    let mut child = bin()
+        .arg("stream")
+        .args(args)
+        .args(["--bundle", &bundle_arg()])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdin = child.stdin.take().unwrap();
+    let writer = std::thread::spawn(move || {
+        use std::io::Write;
+        for c in pcm.chunks(piece.max(1)) {
+            stdin.write_all(c).unwrap();
+        }
+    });
+    let o = child.wait_with_output().unwrap();
+    writer.join().unwrap();
+    o
+}
+
 #[test]
 fn generate_writes_a_beat2_npz_with_both_backends() {
     common::require_ort();
     let tmp = tempfile::tempdir().unwrap();
     let (wav, samples) = short_wav(tmp.path(), 2.3);
-    let n_frames = 4 * frontend().n_tokens(samples.len() as u64) as usize;
+    // SPEC 8: the frames cover the whole audio, ceil(duration x 30)
+    let n_frames = AudioSpan::at_16k(samples.len() as u64).frames(30) as usize;
+    assert!(n_frames > 4 * frontend().n_tokens(samples.len() as u64) as usize);
     let mut motions = Vec::new();
     for backend in ["tract", "ort"] {
         let out = tmp.path().join(format!("{backend}.npz"));
@@ -177,39 +204,20 @@ fn stream_and_generate_give_the_same_frames() {
     assert!(o.status.success(), "{}", stderr(&o));
     let m = read_beat2_npz(&out).unwrap();
     let pcm: Vec<u8> = samples.iter().flat_map(|s| s.to_le_bytes()).collect();
-    let b = bundle_arg();
     let stream = |fmt: &str| -> Vec<u8> {
-        let mut child = bin()
-            .args([
-                "stream",
-                "--rate",
-                "16000",
-                "--format",
-                "s16le",
-                "--output",
-                fmt,
-                "--bundle",
-                &b,
-                "--seed",
-                "5",
-                "--guidance",
-                "1.5",
-            ])
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        let mut stdin = child.stdin.take().unwrap();
-        let data = pcm.clone();
-        let writer = std::thread::spawn(move || {
-            use std::io::Write;
-            for c in data.chunks(777) {
-                stdin.write_all(c).unwrap();
-            }
-        });
-        let o = child.wait_with_output().unwrap();
-        writer.join().unwrap();
+        let args = [
+            "--rate",
+            "16000",
+            "--format",
+            "s16le",
+            "--output",
+            fmt,
+            "--seed",
+            "5",
+            "--guidance",
+            "1.5",
+        ];
+        let o = stream_stdin(&args, pcm.clone(), 777);
         assert!(o.status.success(), "stream --output {fmt}: {}", stderr(&o));
         o.stdout
     };
@@ -283,35 +291,13 @@ fn stream_resamples_and_mixes_any_input() {
             }
         }
     }
-    let b = bundle_arg();
-    let mut child = bin()
-        .args([
-            "stream",
-            "--rate",
-            "48000",
-            "--channels",
-            "2",
-            "--format",
-            "f32le",
-            "--bundle",
-            &b,
-        ])
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut stdin = child.stdin.take().unwrap();
-    // write from a thread: the child's stdout must be drained meanwhile or both block
-    let writer = std::thread::spawn(move || {
-        use std::io::Write;
-        stdin.write_all(&pcm).unwrap();
-    });
-    let o = child.wait_with_output().unwrap();
-    writer.join().unwrap();
+    let args = ["--rate", "48000", "--channels", "2", "--format", "f32le"];
+    let o = stream_stdin(&args, pcm, usize::MAX);
     assert!(o.status.success(), "{}", stderr(&o));
     let lines = String::from_utf8(o.stdout).unwrap().lines().count();
-    assert_eq!(lines as u64, 4 * frontend().n_tokens(samples.len() as u64));
+    // SPEC 8, from the input's own count and rate: ceil(n * 30 / 48000) frames
+    let n_in = 3 * samples.len() as u64;
+    assert_eq!(lines as u64, (n_in * 30).div_ceil(48000));
 }
 
 #[test]
@@ -408,10 +394,6 @@ fn bad_input_is_refused_without_output() {
     write_wav(&p, &[]);
     assert_bad_input("zero-length audio", &p, &out);
 
-    let p = d.join("too_short.wav");
-    write_wav(&p, &[100; 1000]);
-    assert_bad_input("shorter than a token", &p, &out);
-
     let o = generate(&d.join("does_not_exist.wav"), &out, &[]);
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("does_not_exist.wav"));
@@ -474,4 +456,38 @@ fn a_corrupted_bundle_is_refused_by_the_cli() {
         .unwrap();
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("expert_lower.onnx"));
+}
+
+/// SPEC 8 through the CLI: audio shorter than one token, and a length one sample past a token
+/// boundary, give ceil(duration x 30) frames from `generate` and `stream`, and the same frames.
+#[test]
+fn generate_and_stream_cover_the_whole_audio() {
+    let tmp = tempfile::tempdir().unwrap();
+    let f = frontend();
+    for n in [1000u64, f.token_end(2) + 1] {
+        let samples: Vec<i16> = (0..n).map(|i| ((i * 37) % 2000) as i16 - 1000).collect();
+        let wav = tmp.path().join(format!("a{n}.wav"));
+        write_wav(&wav, &samples);
+        let want = (n * 30).div_ceil(16000);
+        let out = tmp.path().join(format!("a{n}.npz"));
+        let o = generate(&wav, &out, &["--seed", "3"]);
+        assert!(o.status.success(), "{n} samples: {}", stderr(&o));
+        let m = read_beat2_npz(&out).unwrap();
+        assert_eq!(m.len() as u64, want, "{n} samples: generate frames");
+        let pcm: Vec<u8> = samples.iter().flat_map(|s| s.to_le_bytes()).collect();
+        let o = stream_stdin(&["--output", "binary", "--seed", "3"], pcm, 4096);
+        assert!(o.status.success(), "{n} samples: {}", stderr(&o));
+        let frames: Vec<Frame> = BinaryFrameReader::new(&o.stdout[..])
+            .unwrap()
+            .map(|f| f.unwrap())
+            .collect();
+        assert_eq!(frames.len() as u64, want, "{n} samples: stream frames");
+        for (i, fr) in frames.iter().enumerate() {
+            assert_eq!(
+                &fr.poses[..],
+                m.poses.row(i).as_slice().unwrap(),
+                "frame {i}"
+            );
+        }
+    }
 }

@@ -2,7 +2,7 @@
 //! (`<exe_dir>/../share/livegesture/models/default`, then `<exe_dir>/models/default`);
 //! `$LIVEGESTURE_BUNDLE` and `--bundle` still win.
 
-mod common;
+use livegesture_parity_tests as common;
 
 use std::path::Path;
 use std::process::Command;
@@ -45,7 +45,7 @@ fn a_copied_binary_finds_the_bundle_installed_beside_it() {
     std::fs::copy(env!("CARGO_BIN_EXE_livegesture"), &bin).unwrap();
     // <prefix>/share/livegesture/models/default
     let share = prefix.join("share/livegesture/models/default");
-    copy_dir(&common::bundle_dir(), &share);
+    copy_dir(&common::tiny_bundle(), &share);
     let (ok, out) = info(&bin, None);
     assert!(ok, "{out}");
     let shown = share.canonicalize().unwrap();
@@ -56,7 +56,7 @@ fn a_copied_binary_finds_the_bundle_installed_beside_it() {
     );
     // $LIVEGESTURE_BUNDLE wins over the installed one
     let other = tmp.path().join("other");
-    copy_dir(&common::bundle_dir(), &other);
+    copy_dir(&common::tiny_bundle(), &other);
     let (ok, out) = info(&bin, Some(&other));
     assert!(ok && out.contains(&other.display().to_string()), "{out}");
     // <exe_dir>/models/default, for a binary unpacked next to its model
@@ -65,7 +65,7 @@ fn a_copied_binary_finds_the_bundle_installed_beside_it() {
     std::fs::create_dir_all(&flat).unwrap();
     let bin2 = flat.join("livegesture");
     std::fs::copy(&bin, &bin2).unwrap();
-    copy_dir(&common::bundle_dir(), &flat.join("models/default"));
+    copy_dir(&common::tiny_bundle(), &flat.join("models/default"));
     let (ok, out) = info(&bin2, None);
     assert!(ok && out.contains("models/default"), "{out}");
     assert!(

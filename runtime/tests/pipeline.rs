@@ -1,13 +1,13 @@
 //! The streaming pipeline against the bundle's reference rollout (torch), on both backends, and its
 //! streaming properties (chunk-size invariance, batched stepping, guidance off).
 
-mod common;
+use livegesture_parity_tests as common;
 
 use livegesture::audio::read_wav_16k_mono;
 use livegesture::backend::{self, BackendKind, BackendOptions};
 use livegesture::bundle::Bundle;
+use livegesture::model::livegesture::{Pipeline, StreamOptions, TokenStep};
 use livegesture::output::Frame;
-use livegesture::pipeline::{Pipeline, StreamOptions, TokenStep};
 use ndarray::Array2;
 
 const FRAME_BOUND: f32 = 1e-4;
@@ -16,7 +16,7 @@ fn pipeline(kind: BackendKind) -> (Bundle, Pipeline) {
     if kind == BackendKind::Ort {
         common::require_ort();
     }
-    let bundle = Bundle::load(common::bundle_dir()).expect("test bundle loads");
+    let bundle = Bundle::load(common::tiny_bundle()).expect("test bundle loads");
     let be = backend::create(&BackendOptions {
         kind,
         ..Default::default()
@@ -55,12 +55,7 @@ fn run_all(p: &mut Pipeline, opts: &StreamOptions, audio: &[f32], chunk: usize) 
 
 fn check_rollout(kind: BackendKind) {
     let (bundle, mut p) = pipeline(kind);
-    let ro = common::rollout(bundle.dir());
-    let seed = bundle
-        .reference()
-        .and_then(|r| r.rollout_seed)
-        .unwrap_or(ro.seed);
-    assert_eq!(seed, ro.seed);
+    let (ro, seed) = common::reference_rollout(&bundle);
     let audio = rollout_audio(&bundle, ro.clip_repeats);
     let opts = StreamOptions {
         seed,
@@ -68,10 +63,9 @@ fn check_rollout(kind: BackendKind) {
         ..Default::default()
     };
     let steps = run_all(&mut p, &opts, &audio, 16000);
-    assert_eq!(steps.len(), ro.tokens.nrows(), "{kind}: token count");
+    assert_eq!(steps.len(), ro.tokens.len(), "{kind}: token count");
     for (t, s) in steps.iter().enumerate() {
-        let want: Vec<i64> = ro.tokens.row(t).to_vec();
-        assert_eq!(s.tokens, want, "{kind}: tokens differ at step {t}");
+        assert_eq!(s.tokens, ro.tokens[t], "{kind}: tokens differ at step {t}");
     }
     let frames: Vec<Frame> = steps.into_iter().flat_map(|s| s.frames).collect();
     for (name, got, want) in [

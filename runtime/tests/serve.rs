@@ -3,27 +3,27 @@
 //!
 //! The reference for a session is what `generate` computes for the same audio written as a WAV file:
 //! `read_wav_16k_mono` (the WAV reader and resampler `generate` streams through), the pipeline on
-//! one stream with the same seed and backend, the last token completed with silence and the frames
-//! cut at `ceil(n_in * 30 / rate)` (SPEC 8). One test also runs the `generate` binary itself.
+//! one stream with the same seed and backend, ended by the stream's `finish` with the input's own
+//! sample count and rate (SPEC 8: the last token completed with silence, `ceil(n_in * 30 / rate)`
+//! frames). One test also runs the `generate` binary itself.
 
-mod common;
+use livegesture_parity_tests as common;
 
 use std::net::SocketAddr;
 use std::path::Path;
 use std::time::Duration;
 
 use futures_util::{SinkExt, StreamExt};
-use livegesture::audio::read_wav_16k_mono;
+use livegesture::audio::{read_wav_16k_mono, AudioSpan};
 use livegesture::backend::{self, BackendKind, BackendOptions};
 use livegesture::bundle::Bundle;
+use livegesture::model::livegesture::{Pipeline, StreamOptions};
 use livegesture::output::{Frame, FPS};
-use livegesture::pipeline::{Pipeline, StreamOptions};
-use livegesture::serve::protocol::frames_for_samples;
 use livegesture::serve::{ModelInfo, ServeConfig, Server};
 use tokio_tungstenite::tungstenite::Message;
 
 fn make_pipeline() -> (Bundle, Pipeline) {
-    let bundle = Bundle::load(common::bundle_dir()).expect("bundle");
+    let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
     let be = backend::create(&BackendOptions {
         kind: BackendKind::Tract,
         execution_provider: "cpu".into(),
@@ -53,7 +53,7 @@ fn start(cfg: ServeConfig) -> Server {
 
 /// `seconds` of the bundle's reference speech clip at 16 kHz (repeated if shorter).
 fn speech(seconds: f64) -> Vec<f32> {
-    let clip = read_wav_16k_mono(common::bundle_dir().join("reference/clip.wav")).unwrap();
+    let clip = read_wav_16k_mono(common::tiny_bundle().join("reference/clip.wav")).unwrap();
     let n = (seconds * 16000.0) as usize;
     clip.iter().copied().cycle().take(n).collect()
 }
@@ -118,25 +118,17 @@ fn reference(samples: &[f32], rate: u32, channels: u16, float: bool, seed: u64) 
     let wav = dir.path().join("in.wav");
     write_wav(&wav, rate, channels, float, samples);
     let a16 = read_wav_16k_mono(&wav).unwrap();
-    let (bundle, mut p) = make_pipeline();
-    let f = bundle.frontend().clone();
-    let n_in = (samples.len() / channels as usize) as u64;
-    let frames = frames_for_samples(n_in, rate, FPS as u64);
-    let tokens = frames.div_ceil(f.frames_per_token);
-    let mut audio = a16;
-    let need = f.token_end(tokens - 1) as usize;
-    if audio.len() < need {
-        audio.resize(need, 0.0);
-    }
+    let (_bundle, mut p) = make_pipeline();
+    let input = AudioSpan::new((samples.len() / channels as usize) as u64, rate);
     let mut s = p
         .new_stream(&StreamOptions {
             seed,
             ..Default::default()
         })
         .unwrap();
-    let mut out = p.push(&mut s, &audio).unwrap();
-    out.truncate(frames as usize);
-    assert_eq!(out.len() as u64, frames);
+    let mut out = p.push(&mut s, &a16).unwrap();
+    out.extend(p.finish(&mut s, input).unwrap());
+    assert_eq!(out.len() as u64, input.frames(FPS as u64));
     out
 }
 
@@ -292,7 +284,7 @@ fn stereo_44k_f32_binary_equals_generate() {
     let want = reference(&inter, 44100, 2, true, 9);
     assert_eq!(
         want.len() as u64,
-        frames_for_samples(st.len() as u64, 44100, 30)
+        AudioSpan::new(st.len() as u64, 44100).frames(30)
     );
     let bytes = pcm_bytes(&inter, true);
     for cuts in [vec![4410 * 8], vec![8191, 5, 3]] {
@@ -348,7 +340,7 @@ fn frames_equal_the_generate_binary() {
             "tract",
             "--bundle",
         ])
-        .arg(common::bundle_dir())
+        .arg(common::tiny_bundle())
         .output()
         .unwrap();
     assert!(
@@ -361,13 +353,13 @@ fn frames_equal_the_generate_binary() {
         60,
         session(server.addr(), "?seed=5", &pcm_bytes(&audio, false), &[640]),
     );
-    // generate writes every frame it makes; serve covers the whole audio (SPEC 8)
+    // both cover the whole audio with the same frames (SPEC 8)
     assert_eq!(
         got.frames.len() as u64,
-        frames_for_samples(audio.len() as u64, 16000, 30)
+        AudioSpan::at_16k(audio.len() as u64).frames(30)
     );
-    assert!(m.len() <= got.frames.len() && m.len() + 4 > got.frames.len());
-    for (t, f) in got.frames.iter().take(m.len()).enumerate() {
+    assert_eq!(m.len(), got.frames.len());
+    for (t, f) in got.frames.iter().enumerate() {
         for j in 0..165 {
             assert!(
                 (f.poses[j] - m.poses[[t, j]]).abs() <= 1e-4,
@@ -667,7 +659,7 @@ fn sigterm_drains_arrived_tokens_closes_1001_and_exits_0() {
             "256",
             "--bundle",
         ])
-        .arg(common::bundle_dir())
+        .arg(common::tiny_bundle())
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
@@ -717,7 +709,7 @@ fn sigterm_drains_arrived_tokens_closes_1001_and_exits_0() {
     assert!(status.success(), "serve exited with {status}\n{log}");
     assert_eq!(got.close.as_ref().map(|c| c.0), Some(1001), "{got:?}");
     let want = reference(&speech(3.1), 16000, 1, false, 2);
-    let f = Bundle::load(common::bundle_dir())
+    let f = Bundle::load(common::tiny_bundle())
         .unwrap()
         .frontend()
         .clone();

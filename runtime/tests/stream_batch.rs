@@ -3,19 +3,21 @@
 //! stepping alone, and joining again) in the middle; mixed guidance, seeds and sampling settings; on
 //! both backends. Plus the batch's bookkeeping and error cases.
 
-mod common;
+use livegesture_parity_tests as common;
 
 use livegesture::audio::read_wav_16k_mono;
 use livegesture::backend::{self, BackendKind, BackendOptions};
 use livegesture::bundle::Bundle;
-use livegesture::pipeline::{Pipeline, Stream, StreamBatch, StreamId, StreamOptions, TokenStep};
+use livegesture::model::livegesture::{
+    Pipeline, Stream, StreamBatch, StreamId, StreamOptions, TokenStep,
+};
 use ndarray::Array2;
 
 fn pipeline(kind: BackendKind) -> (Bundle, Pipeline) {
     if kind == BackendKind::Ort {
         common::require_ort();
     }
-    let bundle = Bundle::load(common::bundle_dir()).expect("test bundle loads");
+    let bundle = Bundle::load(common::tiny_bundle()).expect("test bundle loads");
     let be = backend::create(&BackendOptions {
         kind,
         ..Default::default()
@@ -406,7 +408,7 @@ fn check_run_into(kind: BackendKind) {
     if kind == BackendKind::Ort {
         common::require_ort();
     }
-    let bundle = Bundle::load(common::bundle_dir()).unwrap();
+    let bundle = Bundle::load(common::tiny_bundle()).unwrap();
     let be = backend::create(&BackendOptions {
         kind,
         ..Default::default()

@@ -18,328 +18,16 @@ use std::fmt;
 use std::path::Path;
 use std::str::FromStr;
 
-use anyhow::{bail, ensure, Result};
-use serde::{Deserialize, Serialize};
+use anyhow::{ensure, Result};
 
-use crate::bundle::GraphSpec;
+use crate::bundle::{shape_fits, shape_string, GraphSpec};
 
 #[cfg(feature = "ort")]
 pub mod ort;
 pub mod tract;
 
-/// Element type of a tensor.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-pub enum DType {
-    #[serde(rename = "float32")]
-    F32,
-    #[serde(rename = "int64")]
-    I64,
-}
-
-impl DType {
-    /// Bytes per element.
-    pub fn size(self) -> usize {
-        match self {
-            DType::F32 => 4,
-            DType::I64 => 8,
-        }
-    }
-}
-
-impl fmt::Display for DType {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            DType::F32 => "float32",
-            DType::I64 => "int64",
-        })
-    }
-}
-
-/// Tensor elements.
-#[derive(Debug, Clone, PartialEq)]
-pub enum TensorData {
-    F32(Vec<f32>),
-    I64(Vec<i64>),
-}
-
-/// A dense row-major tensor, axis 0 the batch.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Tensor {
-    pub shape: Vec<usize>,
-    pub data: TensorData,
-}
-
-impl Default for Tensor {
-    fn default() -> Self {
-        Tensor {
-            shape: vec![0],
-            data: TensorData::F32(Vec::new()),
-        }
-    }
-}
-
-impl Tensor {
-    /// A float tensor; errors when `data` does not fill `shape`.
-    pub fn f32(shape: Vec<usize>, data: Vec<f32>) -> Result<Self> {
-        ensure!(
-            shape.iter().product::<usize>() == data.len(),
-            "tensor of shape {shape:?} needs {} values, got {}",
-            shape.iter().product::<usize>(),
-            data.len()
-        );
-        Ok(Tensor {
-            shape,
-            data: TensorData::F32(data),
-        })
-    }
-
-    /// An int64 tensor; errors when `data` does not fill `shape`.
-    pub fn i64(shape: Vec<usize>, data: Vec<i64>) -> Result<Self> {
-        ensure!(
-            shape.iter().product::<usize>() == data.len(),
-            "tensor of shape {shape:?} needs {} values, got {}",
-            shape.iter().product::<usize>(),
-            data.len()
-        );
-        Ok(Tensor {
-            shape,
-            data: TensorData::I64(data),
-        })
-    }
-
-    /// Zeros of `dtype` and `shape`.
-    pub fn zeros(dtype: DType, shape: Vec<usize>) -> Self {
-        let n = shape.iter().product();
-        let data = match dtype {
-            DType::F32 => TensorData::F32(vec![0.0; n]),
-            DType::I64 => TensorData::I64(vec![0; n]),
-        };
-        Tensor { shape, data }
-    }
-
-    /// Element type.
-    pub fn dtype(&self) -> DType {
-        match self.data {
-            TensorData::F32(_) => DType::F32,
-            TensorData::I64(_) => DType::I64,
-        }
-    }
-
-    /// Number of elements.
-    pub fn len(&self) -> usize {
-        match &self.data {
-            TensorData::F32(v) => v.len(),
-            TensorData::I64(v) => v.len(),
-        }
-    }
-
-    /// True for a tensor without elements.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
-    /// Batch size (axis 0).
-    pub fn batch(&self) -> usize {
-        self.shape.first().copied().unwrap_or(1)
-    }
-
-    /// Elements per batch row.
-    pub fn row_len(&self) -> usize {
-        self.shape.iter().skip(1).product()
-    }
-
-    /// The float elements, or an error naming `what`.
-    pub fn as_f32(&self, what: &str) -> Result<&[f32]> {
-        match &self.data {
-            TensorData::F32(v) => Ok(v),
-            TensorData::I64(_) => bail!("{what}: expected a float32 tensor, got int64"),
-        }
-    }
-
-    /// The int64 elements, or an error naming `what`.
-    pub fn as_i64(&self, what: &str) -> Result<&[i64]> {
-        match &self.data {
-            TensorData::I64(v) => Ok(v),
-            TensorData::F32(_) => bail!("{what}: expected an int64 tensor, got float32"),
-        }
-    }
-
-    /// Concatenates tensors along the batch axis (all of the same dtype and row shape).
-    pub fn concat(parts: &[Tensor]) -> Result<Tensor> {
-        ensure!(!parts.is_empty(), "concat of no tensors");
-        let first = &parts[0];
-        let mut shape = first.shape.clone();
-        let mut batch = 0;
-        for p in parts {
-            ensure!(
-                p.shape[1..] == first.shape[1..] && p.dtype() == first.dtype(),
-                "cannot stack tensors of shapes {:?} ({}) and {:?} ({})",
-                first.shape,
-                first.dtype(),
-                p.shape,
-                p.dtype()
-            );
-            batch += p.batch();
-        }
-        shape[0] = batch;
-        let data = match first.dtype() {
-            DType::F32 => {
-                let mut v = Vec::with_capacity(shape.iter().product());
-                for p in parts {
-                    v.extend_from_slice(p.as_f32("concat")?);
-                }
-                TensorData::F32(v)
-            }
-            DType::I64 => {
-                let mut v = Vec::with_capacity(shape.iter().product());
-                for p in parts {
-                    v.extend_from_slice(p.as_i64("concat")?);
-                }
-                TensorData::I64(v)
-            }
-        };
-        Ok(Tensor { shape, data })
-    }
-
-    /// Splits along the batch axis into parts of `rows[i]` rows each (their sum must be the batch).
-    pub fn split(&self, rows: &[usize]) -> Result<Vec<Tensor>> {
-        ensure!(
-            rows.iter().sum::<usize>() == self.batch(),
-            "cannot split a batch of {} into {:?}",
-            self.batch(),
-            rows
-        );
-        let rl = self.row_len();
-        let mut out = Vec::with_capacity(rows.len());
-        let mut start = 0;
-        for &r in rows {
-            let mut shape = self.shape.clone();
-            shape[0] = r;
-            let range = start * rl..(start + r) * rl;
-            let data = match &self.data {
-                TensorData::F32(v) => TensorData::F32(v[range].to_vec()),
-                TensorData::I64(v) => TensorData::I64(v[range].to_vec()),
-            };
-            out.push(Tensor { shape, data });
-            start += r;
-        }
-        Ok(out)
-    }
-
-    /// Makes this tensor a `dtype` tensor of `shape` whose elements are about to be overwritten: the
-    /// buffer is kept when the dtype matches and it is large enough (its contents are then stale,
-    /// not zeroed); otherwise a new zeroed one is allocated (no copy of the old contents).
-    pub fn prepare_output(&mut self, dtype: DType, shape: Vec<usize>) {
-        let n: usize = shape.iter().product();
-        fn fit<T: Copy + Default>(v: &mut Vec<T>, n: usize) {
-            if n > v.capacity() {
-                *v = vec![T::default(); n];
-            } else {
-                v.resize(n, T::default());
-            }
-        }
-        match (&mut self.data, dtype) {
-            (TensorData::F32(v), DType::F32) => fit(v, n),
-            (TensorData::I64(v), DType::I64) => fit(v, n),
-            (d, DType::F32) => *d = TensorData::F32(vec![0.0; n]),
-            (d, DType::I64) => *d = TensorData::I64(vec![0; n]),
-        }
-        self.shape = shape;
-    }
-
-    fn check_rows(&self, start: usize, count: usize) -> Result<()> {
-        ensure!(
-            !self.shape.is_empty(),
-            "a tensor without a batch axis has no rows"
-        );
-        ensure!(
-            start + count <= self.batch(),
-            "rows {start}..{} out of a batch of {}",
-            start + count,
-            self.batch()
-        );
-        Ok(())
-    }
-
-    /// A copy of rows `start .. start + count` (batch axis).
-    pub fn rows(&self, start: usize, count: usize) -> Result<Tensor> {
-        self.check_rows(start, count)?;
-        let rl = self.row_len();
-        let range = start * rl..(start + count) * rl;
-        let mut shape = self.shape.clone();
-        shape[0] = count;
-        let data = match &self.data {
-            TensorData::F32(v) => TensorData::F32(v[range].to_vec()),
-            TensorData::I64(v) => TensorData::I64(v[range].to_vec()),
-        };
-        Ok(Tensor { shape, data })
-    }
-
-    /// Appends the rows of `other` (same dtype and row shape) on the batch axis, in place: the buffer
-    /// grows only when its capacity is exceeded.
-    pub fn append_rows(&mut self, other: &Tensor) -> Result<()> {
-        ensure!(
-            !self.shape.is_empty()
-                && self.shape.len() == other.shape.len()
-                && self.shape[1..] == other.shape[1..]
-                && self.dtype() == other.dtype(),
-            "cannot append rows of shape {:?} ({}) to a tensor of shape {:?} ({})",
-            other.shape,
-            other.dtype(),
-            self.shape,
-            self.dtype()
-        );
-        match (&mut self.data, &other.data) {
-            (TensorData::F32(a), TensorData::F32(b)) => a.extend_from_slice(b),
-            (TensorData::I64(a), TensorData::I64(b)) => a.extend_from_slice(b),
-            _ => unreachable!("dtypes checked above"),
-        }
-        self.shape[0] += other.batch();
-        Ok(())
-    }
-
-    /// Removes rows `start .. start + count`, shifting the later rows down (their order is kept); the
-    /// buffer keeps its capacity.
-    pub fn remove_rows(&mut self, start: usize, count: usize) -> Result<()> {
-        self.check_rows(start, count)?;
-        let rl = self.row_len();
-        let range = start * rl..(start + count) * rl;
-        match &mut self.data {
-            TensorData::F32(v) => drop(v.drain(range)),
-            TensorData::I64(v) => drop(v.drain(range)),
-        }
-        self.shape[0] -= count;
-        Ok(())
-    }
-
-    /// Removes rows `start .. start + count` by moving the last `count` rows into their place (like
-    /// `Vec::swap_remove`: one block copy whatever the batch, the other rows stay where they are); the
-    /// buffer keeps its capacity. The removed block must be the tail or not overlap it.
-    pub fn swap_remove_rows(&mut self, start: usize, count: usize) -> Result<()> {
-        self.check_rows(start, count)?;
-        let n = self.batch();
-        if start + count < n {
-            ensure!(
-                start + count <= n - count,
-                "swap_remove_rows: rows {start}..{} overlap the last {count} rows of {n}",
-                start + count
-            );
-            let rl = self.row_len();
-            let (src, dst) = ((n - count) * rl..n * rl, start * rl);
-            match &mut self.data {
-                TensorData::F32(v) => v.copy_within(src, dst),
-                TensorData::I64(v) => v.copy_within(src, dst),
-            }
-        }
-        let rl = self.row_len();
-        match &mut self.data {
-            TensorData::F32(v) => v.truncate((n - count) * rl),
-            TensorData::I64(v) => v.truncate((n - count) * rl),
-        }
-        self.shape[0] -= count;
-        Ok(())
-    }
-}
+mod tensor;
+pub use tensor::{DType, Tensor, TensorData};
 
 /// A loaded step graph, ready to run.
 pub trait GraphRunner: Send {
@@ -453,15 +141,14 @@ pub fn check_inputs(spec: &GraphSpec, inputs: &[Tensor]) -> Result<usize> {
     );
     let batch = inputs.first().map(Tensor::batch).unwrap_or(1);
     for (t, (name, dtype, shape)) in inputs.iter().zip(expected) {
-        let want = crate::bundle::concrete_shape(shape, batch);
         ensure!(
-            t.dtype() == dtype && t.shape == want,
-            "graph '{}': input '{name}' is {} {:?}, expected {} {:?}",
+            t.dtype() == dtype && shape_fits(shape, &t.shape, batch),
+            "graph '{}': input '{name}' is {} {:?}, expected {} {} with batch {batch}",
             spec.name,
             t.dtype(),
             t.shape,
             dtype,
-            want
+            shape_string(shape)
         );
     }
     Ok(batch)
@@ -479,15 +166,14 @@ pub fn check_outputs(spec: &GraphSpec, outputs: &[Tensor], batch: usize) -> Resu
         spec.output_names()
     );
     for (t, (name, dtype, shape)) in outputs.iter().zip(expected) {
-        let want = crate::bundle::concrete_shape(shape, batch);
         ensure!(
-            t.dtype() == dtype && t.shape == want,
-            "graph '{}': output '{name}' is {} {:?}, the manifest says {} {:?}",
+            t.dtype() == dtype && shape_fits(shape, &t.shape, batch),
+            "graph '{}': output '{name}' is {} {:?}, the manifest says {} {} with batch {batch}",
             spec.name,
             t.dtype(),
             t.shape,
             dtype,
-            want
+            shape_string(shape)
         );
     }
     Ok(())
@@ -575,86 +261,9 @@ pub fn create(opts: &BackendOptions) -> Result<Box<dyn Backend>> {
         BackendKind::Ort => Ok(Box::new(ort::OrtBackend::new(opts)?)),
         #[cfg(not(feature = "ort"))]
         BackendKind::Ort => {
-            bail!("this build of livegesture has no ort backend (built without the `ort` feature)")
+            anyhow::bail!(
+                "this build of livegesture has no ort backend (built without the `ort` feature)"
+            )
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn concat_split_round_trip() {
-        let a = Tensor::f32(vec![1, 2], vec![1.0, 2.0]).unwrap();
-        let b = Tensor::f32(vec![2, 2], vec![3.0, 4.0, 5.0, 6.0]).unwrap();
-        let c = Tensor::concat(&[a.clone(), b.clone()]).unwrap();
-        assert_eq!(c.shape, vec![3, 2]);
-        let parts = c.split(&[1, 2]).unwrap();
-        assert_eq!(parts, vec![a, b]);
-        assert!(c.split(&[1, 1]).is_err());
-    }
-
-    fn rows_of(t: &Tensor) -> Vec<Vec<f32>> {
-        let v = t.as_f32("t").unwrap();
-        v.chunks(t.row_len()).map(<[f32]>::to_vec).collect()
-    }
-
-    #[test]
-    fn row_editing_in_place() {
-        // 5 rows of 2: row r holds [r, r + 0.5]
-        let data: Vec<f32> = (0..5).flat_map(|r| [r as f32, r as f32 + 0.5]).collect();
-        let t = Tensor::f32(vec![5, 2], data).unwrap();
-        assert_eq!(
-            rows_of(&t.rows(1, 2).unwrap()),
-            vec![vec![1.0, 1.5], vec![2.0, 2.5]]
-        );
-        assert!(t.rows(4, 2).is_err());
-
-        let mut a = t.clone();
-        a.remove_rows(1, 2).unwrap();
-        assert_eq!(a.shape, vec![3, 2]);
-        assert_eq!(
-            rows_of(&a),
-            vec![vec![0.0, 0.5], vec![3.0, 3.5], vec![4.0, 4.5]]
-        );
-
-        let mut s = t.clone();
-        s.swap_remove_rows(0, 2).unwrap(); // rows 3, 4 move into 0, 1
-        assert_eq!(
-            rows_of(&s),
-            vec![vec![3.0, 3.5], vec![4.0, 4.5], vec![2.0, 2.5]]
-        );
-        let cap = match &s.data {
-            TensorData::F32(v) => v.capacity(),
-            _ => unreachable!(),
-        };
-        s.swap_remove_rows(2, 1).unwrap(); // the tail: just dropped
-        assert_eq!(s.shape, vec![2, 2]);
-        assert!(t.clone().swap_remove_rows(2, 2).is_err()); // overlaps the tail block
-
-        // appending within the capacity left by a removal does not reallocate
-        let extra = Tensor::f32(vec![1, 2], vec![9.0, 9.5]).unwrap();
-        s.append_rows(&extra).unwrap();
-        assert_eq!(s.shape, vec![3, 2]);
-        assert_eq!(rows_of(&s)[2], vec![9.0, 9.5]);
-        match &s.data {
-            TensorData::F32(v) => assert_eq!(v.capacity(), cap),
-            _ => unreachable!(),
-        }
-        assert!(s
-            .append_rows(&Tensor::i64(vec![1, 2], vec![1, 2]).unwrap())
-            .is_err());
-        assert!(s
-            .append_rows(&Tensor::f32(vec![1, 3], vec![0.0; 3]).unwrap())
-            .is_err());
-
-        // 1-D (step counters) work the same
-        let mut c = Tensor::i64(vec![3], vec![7, 8, 9]).unwrap();
-        c.swap_remove_rows(0, 1).unwrap();
-        assert_eq!(c.as_i64("c").unwrap(), &[9, 8]);
-        c.append_rows(&Tensor::i64(vec![1], vec![0]).unwrap())
-            .unwrap();
-        assert_eq!(c.as_i64("c").unwrap(), &[9, 8, 0]);
     }
 }

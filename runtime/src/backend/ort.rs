@@ -10,11 +10,17 @@
 //!
 //! One ONNX Runtime environment exists per process; the first backend created fixes the library.
 //!
-//! Execution providers: `cpu` (the default) needs nothing. `cuda` and the providers ONNX Runtime
-//! registers by name (`openvino`, `xnnpack`, `qnn`, `webgpu`, `dml`, `coreml`) are appended to each
-//! session when the loaded library was built with them; otherwise the backend refuses to start,
-//! naming the library and the providers it does have. Sessions use one intra-op thread unless told
-//! otherwise (the step graphs are small; parallelism comes from running streams side by side).
+//! Execution providers: `cpu` (the default) needs nothing. `cuda`, `openvino`, `xnnpack`, `qnn` and
+//! `webgpu` are ort's typed providers (`ort::ep`), registered on each session with
+//! `error_on_failure` when the loaded library was built with them; otherwise the backend refuses to
+//! start, naming the library and the providers it does have. Sessions use one intra-op thread unless
+//! told otherwise (the step graphs are small; parallelism comes from running streams side by side).
+//!
+//! Runs use ONNX Runtime's C `Run` directly ([`OrtGraph`]) rather than ort's `Session::run`: it is
+//! the one call that takes **preallocated outputs that borrow the caller's buffers**, so a step
+//! writes its new caches straight into last step's cache buffers (zero copies, zero allocations in
+//! a steady stream batch). ort's `OutputSelector::preallocate` only accepts values that own their
+//! data, which would cost a copy per output per step.
 
 use std::ffi::{c_char, c_int, CStr, CString};
 use std::path::{Path, PathBuf};
@@ -22,6 +28,7 @@ use std::sync::OnceLock;
 
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use ort::environment::Environment;
+use ort::ep::{self, ExecutionProvider, ExecutionProviderDispatch};
 use ort::session::builder::GraphOptimizationLevel;
 use ort::session::Session;
 use ort::value::{DynValueRef, DynValueRefMut, TensorRef, TensorRefMut};
@@ -30,7 +37,7 @@ use ort::AsPointer;
 use super::{
     check_inputs, check_outputs, Backend, BackendOptions, GraphRunner, Tensor, TensorData,
 };
-use crate::bundle::{concrete_shape, GraphSpec};
+use crate::bundle::{concrete_shape, has_named_axis, GraphSpec};
 
 /// Environment variable naming the ONNX Runtime shared library.
 pub const ORT_DYLIB_ENV: &str = "ORT_DYLIB_PATH";
@@ -199,7 +206,9 @@ fn check_status(status: ort::sys::OrtStatusPtr, what: &str) -> Result<()> {
     bail!("ort: {what}: {msg}")
 }
 
-/// Execution providers compiled into the loaded library (`CPUExecutionProvider`, ...).
+/// Execution providers compiled into the loaded library (`CPUExecutionProvider`, ...), for error
+/// messages (ort checks one provider at a time, `ExecutionProvider::is_available`, but does not list
+/// them, so this one call goes through the C API).
 pub fn available_providers() -> Result<Vec<String>> {
     let api = ort::api();
     let mut ptr: *mut *mut c_char = std::ptr::null_mut();
@@ -225,21 +234,48 @@ pub fn available_providers() -> Result<Vec<String>> {
     Ok(out)
 }
 
-/// An execution provider the backend can append: (`--ep` name, ONNX Runtime provider name, name for
-/// the generic append API).
-const PROVIDERS: &[(&str, &str, &str)] = &[
-    ("cuda", "CUDAExecutionProvider", ""),
-    ("openvino", "OpenVINOExecutionProvider", "OpenVINO"),
-    ("xnnpack", "XnnpackExecutionProvider", "XNNPACK"),
-    ("qnn", "QNNExecutionProvider", "QNN"),
-    ("webgpu", "WebGpuExecutionProvider", "WebGPU"),
-    ("dml", "DmlExecutionProvider", "DML"),
-    ("coreml", "CoreMLExecutionProvider", "CoreML"),
+/// An execution provider the backend can append: the `--ep` name, ONNX Runtime's provider name, and
+/// ort's typed provider (registered with `error_on_failure`, so a provider that cannot start fails
+/// the session instead of silently falling back to the CPU).
+struct Provider {
+    name: &'static str,
+    ort_name: &'static str,
+    dispatch: fn() -> ExecutionProviderDispatch,
+}
+
+const PROVIDERS: &[Provider] = &[
+    Provider {
+        name: "cuda",
+        ort_name: <ep::CUDA as ExecutionProvider>::NAME,
+        dispatch: || ep::CUDA::default().build(),
+    },
+    Provider {
+        name: "openvino",
+        ort_name: <ep::OpenVINO as ExecutionProvider>::NAME,
+        dispatch: || ep::OpenVINO::default().build(),
+    },
+    Provider {
+        name: "xnnpack",
+        ort_name: <ep::XNNPACK as ExecutionProvider>::NAME,
+        dispatch: || ep::XNNPACK::default().build(),
+    },
+    Provider {
+        name: "qnn",
+        ort_name: <ep::QNN as ExecutionProvider>::NAME,
+        dispatch: || ep::QNN::default().build(),
+    },
+    Provider {
+        name: "webgpu",
+        ort_name: <ep::WebGPU as ExecutionProvider>::NAME,
+        dispatch: || ep::WebGPU::default().build(),
+    },
 ];
 
 /// The ONNX Runtime backend.
 pub struct OrtBackend {
     ep: String,
+    /// The typed provider for `ep` (`None` for the CPU).
+    provider: Option<&'static Provider>,
     intra_threads: usize,
     env: &'static OrtEnv,
 }
@@ -258,10 +294,11 @@ impl OrtBackend {
     pub fn new(opts: &BackendOptions) -> Result<Self> {
         let env = environment(opts.ort_library.as_deref())?;
         let ep = opts.execution_provider.to_ascii_lowercase();
+        let mut provider = None;
         if ep != "cpu" {
-            let Some((_, provider, _)) = PROVIDERS.iter().find(|(n, _, _)| *n == ep) else {
+            let Some(p) = PROVIDERS.iter().find(|p| p.name == ep) else {
                 let names: Vec<&str> = std::iter::once("cpu")
-                    .chain(PROVIDERS.iter().map(|p| p.0))
+                    .chain(PROVIDERS.iter().map(|p| p.name))
                     .collect();
                 bail!(
                     "ort: unknown execution provider '{ep}'; expected one of {}",
@@ -270,15 +307,18 @@ impl OrtBackend {
             };
             let have = available_providers()?;
             ensure!(
-                have.iter().any(|h| h == provider),
-                "ort: execution provider '{ep}' ({provider}) is not available in {} (it has: {}); \
+                have.iter().any(|h| h == p.ort_name),
+                "ort: execution provider '{ep}' ({}) is not available in {} (it has: {}); \
                  use a build of ONNX Runtime with it (e.g. the onnxruntime-gpu package for cuda) or --ep cpu",
+                p.ort_name,
                 env.library.display(),
                 have.join(", ")
             );
+            provider = Some(p);
         }
         Ok(Self {
             ep,
+            provider,
             intra_threads: opts.intra_threads.max(1),
             env,
         })
@@ -287,51 +327,6 @@ impl OrtBackend {
     /// The library in use.
     pub fn library(&self) -> &Path {
         &self.env.library
-    }
-
-    fn append_provider(&self, builder: &mut ort::session::builder::SessionBuilder) -> Result<()> {
-        if self.ep == "cpu" {
-            return Ok(());
-        }
-        let api = ort::api();
-        let opts = builder.ptr_mut();
-        if self.ep == "cuda" {
-            let mut cuda: *mut ort::sys::OrtCUDAProviderOptionsV2 = std::ptr::null_mut();
-            // SAFETY: C API calls on a live session-options pointer; the CUDA options are created,
-            // used once and released.
-            unsafe {
-                check_status(
-                    (api.CreateCUDAProviderOptions)(&mut cuda),
-                    "creating CUDA options",
-                )?;
-                let r = check_status(
-                    (api.SessionOptionsAppendExecutionProvider_CUDA_V2)(opts, cuda),
-                    "enabling the CUDA execution provider",
-                );
-                (api.ReleaseCUDAProviderOptions)(cuda);
-                r?;
-            }
-            return Ok(());
-        }
-        let generic = PROVIDERS
-            .iter()
-            .find(|(n, _, _)| *n == self.ep)
-            .map(|p| p.2)
-            .unwrap_or_default();
-        let name = CString::new(generic)?;
-        // SAFETY: no options (null key/value arrays with length 0), NUL-terminated provider name.
-        check_status(
-            unsafe {
-                (api.SessionOptionsAppendExecutionProvider)(
-                    opts,
-                    name.as_ptr(),
-                    std::ptr::null(),
-                    std::ptr::null(),
-                    0,
-                )
-            },
-            &format!("enabling execution provider '{}'", self.ep),
-        )
     }
 }
 
@@ -368,7 +363,12 @@ impl Backend for OrtBackend {
             .with_flush_to_zero()
             .map_err(e)
             .with_context(what)?;
-        self.append_provider(&mut builder).with_context(what)?;
+        if let Some(p) = self.provider {
+            builder = builder
+                .with_execution_providers([(p.dispatch)().error_on_failure()])
+                .map_err(e)
+                .with_context(what)?;
+        }
         let session = builder
             .commit_from_file(path)
             .map_err(|err| anyhow!("{err}"))
@@ -444,6 +444,12 @@ impl GraphRunner for OrtGraph {
             values.push(v);
         }
         let specs = self.spec.all_outputs();
+        // preallocation needs every output's size; a named axis (a window length) is not known here
+        ensure!(
+            !specs.iter().any(|(_, _, s)| has_named_axis(s)),
+            "ort: graph '{name}' has an output with a named dynamic axis; run_into preallocates outputs \
+             and needs every size (resolve the axis from the inputs before preparing the outputs)"
+        );
         outputs.truncate(specs.len());
         outputs.resize_with(specs.len(), Tensor::default);
         for (t, (_, dtype, shape)) in outputs.iter_mut().zip(&specs) {

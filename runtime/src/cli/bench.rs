@@ -8,9 +8,7 @@ use anyhow::{Context, Result};
 
 use livegesture::bench::{format_table, run as run_bench, BenchConfig};
 
-use livegesture::backend::{BackendKind, BackendOptions};
-
-use super::common::{BackendArg, InputError, ModelArgs};
+use super::common::{InputError, ModelArgs};
 
 #[derive(Debug, clap::Args)]
 #[command(
@@ -99,17 +97,7 @@ pub fn run(a: Args) -> Result<()> {
         ..Default::default()
     };
     // the backend alone: the bench wraps it to time each graph
-    let m = &a.model;
-    let opts = BackendOptions {
-        kind: match m.backend {
-            BackendArg::Tract => BackendKind::Tract,
-            BackendArg::Ort => BackendKind::Ort,
-        },
-        execution_provider: m.ep.clone(),
-        intra_threads: m.threads.max(1),
-        ort_library: m.ort_lib.clone(),
-    };
-    let be = livegesture::backend::create(&opts)?;
+    let be = livegesture::backend::create(&a.model.backend_options()?)?;
     let quiet = a.quiet;
     let report = run_bench(&bundle, be.as_ref(), &cfg, |what| {
         if !quiet {

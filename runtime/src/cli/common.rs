@@ -8,7 +8,7 @@ use clap::ValueEnum;
 use livegesture::audio::AudioError;
 use livegesture::backend::{self, BackendKind, BackendOptions};
 use livegesture::bundle::{default_bundle_dir, Bundle, BundleError};
-use livegesture::pipeline::{Pipeline, StreamOptions};
+use livegesture::model::{self, MotionModel, StreamOptions};
 
 /// An error caused by the user's input or arguments (exit code 2).
 #[derive(Debug, thiserror::Error)]
@@ -34,6 +34,15 @@ pub enum BackendArg {
     Tract,
     /// ONNX Runtime, loaded from ORT_DYLIB_PATH or an installed onnxruntime Python package.
     Ort,
+}
+
+impl From<BackendArg> for BackendKind {
+    fn from(b: BackendArg) -> Self {
+        match b {
+            BackendArg::Tract => BackendKind::Tract,
+            BackendArg::Ort => BackendKind::Ort,
+        }
+    }
 }
 
 /// Bundle and backend selection.
@@ -105,13 +114,11 @@ impl ModelArgs {
         Ok(Bundle::load(&dir)?)
     }
 
-    /// Creates the backend and loads the pipeline.
-    pub fn pipeline(&self, bundle: &Bundle) -> Result<Pipeline> {
+    /// The backend settings of these arguments (a non-CPU execution provider without ort is an
+    /// input error).
+    pub fn backend_options(&self) -> Result<BackendOptions> {
         let opts = BackendOptions {
-            kind: match self.backend {
-                BackendArg::Tract => BackendKind::Tract,
-                BackendArg::Ort => BackendKind::Ort,
-            },
+            kind: self.backend.into(),
             execution_provider: self.ep.clone(),
             intra_threads: self.threads.max(1),
             ort_library: self.ort_lib.clone(),
@@ -123,8 +130,13 @@ impl ModelArgs {
             ))
             .into());
         }
-        let be = backend::create(&opts)?;
-        Pipeline::new(bundle, be.as_ref()).with_context(|| {
+        Ok(opts)
+    }
+
+    /// Creates the backend and loads the bundle's model (whichever its family).
+    pub fn model(&self, bundle: &Bundle) -> Result<Box<dyn MotionModel>> {
+        let be = backend::create(&self.backend_options()?)?;
+        model::load(bundle, be.as_ref()).with_context(|| {
             format!(
                 "loading the bundle {} with {}",
                 bundle.dir().display(),

@@ -1,4 +1,7 @@
-//! `livegesture generate IN.wav -o OUT.npz`: a whole file, streamed through the pipeline.
+//! `livegesture generate IN.wav -o OUT.npz`: a whole file, streamed through the bundle's model.
+//!
+//! The motion covers the whole audio (SPEC 8): `ceil(duration * 30)` frames, the last partial token
+//! completed with silence and cut at the audio's end.
 //!
 //! The WAV is read block by block (memory for audio does not grow with its length); frames are
 //! collected and the BEAT2 `.npz` is written atomically at the end, so no partial file is left on any
@@ -54,8 +57,8 @@ pub fn run(a: Args) -> Result<()> {
     }
     let mut wav = WavStream::open(&a.input)?;
     let bundle = a.model.bundle()?;
-    let mut pipeline = a.model.pipeline(&bundle)?;
-    let mut stream = pipeline.new_stream(&opts)?;
+    let model = a.model.model(&bundle)?;
+    let mut stream = model.new_stream(&opts)?;
     let total = wav.output_len();
     let bar = if std::io::stderr().is_terminal() {
         let b = ProgressBar::new(total);
@@ -72,7 +75,7 @@ pub fn run(a: Args) -> Result<()> {
     let mut writer = NpzFrameWriter::new(&a.output);
     let input = a.input.display().to_string();
     while let Some(chunk) = wav.next_chunk()? {
-        let frames = pipeline.push(&mut stream, &chunk).with_context(|| {
+        let frames = stream.push_audio(&chunk).with_context(|| {
             format!(
                 "{input}: generating motion at {:.2} s",
                 stream.samples_received() as f64 / 16000.0
@@ -84,16 +87,15 @@ pub fn run(a: Args) -> Result<()> {
         bar.inc(chunk.len() as u64);
         bar.set_message(format!("{} frames", writer.frames()));
     }
-    bar.finish_and_clear();
-    if writer.frames() == 0 {
-        let need = pipeline.frontend().token_end(0);
-        return Err(InputError(format!(
-            "{input}: the audio is too short ({} samples at 16 kHz); at least {need} samples ({:.3} s) make one motion token",
-            stream.samples_received(),
-            need as f64 / 16000.0
-        ))
-        .into());
+    // SPEC 8: the last partial token is completed with silence, frames cut at the audio's end
+    let span = wav.input_span();
+    for f in &stream
+        .finish(span)
+        .with_context(|| format!("{input}: finishing the motion at the end of the audio"))?
+    {
+        writer.write_frame(f)?;
     }
+    bar.finish_and_clear();
     if a.output
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("bvh"))
@@ -103,11 +105,13 @@ pub fn run(a: Args) -> Result<()> {
         writer.finish()?;
     }
     eprintln!(
-        "livegesture: wrote {} frames ({:.2} s at 30 fps, {} tokens, {} backend) to {}",
+        "livegesture: wrote {} frames ({:.3} s of audio at {} Hz, {} fps, {} model on {}) to {}",
         writer.frames(),
-        writer.frames() as f64 / 30.0,
-        stream.tokens_done(),
-        pipeline.backend_name(),
+        span.seconds(),
+        span.sample_rate,
+        model.fps(),
+        model.family(),
+        model.backend_name(),
         a.output.display()
     );
     Ok(())

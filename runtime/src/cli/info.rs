@@ -4,7 +4,7 @@ use anyhow::Result;
 use serde_json::Value;
 
 use livegesture::bundle::Bundle;
-use livegesture::pipeline::state_bytes;
+use livegesture::model;
 
 use super::common::ModelArgs;
 
@@ -68,8 +68,9 @@ fn print_value(indent: usize, key: &str, v: &Value) {
 pub fn run(a: Args) -> Result<()> {
     let b: Bundle = a.model.bundle()?;
     let m = b.manifest();
+    let family = model::describe(&b)?;
     let total_params: u64 = m.model.parameters.values().sum();
-    let guided = m.sampling.guidance != 1.0;
+    let rows = |g: &str| family.rows_per_stream.get(g).copied().unwrap_or(1);
     if a.json {
         let graphs: Vec<Value> = m
             .graphs
@@ -78,16 +79,18 @@ pub fn run(a: Args) -> Result<()> {
                 serde_json::json!({
                     "name": g.name, "file": g.file, "parameters": m.model.parameters.get(&g.name),
                     "caches": g.caches.len(), "cache_bytes_per_row": g.cache_row_bytes(),
+                    "rows_per_stream": rows(&g.name),
                 })
             })
             .collect();
-        let v = serde_json::json!({
-            "bundle": b.dir(), "config": m.model.config_name, "parameters": total_params,
-            "regions": b.region_names(), "graphs": graphs,
-            "state_bytes_per_stream": {"guided": state_bytes(&b, true), "unguided": state_bytes(&b, false)},
-            "sampling": m.sampling, "vocab": m.vocab, "frontend": m.frontend,
+        let mut v = serde_json::json!({
+            "bundle": b.dir(), "family": m.family, "config": m.model.config_name,
+            "parameters": total_params, "graphs": graphs, "frontend": m.frontend,
             "provenance": m.provenance, "checks": m.checks,
         });
+        if let Value::Object(o) = &mut v {
+            o.extend(family.json);
+        }
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
@@ -97,8 +100,9 @@ pub fn run(a: Args) -> Result<()> {
         m.files.len()
     );
     println!(
-        "model         {} (config '{}'), {} parameters",
-        m.model.name.as_deref().unwrap_or("LiveGesture"),
+        "model         {} (family {}, config '{}'), {} parameters",
+        m.model.name.as_deref().unwrap_or("?"),
+        m.family,
         m.model.config_name.as_deref().unwrap_or("?"),
         fmt_count(total_params)
     );
@@ -120,43 +124,15 @@ pub fn run(a: Args) -> Result<()> {
         f.fps as f64 / f.frames_per_token as f64,
         1000.0 * f.frames_per_token as f64 / f.fps as f64
     );
-    let regions: Vec<String> = m
-        .regions
-        .iter()
-        .map(|r| format!("{} ({} dims, {} joints)", r.name, r.dim, r.joints.len()))
-        .collect();
-    println!("regions       {}", regions.join(", "));
-    println!(
-        "vocabulary    codebook {} per region, BOS token {}",
-        m.vocab.codebook_size, m.vocab.bos_token
-    );
-    println!(
-        "sampling      guidance {}{}, temperature {}, top-k {}, PRNG {}",
-        m.sampling.guidance,
-        if guided { "" } else { " (off)" },
-        m.sampling.temperature,
-        if m.sampling.top_k == 0 {
-            "all".to_string()
-        } else {
-            m.sampling.top_k.to_string()
-        },
-        m.sampling.prng.as_deref().unwrap_or("splitmix64")
-    );
+    for (label, text) in &family.lines {
+        println!("{label:<13} {text}");
+    }
     println!("graphs");
     println!(
         "  {:<16} {:<22} {:>12} {:>7} {:>14} {:>5}",
         "name", "file", "parameters", "caches", "cache/row", "rows"
     );
     for g in &m.graphs {
-        let rows = if g.name.starts_with("expert_") || g.name == "fusion" {
-            if guided {
-                2
-            } else {
-                1
-            }
-        } else {
-            1
-        };
         println!(
             "  {:<16} {:<22} {:>12} {:>7} {:>14} {:>5}",
             g.name,
@@ -168,14 +144,9 @@ pub fn run(a: Args) -> Result<()> {
                 .unwrap_or_default(),
             g.caches.len(),
             fmt_bytes(g.cache_row_bytes()),
-            rows
+            rows(&g.name)
         );
     }
-    println!(
-        "state         {} per stream with guidance ({} without): caches, previous tokens, frontend buffer",
-        fmt_bytes(state_bytes(&b, true)),
-        fmt_bytes(state_bytes(&b, false))
-    );
     if let Some(r) = b.reference() {
         println!(
             "reference     rollout of {} tokens, seed {}, audio: {}",

@@ -2,23 +2,33 @@
 //!
 //! Adding a subcommand: write `src/cli/<name>.rs` with an `Args` struct (clap `Args` derive) and a
 //! `run(args: Args) -> anyhow::Result<()>`, then add its line to [`Command`] and [`run`].
+//!
+//! No subcommand names a model family: `generate` and `stream` run any bundle through
+//! [`livegesture::model::load`] and the [`livegesture::model::MotionStream`] trait, `info` prints the
+//! family-common manifest and [`livegesture::model::MotionModel::describe`], and `parity` / `bench`
+//! call the library's `parity::run` / `bench::run`, which dispatch on the family themselves.
 
 use clap::{Parser, Subcommand};
 
+#[cfg(feature = "bench")]
 pub mod bench;
 pub mod common;
 pub mod generate;
 pub mod info;
+#[cfg(feature = "parity")]
 pub mod parity;
+#[cfg(feature = "serve")]
 pub mod serve;
 pub mod stream;
 
 pub use common::exit_code;
 
-/// Streaming speech-driven full-body gesture generation (LiveGesture ONNX bundles, tract or ONNX Runtime).
+/// Streaming speech-driven full-body gesture generation (ONNX bundles, tract or ONNX Runtime).
 ///
-/// Audio goes in (a WAV file or raw PCM on stdin); SMPL-X motion at 30 fps comes out, four frames per
-/// 133.3 ms motion token, with zero look-ahead. Without --bundle the bundle is $LIVEGESTURE_BUNDLE,
+/// Audio goes in (a WAV file or raw PCM on stdin); SMPL-X motion at 30 fps comes out, covering the
+/// whole audio (ceil(duration x 30) frames). The bundle's family picks the model: livegesture emits
+/// four frames per 133.3 ms motion token, with zero look-ahead. Without --bundle the bundle is $LIVEGESTURE_BUNDLE,
+/// else one installed beside the executable (../share/livegesture/models/default or models/default),
 /// else the repository's models/default.
 #[derive(Debug, Parser)]
 #[command(
@@ -41,12 +51,15 @@ pub enum Command {
     Stream(stream::Args),
     /// Describe a bundle: model, regions, graphs, state size, sampling defaults, provenance.
     Info(info::Args),
+    #[cfg(feature = "parity")]
     /// Check a bundle's parity: every graph vs the torch reference vectors on ort and tract, the
     /// whole seeded rollout, the log-mel frontend, chunk-size and batch invariance (SPEC section 7).
     Parity(parity::Args),
+    #[cfg(feature = "bench")]
     /// Benchmark a bundle on one core: step times per graph and whole chain, first-frame latency,
     /// state bytes, peak RSS, real-time streams per core with batched stepping.
     Bench(bench::Args),
+    #[cfg(feature = "serve")]
     /// Serve live sessions over WebSocket (SPEC 12), stepped together in batches; the browser page at /.
     Serve(serve::Args),
 }
@@ -57,8 +70,11 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Generate(a) => generate::run(a),
         Command::Stream(a) => stream::run(a),
         Command::Info(a) => info::run(a),
+        #[cfg(feature = "parity")]
         Command::Parity(a) => parity::run(a),
+        #[cfg(feature = "bench")]
         Command::Bench(a) => bench::run(a),
+        #[cfg(feature = "serve")]
         Command::Serve(a) => serve::run(a),
     }
 }

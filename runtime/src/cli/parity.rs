@@ -80,14 +80,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     let dir = default_bundle_dir(a.bundle.as_deref());
     let opts = ParityOptions {
-        backends: a
-            .backends
-            .iter()
-            .map(|b| match b {
-                BackendArg::Tract => BackendKind::Tract,
-                BackendArg::Ort => BackendKind::Ort,
-            })
-            .collect(),
+        backends: a.backends.iter().map(|&b| b.into()).collect(),
         ort: BackendOptions {
             kind: BackendKind::Ort,
             ort_library: a.ort_lib.clone(),

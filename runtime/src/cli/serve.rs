@@ -6,6 +6,9 @@ use std::time::Duration;
 use anyhow::{Context, Result};
 use sha2::{Digest, Sha256};
 
+use livegesture::backend;
+use livegesture::bundle::Family;
+use livegesture::model::livegesture::Pipeline;
 use livegesture::serve::{ModelInfo, ServeConfig, Server};
 
 use super::common::{InputError, ModelArgs};
@@ -75,11 +78,28 @@ pub fn run(a: Args) -> Result<()> {
         drain_timeout: secs("drain-timeout", a.drain_timeout)?,
     };
     let bundle = a.model.bundle()?;
+    // the scheduler steps sessions together with LiveGesture's batched token steps
+    if bundle.family() != Family::LiveGesture {
+        return Err(InputError(format!(
+            "{}: family {}: serve runs {} bundles only (batched token steps)",
+            bundle.manifest_path().display(),
+            bundle.family(),
+            Family::LiveGesture
+        ))
+        .into());
+    }
+    let backend_opts = a.model.backend_options()?;
     let manifest = std::fs::read(bundle.manifest_path())
         .with_context(|| format!("reading {}", bundle.manifest_path().display()))?;
-    let model_args = a.model.clone();
     let server = Server::start(a.addr, cfg, move || {
-        let pipeline = model_args.pipeline(&bundle)?;
+        let be = backend::create(&backend_opts)?;
+        let pipeline = Pipeline::new(&bundle, be.as_ref()).with_context(|| {
+            format!(
+                "loading the bundle {} with {}",
+                bundle.dir().display(),
+                be.describe()
+            )
+        })?;
         let m = bundle.manifest();
         let info = ModelInfo {
             model: m

@@ -1,4 +1,6 @@
 //! `livegesture stream`: raw PCM on stdin, frames on stdout as soon as each token's audio is complete.
+//! At the end of the input the last partial token is completed with silence and cut at the audio's
+//! end, so the frames cover the whole input (SPEC 8).
 
 use std::io::{BufWriter, Write};
 
@@ -59,8 +61,8 @@ pub fn run(a: Args) -> Result<()> {
         return Err(InputError("--rate and --channels must be at least 1".into()).into());
     }
     let bundle = a.model.bundle()?;
-    let mut pipeline = a.model.pipeline(&bundle)?;
-    let mut stream = pipeline.new_stream(&opts)?;
+    let model = a.model.model(&bundle)?;
+    let mut stream = model.new_stream(&opts)?;
     let stdin = std::io::stdin().lock();
     let mut input = RawPcmStream::new(stdin, a.format, a.rate, a.channels, "<stdin>")?;
     let out = BufWriter::new(std::io::stdout().lock());
@@ -70,9 +72,13 @@ pub fn run(a: Args) -> Result<()> {
     };
     let result = (|| -> Result<()> {
         while let Some(chunk) = input.next_chunk()? {
-            for f in pipeline.push(&mut stream, &chunk)? {
+            for f in stream.push_audio(&chunk)? {
                 sink.write_frame(&f)?;
             }
+        }
+        // SPEC 8: at the end of the input, the last partial token is completed with silence
+        for f in stream.finish(input.input_span())? {
+            sink.write_frame(&f)?;
         }
         sink.finish()
     })();

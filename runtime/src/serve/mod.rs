@@ -30,7 +30,7 @@ use axum::routing::get;
 use axum::Router;
 use tokio::sync::{mpsc, watch, Notify};
 
-use crate::pipeline::Pipeline;
+use crate::model::livegesture::Pipeline;
 
 use metrics::Metrics;
 use scheduler::{Cmd, SchedConfig, Scheduler};

@@ -139,13 +139,6 @@ impl SessionParams {
     }
 }
 
-/// Motion frames covering `n_in` input samples (per channel) at `rate` Hz: `ceil(n_in * 30 / rate)`,
-/// in integers (SPEC 8).
-pub fn frames_for_samples(n_in: u64, rate: u32, fps: u64) -> u64 {
-    let rate = rate as u64;
-    ((n_in as u128 * fps as u128 + rate as u128 - 1) / rate as u128) as u64
-}
-
 /// A text message from the client.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ClientText {
@@ -237,15 +230,6 @@ mod tests {
             assert!(e.contains(bad.0), "{e}");
         }
         assert!(SessionParams::parse(&q(&[("seed", "1"), ("seed", "2")])).is_err());
-    }
-
-    #[test]
-    fn frame_count_is_ceil() {
-        assert_eq!(frames_for_samples(16000, 16000, 30), 30);
-        assert_eq!(frames_for_samples(16001, 16000, 30), 31);
-        assert_eq!(frames_for_samples(93760, 16000, 30), 176); // 5.86 s
-        assert_eq!(frames_for_samples(1, 44100, 30), 1);
-        assert_eq!(frames_for_samples(0, 44100, 30), 0);
     }
 
     #[test]

@@ -8,8 +8,10 @@
 //! their caches, and come back when they have one). A session's tokens are therefore exactly those it
 //! gets stepped alone.
 //!
-//! At the end of a session's audio ([`Cmd::End`]) its 16 kHz stream is padded with zeros to complete
-//! the last token, and frames at or past `ceil(n_in * 30 / rate_in)` are dropped (SPEC 8).
+//! At the end of a session's audio ([`Cmd::End`]) the stream's own end rule applies, the one
+//! `generate` and `stream` use (SPEC 8, [`StreamBatch::finish_audio`] / [`Stream::finish_audio`]):
+//! the last partial token is completed with silence and frames at or past
+//! [`AudioSpan::frames`] = `ceil(n_in * 30 / rate_in)` are dropped.
 
 use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::Ordering;
@@ -20,9 +22,9 @@ use anyhow::Result;
 use ndarray::Array2;
 use tokio::sync::{mpsc, oneshot, Notify, Semaphore};
 
-use crate::frontend::FrontendConfig;
+use crate::audio::AudioSpan;
+use crate::model::livegesture::{Pipeline, Stream, StreamBatch, StreamId, StreamOptions};
 use crate::output::Frame;
-use crate::pipeline::{Pipeline, Stream, StreamBatch, StreamId, StreamOptions};
 
 use super::metrics::Metrics;
 use super::protocol::{CLOSE_GOING_AWAY, CLOSE_INTERNAL, CLOSE_POLICY};
@@ -67,10 +69,8 @@ impl SessionCtl {
 pub struct SessionStats {
     pub tokens: u64,
     pub frames: u64,
-    /// 16 kHz samples, the end-of-stream silence included.
+    /// 16 kHz samples received from the client (without the end-of-stream silence).
     pub samples_16k: u64,
-    /// The silence added at the end to complete the last token.
-    pub padding_16k: u64,
     /// Token latencies in seconds (message completing the token's audio -> frames queued).
     pub latencies: Vec<f64>,
 }
@@ -98,8 +98,9 @@ pub enum Cmd {
         samples: Vec<f32>,
         at: Instant,
     },
-    /// The end of the audio: `frames` = ceil(n_in * 30 / rate_in).
-    End { sid: u64, frames: u64 },
+    /// The end of the audio: the client's samples per channel at its own rate (the motion covers
+    /// [`AudioSpan::frames`] = ceil(n_in * 30 / rate_in) frames).
+    End { sid: u64, input: AudioSpan },
     /// Shutdown: step the tokens whose audio has arrived, then close 1001.
     Drain { sid: u64 },
     /// The client is gone (or was refused): drop the session; `stats` gets its figures.
@@ -135,7 +136,6 @@ pub struct SchedConfig {
 pub struct Scheduler {
     pipeline: Pipeline,
     batch: StreamBatch,
-    fcfg: FrontendConfig,
     sessions: HashMap<u64, Sess>,
     by_stream: HashMap<StreamId, u64>,
     metrics: Arc<Metrics>,
@@ -145,11 +145,9 @@ pub struct Scheduler {
 impl Scheduler {
     pub fn new(pipeline: Pipeline, metrics: Arc<Metrics>, cfg: SchedConfig) -> Self {
         let batch = pipeline.new_batch();
-        let fcfg = pipeline.frontend().clone();
         Self {
             pipeline,
             batch,
-            fcfg,
             sessions: HashMap::new(),
             by_stream: HashMap::new(),
             metrics,
@@ -245,26 +243,33 @@ impl Scheduler {
                 });
                 let _ = reply.send(r.map_err(|e| format!("{e:#}")));
             }
-            Cmd::Audio { sid, samples, at } => self.push(sid, &samples, at, true),
-            Cmd::End { sid, frames } => {
-                let fpt = self.fcfg.frames_per_token;
+            Cmd::Audio { sid, samples, at } => self.push(sid, &samples, at),
+            Cmd::End { sid, input } => {
                 let Some(s) = self.sessions.get_mut(&sid) else {
                     return;
                 };
                 if s.dead || s.end_frames.is_some() {
                     return;
                 }
-                s.end_frames = Some(frames);
-                let need_tokens = frames.div_ceil(fpt);
-                let have = s.stats.tokens + s.pending.len() as u64;
-                if need_tokens > have {
-                    // complete the last partial token with silence (SPEC 8)
-                    let need_samples = self.fcfg.token_end(need_tokens - 1);
-                    let pad = need_samples.saturating_sub(s.stats.samples_16k) as usize;
-                    s.stats.padding_16k = pad as u64;
-                    self.push(sid, &vec![0.0; pad], Instant::now(), false);
+                // SPEC 8, the streams' own rule: the last partial token completed with silence,
+                // the frame count from the input's own samples and rate
+                let r = match (s.id, s.parked.as_mut()) {
+                    (Some(id), _) => self.batch.finish_audio(id, input),
+                    (None, Some(st)) => st.finish_audio(input),
+                    (None, None) => return,
+                };
+                match r {
+                    Ok((mels, total)) => {
+                        s.end_frames = Some(total);
+                        let at = Instant::now();
+                        s.pending.extend(mels.into_iter().map(|m| (m, at)));
+                        self.finish_if_complete(sid);
+                    }
+                    Err(e) => {
+                        let msg = format!("internal error at the end of the audio: {e:#}");
+                        self.kill(sid, CLOSE_INTERNAL, msg);
+                    }
                 }
-                self.finish_if_complete(sid);
             }
             Cmd::Drain { sid } => {
                 if let Some(s) = self.sessions.get_mut(&sid) {
@@ -280,12 +285,12 @@ impl Scheduler {
         }
     }
 
-    /// Feeds a session's frontend; `client` is false for the end-of-stream padding.
-    fn push(&mut self, sid: u64, samples: &[f32], at: Instant, client: bool) {
+    /// Feeds a session's frontend with the client's audio.
+    fn push(&mut self, sid: u64, samples: &[f32], at: Instant) {
         let Some(s) = self.sessions.get_mut(&sid) else {
             return;
         };
-        if s.dead || (client && s.end_frames.is_some()) {
+        if s.dead || s.end_frames.is_some() {
             return;
         }
         let r = match (s.id, s.parked.as_mut()) {
@@ -294,11 +299,9 @@ impl Scheduler {
             (None, None) => return,
         };
         s.stats.samples_16k += samples.len() as u64;
-        if client {
-            self.metrics
-                .audio_samples_total
-                .fetch_add(samples.len() as u64, Ordering::Relaxed);
-        }
+        self.metrics
+            .audio_samples_total
+            .fetch_add(samples.len() as u64, Ordering::Relaxed);
         match r {
             Ok(mels) => s.pending.extend(mels.into_iter().map(|m| (m, at))),
             Err(e) => {

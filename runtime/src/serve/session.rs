@@ -15,8 +15,8 @@ use futures_util::stream::{SplitSink, StreamExt};
 use futures_util::SinkExt;
 use tokio::sync::{mpsc, oneshot, Semaphore};
 
-use crate::audio::{RawPcmDecoder, Resampler16k};
-use crate::pipeline::StreamOptions;
+use crate::audio::{AudioSpan, RawPcmDecoder, Resampler16k};
+use crate::model::livegesture::StreamOptions;
 
 use super::protocol::*;
 use super::scheduler::{Cmd, Out, SessionCtl, SessionStats};
@@ -220,7 +220,7 @@ fn log_end(sid: u64, started: Instant, s: &SessionStats, e: &Ending) {
         e.code,
         e.reason,
         started.elapsed().as_secs_f64(),
-        (s.samples_16k - s.padding_16k) as f64 / 16000.0,
+        s.samples_16k as f64 / 16000.0,
         s.tokens,
         s.frames,
         q(0.5),
@@ -453,8 +453,8 @@ async fn read_loop(
                         return client_gone(st, ctl, writer).await;
                     }
                     let n_in = in_bytes / params.frame_bytes() as u64;
-                    let frames = frames_for_samples(n_in, params.rate, st.info.fps);
-                    let _ = st.cmd.send(Cmd::End { sid, frames }).await;
+                    let input = AudioSpan::new(n_in, params.rate);
+                    let _ = st.cmd.send(Cmd::End { sid, input }).await;
                     ended = true;
                 }
                 Ok(ClientText::End) => {

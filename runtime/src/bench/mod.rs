@@ -9,8 +9,8 @@
 //! - **first-frame latency**: audio pushed in 10 ms chunks at wall-clock pace from sample 0; the time
 //!   from the first sample's arrival until the first frame comes back, and the compute part after the
 //!   chunk completing token 0's audio arrived;
-//! - **state bytes per stream** ([`crate::pipeline::state_bytes`]) and **peak RSS** (`VmHWM`);
-//! - **batched stepping**: [`Pipeline::step_stream_batch`] over a [`crate::pipeline::StreamBatch`] of
+//! - **state bytes per stream** ([`crate::model::livegesture::state_bytes`]) and **peak RSS** (`VmHWM`);
+//! - **batched stepping**: [`Pipeline::step_stream_batch`] over a [`crate::model::livegesture::StreamBatch`] of
 //!   N streams (caches kept stacked on the batch axis between steps; optionally one stream leaving and
 //!   a fresh one joining at every step, the leaving and joining timed with the step), and the streams
 //!   one core sustains in real time.
@@ -18,152 +18,26 @@
 //! Warm-up steps (which also build tract's per-batch-size plans) are excluded from every figure.
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
+use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context, Result};
 use ndarray::Array2;
 use serde::Serialize;
 
-use crate::backend::{Backend, GraphRunner, Tensor};
-use crate::bundle::{Bundle, GraphSpec};
+use crate::backend::Backend;
+use crate::bundle::{Bundle, Family};
 use crate::frontend::StreamingLogMel;
-use crate::pipeline::{state_bytes, Pipeline, StreamId, StreamOptions};
+use crate::model::livegesture::{state_bytes, Pipeline, StreamId, StreamOptions};
 
-/// Times of the graph runs since the last [`Recorder::drain`]: `(graph index, seconds)`.
-#[derive(Debug, Default)]
-pub struct Recorder {
-    names: Mutex<Vec<String>>,
-    events: Mutex<Vec<(usize, f64)>>,
-}
+mod machine;
+mod table;
+mod timing;
 
-impl Recorder {
-    fn register(&self, name: &str) -> usize {
-        let mut n = self.names.lock().unwrap_or_else(|e| e.into_inner());
-        n.push(name.to_string());
-        n.len() - 1
-    }
-
-    fn record(&self, id: usize, secs: f64) {
-        self.events
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .push((id, secs));
-    }
-
-    /// Graph names by index.
-    pub fn names(&self) -> Vec<String> {
-        self.names.lock().unwrap_or_else(|e| e.into_inner()).clone()
-    }
-
-    /// Takes the recorded events.
-    pub fn drain(&self) -> Vec<(usize, f64)> {
-        std::mem::take(&mut *self.events.lock().unwrap_or_else(|e| e.into_inner()))
-    }
-}
-
-/// A backend that times every graph run of the backend it wraps.
-pub struct TimingBackend<'a> {
-    inner: &'a dyn Backend,
-    rec: Arc<Recorder>,
-}
-
-impl<'a> TimingBackend<'a> {
-    /// Wraps `inner`; run times go to `rec`.
-    pub fn new(inner: &'a dyn Backend, rec: Arc<Recorder>) -> Self {
-        Self { inner, rec }
-    }
-}
-
-struct TimedRunner {
-    inner: Box<dyn GraphRunner>,
-    id: usize,
-    rec: Arc<Recorder>,
-}
-
-impl GraphRunner for TimedRunner {
-    fn spec(&self) -> &GraphSpec {
-        self.inner.spec()
-    }
-
-    fn run(&mut self, inputs: &[Tensor]) -> Result<Vec<Tensor>> {
-        let t0 = Instant::now();
-        let out = self.inner.run(inputs);
-        self.rec.record(self.id, t0.elapsed().as_secs_f64());
-        out
-    }
-
-    fn run_into(&mut self, inputs: &[Tensor], outputs: &mut Vec<Tensor>) -> Result<()> {
-        let t0 = Instant::now();
-        let out = self.inner.run_into(inputs, outputs);
-        self.rec.record(self.id, t0.elapsed().as_secs_f64());
-        out
-    }
-}
-
-impl Backend for TimingBackend<'_> {
-    fn name(&self) -> &str {
-        self.inner.name()
-    }
-
-    fn describe(&self) -> String {
-        self.inner.describe()
-    }
-
-    fn load(&self, spec: &GraphSpec, path: &Path) -> Result<Box<dyn GraphRunner>> {
-        let inner = self.inner.load(spec, path)?;
-        Ok(Box::new(TimedRunner {
-            inner,
-            id: self.rec.register(&spec.name),
-            rec: self.rec.clone(),
-        }))
-    }
-}
-
-/// Order statistics of a sample of times, in milliseconds.
-#[derive(Debug, Clone, Serialize)]
-pub struct Stats {
-    pub n: usize,
-    pub median: f64,
-    pub p95: f64,
-    pub p99: f64,
-    pub mean: f64,
-    pub min: f64,
-    pub max: f64,
-}
-
-fn percentile(sorted: &[f64], p: f64) -> f64 {
-    // linear interpolation between closest ranks (numpy's default)
-    if sorted.is_empty() {
-        return f64::NAN;
-    }
-    let x = p / 100.0 * (sorted.len() - 1) as f64;
-    let lo = x.floor() as usize;
-    let hi = x.ceil() as usize;
-    sorted[lo] + (sorted[hi] - sorted[lo]) * (x - lo as f64)
-}
-
-impl Stats {
-    /// Statistics of `ms` (milliseconds).
-    pub fn of(ms: &[f64]) -> Stats {
-        let mut s = ms.to_vec();
-        s.sort_by(f64::total_cmp);
-        Stats {
-            n: s.len(),
-            median: percentile(&s, 50.0),
-            p95: percentile(&s, 95.0),
-            p99: percentile(&s, 99.0),
-            mean: if s.is_empty() {
-                f64::NAN
-            } else {
-                s.iter().sum::<f64>() / s.len() as f64
-            },
-            min: s.first().copied().unwrap_or(f64::NAN),
-            max: s.last().copied().unwrap_or(f64::NAN),
-        }
-    }
-}
+pub use machine::{cpu_name, loadavg, online_cpus, peak_rss_bytes, Machine};
+pub use table::format_table;
+pub use timing::{Recorder, Stats, TimingBackend};
 
 /// What to measure.
 #[derive(Debug, Clone)]
@@ -322,59 +196,6 @@ pub struct BenchReport {
     pub wall_seconds: f64,
 }
 
-/// The machine the benchmark ran on.
-#[derive(Debug, Clone, Serialize)]
-pub struct Machine {
-    pub cpu: String,
-    /// Logical CPUs of the machine (`/proc/cpuinfo`).
-    pub cores: usize,
-    /// CPUs this process may run on (fewer under `taskset`).
-    pub usable_cpus: usize,
-    pub loadavg_start: String,
-    pub loadavg_end: String,
-}
-
-/// CPU model name from `/proc/cpuinfo`.
-pub fn cpu_name() -> String {
-    std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("model name"))
-                .and_then(|l| l.split_once(':'))
-                .map(|(_, v)| v.trim().to_string())
-        })
-        .unwrap_or_else(|| std::env::consts::ARCH.to_string())
-}
-
-/// Logical CPUs listed in `/proc/cpuinfo` (falls back to the CPUs this process may use).
-pub fn online_cpus() -> usize {
-    std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .map(|s| s.lines().filter(|l| l.starts_with("processor")).count())
-        .filter(|&n| n > 0)
-        .unwrap_or_else(|| {
-            std::thread::available_parallelism()
-                .map(|n| n.get())
-                .unwrap_or(1)
-        })
-}
-
-/// `/proc/loadavg` (first three fields).
-pub fn loadavg() -> String {
-    std::fs::read_to_string("/proc/loadavg")
-        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
-        .unwrap_or_default()
-}
-
-/// Peak resident set size (`VmHWM` of `/proc/self/status`) in bytes.
-pub fn peak_rss_bytes() -> Option<u64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
-}
-
 /// The mel blocks of `samples`, one per complete token.
 fn mel_blocks(bundle: &Bundle, samples: &[f32]) -> Result<(Vec<Array2<f32>>, f64)> {
     let mut fe = StreamingLogMel::new(bundle.frontend())?;
@@ -429,6 +250,14 @@ pub fn run(
     cfg: &BenchConfig,
     mut progress: impl FnMut(&str),
 ) -> Result<BenchReport> {
+    // the figures below are the LiveGesture family's; another family adds its own here
+    match bundle.family() {
+        Family::LiveGesture => {}
+        other => anyhow::bail!(
+            "{}: bench has no benchmarks for family '{other}' yet",
+            bundle.dir().display()
+        ),
+    }
     let wall = Instant::now();
     let load_start = loadavg();
     let rec = Arc::new(Recorder::default());
@@ -571,8 +400,8 @@ pub fn run(
         load_seconds,
         single,
         first_frame,
-        state_bytes_per_stream: state_bytes(bundle, guidance != 1.0),
-        state_bytes_per_stream_unguided: state_bytes(bundle, false),
+        state_bytes_per_stream: state_bytes(bundle, guidance != 1.0)?,
+        state_bytes_per_stream_unguided: state_bytes(bundle, false)?,
         peak_rss_single_bytes,
         batched,
         peak_rss_bytes: peak_rss_bytes(),
@@ -679,134 +508,4 @@ fn run_batched(
         step_ms: st,
         graphs: graph_timings(&names, &per_graph),
     })
-}
-
-/// A human-readable table of `r`.
-pub fn format_table(r: &BenchReport) -> String {
-    use std::fmt::Write;
-    let mut o = String::new();
-    let _ = writeln!(
-        o,
-        "bundle {} (config {}, {:.1} M parameters), backend {}, guidance {}",
-        r.bundle,
-        r.config.as_deref().unwrap_or("?"),
-        r.parameters as f64 / 1e6,
-        r.backend_description,
-        r.guidance
-    );
-    let _ = writeln!(
-        o,
-        "machine: {}, {} cores ({} usable by this process), load {} -> {}",
-        r.machine.cpu,
-        r.machine.cores,
-        r.machine.usable_cpus,
-        r.machine.loadavg_start,
-        r.machine.loadavg_end
-    );
-    let _ = writeln!(
-        o,
-        "\nper-token step, one stream ({} timed steps after {} warm-up), ms:",
-        r.single.chain_ms.n, r.single.warmup_steps
-    );
-    let _ = writeln!(o, "  {:<16} {:>9} {:>9} {:>9}", "", "median", "p95", "p99");
-    let row = |o: &mut String, name: &str, s: &Stats| {
-        let _ = writeln!(
-            o,
-            "  {:<16} {:>9.3} {:>9.3} {:>9.3}",
-            name, s.median, s.p95, s.p99
-        );
-    };
-    for g in &r.single.graphs {
-        row(&mut o, &g.graph, &g.ms);
-    }
-    row(&mut o, "sum of graphs", &r.single.graphs_sum_ms);
-    row(&mut o, "whole chain", &r.single.chain_ms);
-    let _ = writeln!(
-        o,
-        "  overhead (chain - graphs) {:.3} ms, log-mel frontend {:.3} ms/token",
-        r.single.overhead_ms_median, r.single.frontend_ms_per_token
-    );
-    let _ = writeln!(
-        o,
-        "  real-time factor {:.4} (token = {:.1} ms)",
-        r.single.real_time_factor, r.token_ms
-    );
-    let f = &r.first_frame;
-    let _ = writeln!(
-        o,
-        "\nfirst frame, audio at real-time pace in {:.0} ms chunks ({} trials): {:.1} ms median from the first sample \
-         (token 0's audio ends at {:.1} ms, its chunk arrives at {:.1} ms; compute after that {:.2} ms median); \
-         cold pipeline {:.1} ms (compute {:.1} ms)",
-        f.chunk_ms,
-        f.total_ms.n,
-        f.total_ms.median,
-        f.token0_audio_ms,
-        f.token0_chunk_arrival_ms,
-        f.compute_ms.median,
-        f.cold_pipeline_total_ms,
-        f.cold_pipeline_compute_ms
-    );
-    let _ = writeln!(
-        o,
-        "state per stream: {} bytes ({} without guidance); peak RSS {:.1} MiB after single stream, {:.1} MiB at the end",
-        r.state_bytes_per_stream,
-        r.state_bytes_per_stream_unguided,
-        r.peak_rss_single_bytes.unwrap_or(0) as f64 / 1048576.0,
-        r.peak_rss_bytes.unwrap_or(0) as f64 / 1048576.0
-    );
-    if !r.batched.is_empty() {
-        let _ = writeln!(
-            o,
-            "\nbatched stepping (one core):\n  {:>5} {:>6} {:>11} {:>9} {:>9} {:>9} {:>13} {:>13}",
-            "N", "steps", "step med ms", "p95", "graphs", "ms/strm", "RT streams", "RT w/ frontend"
-        );
-        for b in &r.batched {
-            let _ = writeln!(
-                o,
-                "  {:>5} {:>6} {:>11.2} {:>9.2} {:>9.2} {:>9.3} {:>13.1} {:>13.1}{}",
-                b.streams,
-                b.timed_steps,
-                b.step_ms.median,
-                b.step_ms.p95,
-                b.graphs_sum_ms_median,
-                b.per_stream_ms,
-                b.realtime_streams,
-                b.realtime_streams_with_frontend,
-                if b.capped { "  (time-capped)" } else { "" }
-            );
-        }
-        if let Some(first) = r.batched.first() {
-            let _ = write!(
-                o,
-                "\nbatched, per graph (median ms per batched step):\n  {:>5}",
-                "N"
-            );
-            for g in &first.graphs {
-                let _ = write!(o, " {:>14}", g.graph);
-            }
-            let _ = writeln!(o);
-            for b in &r.batched {
-                let _ = write!(o, "  {:>5}", b.streams);
-                for g in &b.graphs {
-                    let _ = write!(o, " {:>14.3}", g.ms.median);
-                }
-                let _ = writeln!(o);
-            }
-        }
-    }
-    o
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn percentiles_match_numpy() {
-        let s = Stats::of(&[4.0, 1.0, 3.0, 2.0, 5.0]);
-        assert_eq!(s.median, 3.0);
-        assert!((s.p95 - 4.8).abs() < 1e-12);
-        assert_eq!(s.min, 1.0);
-        assert_eq!(s.max, 5.0);
-    }
 }

@@ -1,0 +1,140 @@
+//! The manifest sections only a LiveGesture bundle has: `regions`, `vocab` and `sampling`.
+//!
+//! They are required (and checked) when the manifest's `family` is `livegesture` and ignored
+//! otherwise. The manifest's `pipeline` object (the chain order, as prose for readers) is not read:
+//! the chain is fixed by the LiveGesture implementation (`model::livegesture`), whose graph roles are
+//! checked against the graphs' inputs when the model loads.
+
+use serde::{Deserialize, Serialize};
+
+use super::Manifest;
+
+/// One part of a region's feature vector (`rot6d`, `trans`, `foot_contact`, `expressions`).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+pub struct RegionPart {
+    pub name: String,
+    #[serde(default)]
+    pub joints: Option<Vec<usize>>,
+    pub offset: usize,
+    pub dim: usize,
+}
+
+/// A body region and the layout of its feature vector.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+pub struct RegionSpec {
+    pub name: String,
+    pub dim: usize,
+    pub joints: Vec<usize>,
+    pub parts: Vec<RegionPart>,
+}
+
+impl RegionSpec {
+    /// The part called `name`, if the region has it.
+    pub fn part(&self, name: &str) -> Option<&RegionPart> {
+        self.parts.iter().find(|p| p.name == name)
+    }
+}
+
+/// Token vocabulary.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+pub struct Vocab {
+    pub codebook_size: usize,
+    pub bos_token: i64,
+    #[serde(default)]
+    pub mask_token: Option<i64>,
+}
+
+/// Sampling defaults of the bundle.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+pub struct SamplingDefaults {
+    /// Classifier-free guidance scale gamma (1.0 disables guidance).
+    pub guidance: f64,
+    pub temperature: f64,
+    /// Top-k (0 = all).
+    pub top_k: usize,
+    #[serde(default)]
+    pub region_order: Vec<String>,
+    #[serde(default)]
+    pub prng: Option<String>,
+}
+
+/// The LiveGesture sections of `manifest.json` (see the module docs).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+pub struct LiveGestureManifest {
+    /// Regions in the chain's order (also the sampling order).
+    pub regions: Vec<RegionSpec>,
+    pub vocab: Vocab,
+    pub sampling: SamplingDefaults,
+}
+
+impl LiveGestureManifest {
+    /// Region names in order.
+    pub fn region_names(&self) -> Vec<&str> {
+        self.regions.iter().map(|r| r.name.as_str()).collect()
+    }
+
+    /// Names of the graphs the LiveGesture chain needs: `audio_encoder`, `expert_<region>`,
+    /// `fusion`, `decoder_<region>`.
+    pub fn graph_names(&self) -> Vec<String> {
+        let mut wanted = vec!["audio_encoder".to_string(), "fusion".to_string()];
+        for r in &self.regions {
+            wanted.push(format!("expert_{}", r.name));
+            wanted.push(format!("decoder_{}", r.name));
+        }
+        wanted
+    }
+
+    /// Checks the sections against themselves and the common part; the error says what is wrong.
+    pub(super) fn check(&self, m: &Manifest) -> Result<(), String> {
+        if self.regions.is_empty() {
+            return Err("no regions".into());
+        }
+        let names = self.region_names();
+        if !self.sampling.region_order.is_empty() && self.sampling.region_order != names {
+            return Err(format!(
+                "sampling.region_order {:?} differs from the regions {:?}",
+                self.sampling.region_order, names
+            ));
+        }
+        for r in &self.regions {
+            for p in &r.parts {
+                if p.offset + p.dim > r.dim {
+                    return Err(format!(
+                        "region '{}': part '{}' ends at {} beyond the region's {} dims",
+                        r.name,
+                        p.name,
+                        p.offset + p.dim,
+                        r.dim
+                    ));
+                }
+            }
+        }
+        for w in self.graph_names() {
+            if !m.graphs.iter().any(|g| g.name == w) {
+                return Err(format!("no graph named '{w}'"));
+            }
+        }
+        for g in &m.graphs {
+            for (name, _, shape) in g.all_inputs().into_iter().chain(g.all_outputs()) {
+                if super::has_named_axis(shape) {
+                    return Err(format!(
+                        "graph '{}': tensor '{name}' has a named dynamic axis ({}); LiveGesture graphs have only the batch axis dynamic",
+                        g.name,
+                        super::shape_string(shape)
+                    ));
+                }
+            }
+        }
+        if self.vocab.bos_token < 0 {
+            return Err("vocab.bos_token is negative".into());
+        }
+        let s = &self.sampling;
+        if s.temperature.is_nan() || s.temperature <= 0.0 || !s.guidance.is_finite() {
+            return Err(format!(
+                "sampling defaults out of range (guidance {}, temperature {})",
+                s.guidance, s.temperature
+            ));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,122 @@
+//! Frame assembly from the decoders' region features, the state size of a stream, and what `info`
+//! shows of a LiveGesture bundle.
+
+use anyhow::Result;
+
+use super::Pipeline;
+use crate::backend::Tensor;
+use crate::bundle::Bundle;
+use crate::model::regions::assemble_frame;
+use crate::model::Description;
+use crate::output::Frame;
+
+/// True for the graphs that run both guidance branches (2 rows per guided stream): the experts and
+/// fusion.
+fn is_branched(graph: &str) -> bool {
+    graph.starts_with("expert_") || graph == "fusion"
+}
+
+/// Bytes of per-stream state: caches of every graph (expert and fusion caches twice with guidance)
+/// plus the frontend's sample buffer at its largest (one token span and one window of `f64`).
+pub fn state_bytes(bundle: &Bundle, guided: bool) -> Result<usize> {
+    let n_regions = bundle.livegesture()?.regions.len();
+    let rows = if guided { 2 } else { 1 };
+    let caches: usize = bundle
+        .graphs()
+        .iter()
+        .map(|g| {
+            let r = if is_branched(&g.name) { rows } else { 1 };
+            g.cache_row_bytes() * r
+        })
+        .sum();
+    let f = bundle.frontend();
+    let span = (f.token_end(0) as usize) + f.win_length + 1;
+    Ok(caches + span * std::mem::size_of::<f64>() + n_regions * 8)
+}
+
+impl Pipeline {
+    /// Builds the frames of stream row `i` from the decoders' `(batch, frames_per_token, dim)` outputs.
+    pub(super) fn assemble_frames(&self, feats: &[Tensor], i: usize, t: u64) -> Result<Vec<Frame>> {
+        let fpt = self.frames_per_token;
+        let values = feats
+            .iter()
+            .map(|f| f.as_f32("decoder output"))
+            .collect::<Result<Vec<_>>>()?;
+        Ok((0..fpt)
+            .map(|j| {
+                let rows = self.regions.iter().zip(&values).map(|(l, v)| {
+                    let base = (i * fpt + j) * l.dim;
+                    &v[base..base + l.dim]
+                });
+                assemble_frame(fpt as u64 * t + j as u64, &self.regions, rows)
+            })
+            .collect())
+    }
+}
+
+/// What `info` shows of a LiveGesture bundle ([`crate::model::describe`]).
+pub fn describe(bundle: &Bundle) -> Result<Description> {
+    let lg = bundle.livegesture()?;
+    let s = &lg.sampling;
+    let guided = s.guidance != 1.0;
+    let regions: Vec<String> = lg
+        .regions
+        .iter()
+        .map(|r| format!("{} ({} dims, {} joints)", r.name, r.dim, r.joints.len()))
+        .collect();
+    let (with, without) = (state_bytes(bundle, true)?, state_bytes(bundle, false)?);
+    let kib = |n: usize| format!("{:.1} KiB", n as f64 / 1024.0);
+    let lines = vec![
+        ("regions".to_string(), regions.join(", ")),
+        (
+            "vocabulary".to_string(),
+            format!(
+                "codebook {} per region, BOS token {}",
+                lg.vocab.codebook_size, lg.vocab.bos_token
+            ),
+        ),
+        (
+            "sampling".to_string(),
+            format!(
+                "guidance {}{}, temperature {}, top-k {}, PRNG {}",
+                s.guidance,
+                if guided { "" } else { " (off)" },
+                s.temperature,
+                if s.top_k == 0 {
+                    "all".to_string()
+                } else {
+                    s.top_k.to_string()
+                },
+                s.prng.as_deref().unwrap_or("splitmix64")
+            ),
+        ),
+        (
+            "state".to_string(),
+            format!(
+                "{} per stream with guidance ({} without): caches, previous tokens, frontend buffer",
+                kib(with),
+                kib(without)
+            ),
+        ),
+        ("look-ahead".to_string(), "0 (causal, one token at a time)".to_string()),
+    ];
+    let mut json = serde_json::Map::new();
+    json.insert("regions".into(), serde_json::json!(lg.region_names()));
+    json.insert("sampling".into(), serde_json::to_value(&lg.sampling)?);
+    json.insert("vocab".into(), serde_json::to_value(&lg.vocab)?);
+    json.insert(
+        "state_bytes_per_stream".into(),
+        serde_json::json!({"guided": with, "unguided": without}),
+    );
+    let rows_per_stream = bundle
+        .graphs()
+        .iter()
+        .filter(|g| is_branched(&g.name))
+        .map(|g| (g.name.clone(), if guided { 2 } else { 1 }))
+        .collect();
+    Ok(Description {
+        lines,
+        json,
+        rows_per_stream,
+    })
+}

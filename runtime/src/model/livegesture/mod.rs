@@ -1,0 +1,400 @@
+//! The LiveGesture family: audio chunks in, SMPL-X frames out, zero look-ahead.
+//!
+//! This reproduces `python/livegesture/stream.py` step for step. Per motion token `t`, as soon as its
+//! audio has arrived:
+//!
+//! 1. the stream's [`StreamingLogMel`] yields the token's `mel_frames_per_token` log-mel frames;
+//! 2. `audio_encoder` turns them into the audio token `a_t` (once per stream);
+//! 3. every `expert_<region>` reads the previous token of its region (BOS at `t = 0`) and `a_t`; the
+//!    conditional (`cond = 1`) and unconditional (`cond = 0`) guidance branches are two rows on the
+//!    batch axis;
+//! 4. `fusion` gives per-region logits for both branches;
+//! 5. classifier-free guidance and the seeded SplitMix64 sampler ([`crate::sampling`]) draw one token
+//!    per region, in region order;
+//! 6. `decoder_<region>` turns the token into frames `4t .. 4t+3` of region features;
+//! 7. rot6d is converted to axis-angle and the region features are assembled into [`Frame`]s
+//!    (translation and expressions copied, foot contact from the lower region's contact dims, eyes at
+//!    rest), following the region layout in the manifest.
+//!
+//! With guidance `gamma == 1.0` the unconditional branch is not run at all (one row per stream), as in
+//! Python.
+//!
+//! # State and batching
+//!
+//! A [`Stream`] owns all per-stream state (frontend buffer, every graph's caches, previous tokens, the
+//! PRNG, the token counter). Its size is fixed: it does not grow with the stream's length. A
+//! [`Pipeline`] owns the loaded graphs and is shared by any number of streams.
+//!
+//! Two ways to step many streams at once, every graph running once for all of them:
+//!
+//! - [`Pipeline::step_batch`] on separately owned [`Stream`]s: their caches are stacked on the batch
+//!   axis before each graph run and split back after it (a copy of every cache, twice, per step);
+//! - a [`StreamBatch`] ([`Pipeline::new_batch`], [`Pipeline::step_stream_batch`]) keeps the caches of
+//!   its streams stacked between steps: each graph gets them as they are and its new caches simply
+//!   replace them. Streams join and leave between steps ([`StreamBatch::add`], [`StreamBatch::remove`]).
+//!
+//! Stepping streams one by one, with `step_batch` or in a `StreamBatch` gives the same tokens and
+//! frames.
+//!
+//! After an error inside a graph the caches are incomplete: the stream refuses further work until
+//! [`Pipeline::reset`], a batch until its streams have been removed.
+//!
+//! # The end of the audio (SPEC 8)
+//!
+//! [`Pipeline::finish`] completes the last partial token with silence and cuts its frames at the
+//! audio's end, so a stream emits exactly [`AudioSpan::frames`] frames, `ceil(duration * 30)`, in
+//! total. For a [`StreamBatch`] member, [`StreamBatch::finish_audio`] gives the silence-completed
+//! mel blocks and the frame count; step them with the batch and keep the frames below the count.
+//!
+//! # Layout
+//!
+//! - here: [`Pipeline`] (the loaded graphs; streams, steps, finish);
+//! - `stream`: [`Stream`], its options in use and counters, [`TokenStep`];
+//! - `batch`: [`StreamBatch`], streams whose caches stay stacked between steps;
+//! - `caches`: where each graph's caches live (separate per stream, or stacked in a batch);
+//! - `chain`: the per-token chain, one function per stage (audio encoder, experts, fusion, sampling,
+//!   decoders);
+//! - `layout`: frames from the decoders' outputs (through [`crate::model::regions`]), the state
+//!   size of a stream, what `info` shows;
+//! - `model`: [`LiveGestureModel`] / [`LiveGestureStream`], the family's
+//!   [`MotionModel`](crate::model::MotionModel) / [`MotionStream`](crate::model::MotionStream).
+
+use anyhow::{ensure, Context, Result};
+use ndarray::Array2;
+
+use crate::audio::AudioSpan;
+use crate::backend::Backend;
+use crate::bundle::Bundle;
+use crate::frontend::{FrontendConfig, StreamingLogMel};
+use crate::output::Frame;
+
+pub use crate::model::StreamOptions;
+
+mod batch;
+mod caches;
+mod chain;
+mod layout;
+mod model;
+mod stream;
+
+pub use batch::{StreamBatch, StreamId};
+pub use layout::{describe, state_bytes};
+pub use model::{LiveGestureModel, LiveGestureStream};
+pub use stream::{cut_frames, StepLogits, Stream, TokenStep};
+
+use crate::model::regions::{resolve_layouts, RegionLayout};
+use caches::{Caches, SeparateCaches, StackedCaches};
+use chain::Stage;
+use stream::StreamState;
+
+/// The loaded graphs of a bundle, shared by any number of [`Stream`]s.
+pub struct Pipeline {
+    frontend: FrontendConfig,
+    regions: Vec<RegionLayout>,
+    bos: i64,
+    codebook_size: usize,
+    defaults: (f64, f64, usize),
+    frames_per_token: usize,
+    backend: String,
+    audio_encoder: Stage,
+    experts: Vec<Stage>,
+    fusion: Stage,
+    decoders: Vec<Stage>,
+}
+
+impl std::fmt::Debug for Pipeline {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Pipeline")
+            .field("backend", &self.backend)
+            .field(
+                "regions",
+                &self.regions.iter().map(|r| &r.name).collect::<Vec<_>>(),
+            )
+            .finish_non_exhaustive()
+    }
+}
+
+impl Pipeline {
+    /// Loads every graph of `bundle` with `backend`.
+    pub fn new(bundle: &Bundle, backend: &dyn Backend) -> Result<Self> {
+        let lg = bundle.livegesture()?;
+        let names: Vec<String> = lg.region_names().iter().map(|s| s.to_string()).collect();
+        let regions = resolve_layouts(&lg.regions)?;
+        let audio_encoder = Stage::new(bundle, backend, "audio_encoder", &names)?;
+        let fusion = Stage::new(bundle, backend, "fusion", &names)?;
+        let experts = names
+            .iter()
+            .map(|r| Stage::new(bundle, backend, &format!("expert_{r}"), &names))
+            .collect::<Result<Vec<_>>>()?;
+        let decoders = names
+            .iter()
+            .map(|r| Stage::new(bundle, backend, &format!("decoder_{r}"), &names))
+            .collect::<Result<Vec<_>>>()?;
+        let fpt = bundle.frontend().frames_per_token as usize;
+        for (d, l) in decoders.iter().zip(&regions) {
+            let m = d
+                .spec
+                .outputs
+                .first()
+                .with_context(|| format!("graph '{}' has no output", d.spec.name))?;
+            ensure!(
+                m.row_len() == fpt * l.dim,
+                "graph '{}': output '{}' has {} values per stream, expected {fpt} frames x {} dims",
+                d.spec.name,
+                m.name,
+                m.row_len(),
+                l.dim
+            );
+        }
+        let s = &lg.sampling;
+        Ok(Pipeline {
+            frontend: bundle.frontend().clone(),
+            regions,
+            bos: lg.vocab.bos_token,
+            codebook_size: lg.vocab.codebook_size,
+            defaults: (s.guidance, s.temperature, s.top_k),
+            frames_per_token: fpt,
+            backend: backend.name().to_string(),
+            audio_encoder,
+            experts,
+            fusion,
+            decoders,
+        })
+    }
+
+    /// The backend the graphs run on.
+    pub fn backend_name(&self) -> &str {
+        &self.backend
+    }
+
+    /// The frontend configuration (sample rate, token grid).
+    pub fn frontend(&self) -> &FrontendConfig {
+        &self.frontend
+    }
+
+    /// Region names in order.
+    pub fn region_names(&self) -> Vec<&str> {
+        self.regions.iter().map(|r| r.name.as_str()).collect()
+    }
+
+    /// Codebook size K.
+    pub fn codebook_size(&self) -> usize {
+        self.codebook_size
+    }
+
+    /// A fresh stream (cold start: zero caches from the manifest, BOS previous tokens, seeded PRNG).
+    pub fn new_stream(&self, opts: &StreamOptions) -> Result<Stream> {
+        let gamma = opts.guidance.unwrap_or(self.defaults.0);
+        let temperature = opts.temperature.unwrap_or(self.defaults.1);
+        let top_k = opts.top_k.unwrap_or(self.defaults.2);
+        ensure!(
+            gamma.is_finite(),
+            "guidance must be a finite number, got {gamma}"
+        );
+        ensure!(
+            temperature.is_finite() && temperature > 0.0,
+            "temperature must be > 0, got {temperature}"
+        );
+        let state = StreamState::new(
+            opts,
+            gamma,
+            temperature,
+            top_k,
+            StreamingLogMel::new(&self.frontend)?,
+            self.bos,
+            self.regions.len(),
+        );
+        Ok(Stream {
+            caches: self.initial_caches(state.branch_rows(), 1),
+            state,
+            poisoned: false,
+        })
+    }
+
+    /// Zero caches from the manifest with `branch_rows` rows in the expert and fusion graphs and
+    /// `rows` in the others.
+    fn initial_caches(&self, branch_rows: usize, rows: usize) -> Caches {
+        Caches {
+            audio_encoder: caches::zeros_for(&self.audio_encoder.spec.caches, rows),
+            experts: self
+                .experts
+                .iter()
+                .map(|e| caches::zeros_for(&e.spec.caches, branch_rows))
+                .collect(),
+            fusion: caches::zeros_for(&self.fusion.spec.caches, branch_rows),
+            decoders: self
+                .decoders
+                .iter()
+                .map(|d| caches::zeros_for(&d.spec.caches, rows))
+                .collect(),
+        }
+    }
+
+    /// An empty [`StreamBatch`] for this pipeline's graphs; add streams with [`StreamBatch::add`].
+    pub fn new_batch(&self) -> StreamBatch {
+        StreamBatch::new(self.initial_caches(0, 0))
+    }
+
+    /// Resets `stream` to a cold start with its original options (and seed).
+    pub fn reset(&self, stream: &mut Stream) -> Result<()> {
+        *stream = self.new_stream(&stream.state.opts.clone())?;
+        Ok(())
+    }
+
+    /// Pushes audio (16 kHz mono, any chunk size) and returns the frames of every token it completes.
+    pub fn push(&mut self, stream: &mut Stream, chunk: &[f32]) -> Result<Vec<Frame>> {
+        Ok(self
+            .push_steps(stream, chunk)?
+            .into_iter()
+            .flat_map(|s| s.frames)
+            .collect())
+    }
+
+    /// Like [`Pipeline::push`], returning each token step (tokens, optional logits, frames).
+    pub fn push_steps(&mut self, stream: &mut Stream, chunk: &[f32]) -> Result<Vec<TokenStep>> {
+        ensure!(
+            !stream.poisoned,
+            "the stream failed earlier; reset it before pushing more audio"
+        );
+        let mels = stream.state.push_audio(chunk)?;
+        mels.iter().map(|mel| self.step(stream, mel)).collect()
+    }
+
+    /// Ends `stream` (SPEC 8): completes its last partial token with silence and returns the frames
+    /// still missing, cut at the end of `input` (the audio the caller received, at its own rate), so
+    /// that the stream has emitted exactly [`AudioSpan::frames`] frames. The stream then refuses more
+    /// audio until [`Pipeline::reset`]. Errors when `input` does not match the audio pushed (see
+    /// [`Stream::finish_audio`]).
+    pub fn finish(&mut self, stream: &mut Stream, input: AudioSpan) -> Result<Vec<Frame>> {
+        Ok(self
+            .finish_steps(stream, input)?
+            .into_iter()
+            .flat_map(|s| s.frames)
+            .collect())
+    }
+
+    /// Like [`Pipeline::finish`], returning the token steps (their frames already cut).
+    pub fn finish_steps(
+        &mut self,
+        stream: &mut Stream,
+        input: AudioSpan,
+    ) -> Result<Vec<TokenStep>> {
+        ensure!(
+            !stream.poisoned,
+            "the stream failed earlier; reset it before finishing it"
+        );
+        let (mels, total) = stream.state.finish_audio(input)?;
+        let mut out = mels
+            .iter()
+            .map(|mel| self.step(stream, mel))
+            .collect::<Result<Vec<_>>>()?;
+        cut_frames(&mut out, total);
+        Ok(out)
+    }
+
+    /// One token step of one stream from its mel frames `(mel_frames_per_token, n_mels)`.
+    pub fn step(&mut self, stream: &mut Stream, mel: &Array2<f32>) -> Result<TokenStep> {
+        let mut v = self.step_batch(&mut [stream], std::slice::from_ref(mel))?;
+        v.pop().context("step_batch returned no result")
+    }
+
+    fn check_mels(&self, n: usize, mels: &[Array2<f32>]) -> Result<()> {
+        ensure!(n == mels.len(), "{n} streams but {} mel blocks", mels.len());
+        let mpt = self.frontend.mel_frames_per_token as usize;
+        let n_mels = self.frontend.n_mels;
+        for m in mels {
+            ensure!(
+                m.dim() == (mpt, n_mels),
+                "mel block has shape {:?}, expected ({mpt}, {n_mels})",
+                m.dim()
+            );
+        }
+        Ok(())
+    }
+
+    /// One token step of several separately owned streams at once (`mels[i]` for `streams[i]`):
+    /// every graph runs once with the streams' caches stacked on the batch axis before the run and
+    /// split back after it. Streams may differ in guidance. For a set of streams stepped together
+    /// again and again, a [`StreamBatch`] ([`Pipeline::step_stream_batch`]) avoids the stacking.
+    pub fn step_batch(
+        &mut self,
+        streams: &mut [&mut Stream],
+        mels: &[Array2<f32>],
+    ) -> Result<Vec<TokenStep>> {
+        self.check_mels(streams.len(), mels).context("step_batch")?;
+        if streams.is_empty() {
+            return Ok(Vec::new());
+        }
+        for s in streams.iter() {
+            ensure!(
+                !s.poisoned,
+                "the stream failed earlier; reset it before stepping it again"
+            );
+        }
+        for s in streams.iter_mut() {
+            s.poisoned = true;
+        }
+        let mut states = Vec::with_capacity(streams.len());
+        let mut store = SeparateCaches {
+            caches: Vec::with_capacity(streams.len()),
+            branch_rows: Vec::with_capacity(streams.len()),
+            ones: vec![1; streams.len()],
+        };
+        for s in streams.iter_mut() {
+            let s = &mut **s;
+            store.branch_rows.push(s.state.branch_rows());
+            states.push(&mut s.state);
+            store.caches.push(&mut s.caches);
+        }
+        let out = self.step_inner(&mut states, &mut store, mels)?;
+        for s in streams.iter_mut() {
+            s.poisoned = false;
+        }
+        Ok(out)
+    }
+
+    /// One token step of every stream of `batch` (`mels[i]` for the `i`-th of [`StreamBatch::ids`]):
+    /// every graph runs once on the batch's stacked caches, and the new caches it returns take their
+    /// place (moved, not copied). Returns the token steps in the same order. The tokens and frames of
+    /// each stream are those it would get stepped alone.
+    pub fn step_stream_batch(
+        &mut self,
+        batch: &mut StreamBatch,
+        mels: &[Array2<f32>],
+    ) -> Result<Vec<TokenStep>> {
+        self.check_mels(batch.len(), mels)
+            .context("step_stream_batch")?;
+        ensure!(
+            !batch.poisoned,
+            "a step of this batch failed earlier; remove its streams (and reset them) to use it again"
+        );
+        if batch.is_empty() {
+            return Ok(Vec::new());
+        }
+        let mut states: Vec<&mut StreamState> =
+            batch.members.iter_mut().map(|m| &mut m.state).collect();
+        let mut store = StackedCaches {
+            cur: &mut batch.caches,
+            spare: &mut batch.spare,
+        };
+        let r = self.step_inner(&mut states, &mut store, mels);
+        if r.is_err() {
+            batch.poison();
+        }
+        r
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn assert_send<T: Send>() {}
+
+    #[test]
+    fn streams_and_pipelines_move_between_threads() {
+        assert_send::<Stream>();
+        assert_send::<Pipeline>();
+        assert_send::<StreamBatch>();
+    }
+}

@@ -1,0 +1,282 @@
+//! Motion output: BEAT2-compatible `.npz` files and per-frame live records.
+//!
+//! # BEAT2 `.npz`
+//!
+//! [`write_beat2_npz`] (and [`NpzFrameWriter`], which collects frames and writes at
+//! [`NpzFrameWriter::finish`]) writes an uncompressed zip of `.npy` (format 1.0) entries, the layout
+//! `numpy.savez` produces and BEAT2 tools and the SMPL-X Blender add-on read:
+//!
+//! | key | dtype | shape |
+//! |---|---|---|
+//! | `poses` | `<f4` | `(T, 165)` axis-angle, 55 SMPL-X joints |
+//! | `trans` | `<f4` | `(T, 3)` metres, Y up |
+//! | `expressions` | `<f4` | `(T, 100)` |
+//! | `betas` | `<f4` | `(300,)` zeros |
+//! | `model` | `<U9` | `()` the string `smplx2020` |
+//! | `gender` | `<U7` | `()` the string `neutral` |
+//! | `mocap_frame_rate` | `<i8` | `()` 30 |
+//!
+//! String entries are numpy unicode scalars (UTF-32LE code points), so `np.load(f)["model"]` is a
+//! `str` array just as in the BEAT2 files. The file is written **atomically**: to a temporary file in
+//! the destination directory, synced, then renamed over the destination; on any error the temporary
+//! file is removed and nothing appears at (or replaces) the destination.
+//!
+//! # Live frame records
+//!
+//! A [`Frame`] is one 30 fps motion frame: `index` (from 0), `time_s = index / 30`, `poses` (165),
+//! `trans` (3), `expressions` (100), `foot_contact` (4, for joints 7, 8, 10, 11, 1 = in contact).
+//!
+//! **JSON lines** ([`JsonLinesWriter`]): one JSON object per line with exactly those keys, arrays as
+//! JSON arrays of numbers (shortest round-tripping decimal form of each `f32`).
+//!
+//! **Binary** ([`BinaryFrameWriter`], [`BinaryFrameReader`]), all little-endian. A 16-byte header
+//! once per stream:
+//!
+//! | offset | size | field |
+//! |---|---|---|
+//! | 0 | 8 | magic `LGFRAMES` (ASCII) |
+//! | 8 | 2 | format version, `u16` = 1 |
+//! | 10 | 2 | header length in bytes, `u16` = 16 |
+//! | 12 | 2 | record length in bytes, `u16` = 1104 |
+//! | 14 | 2 | frames per second, `u16` = 30 |
+//!
+//! then one fixed-size 1104-byte record per frame:
+//!
+//! | offset | size | field |
+//! |---|---|---|
+//! | 0 | 8 | `index`, `u64` |
+//! | 8 | 8 | `time_s`, `f64` |
+//! | 16 | 660 | `poses`, 165 x `f32` |
+//! | 676 | 12 | `trans`, 3 x `f32` |
+//! | 688 | 400 | `expressions`, 100 x `f32` |
+//! | 1088 | 16 | `foot_contact`, 4 x `f32` |
+//!
+//! Writers refuse frames with NaN or infinite values, naming the frame and the field.
+
+//!
+//! # Layout
+//!
+//! [`Frame`] and [`FrameSink`] here; the sinks in [`jsonl`], [`binary`] and [`npz`].
+
+use anyhow::{bail, ensure, Context, Result};
+use serde::ser::SerializeStruct;
+use serde::{Deserialize, Serialize, Serializer};
+
+mod binary;
+mod jsonl;
+mod npz;
+
+pub use binary::{binary_header, BinaryFrameReader, BinaryFrameWriter};
+pub use jsonl::JsonLinesWriter;
+pub use npz::{read_beat2_npz, write_beat2_npz, Beat2Motion, NpzFrameWriter};
+
+/// Motion frames per second.
+pub const FPS: u32 = 30;
+/// Axis-angle pose values per frame (55 joints x 3).
+pub const POSE_DIM: usize = 165;
+/// Translation values per frame.
+pub const TRANS_DIM: usize = 3;
+/// Expression coefficients per frame.
+pub const EXPR_DIM: usize = 100;
+/// Foot-contact values per frame (joints 7, 8, 10, 11).
+pub const CONTACT_DIM: usize = 4;
+/// Shape coefficients in a BEAT2 file (all zero here).
+pub const BETAS_DIM: usize = 300;
+
+/// Magic bytes that open a binary frame stream.
+pub const BINARY_MAGIC: [u8; 8] = *b"LGFRAMES";
+/// Binary frame stream format version.
+pub const BINARY_VERSION: u16 = 1;
+/// Binary header length in bytes.
+pub const BINARY_HEADER_LEN: usize = 16;
+/// Binary record length in bytes.
+pub const BINARY_RECORD_LEN: usize = 16 + 4 * (POSE_DIM + TRANS_DIM + EXPR_DIM + CONTACT_DIM);
+
+// ----------------------------------------------------------------------------------------- Frame
+
+/// One 30 fps motion frame with its timestamp (see the module docs).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(try_from = "FrameRepr")]
+pub struct Frame {
+    /// Frame index from the start of the stream.
+    pub index: u64,
+    /// Timestamp in seconds, `index / 30`.
+    pub time_s: f64,
+    /// SMPL-X axis-angle, 55 joints x 3.
+    pub poses: [f32; POSE_DIM],
+    /// Root translation in metres.
+    pub trans: [f32; TRANS_DIM],
+    /// Expression coefficients.
+    pub expressions: [f32; EXPR_DIM],
+    /// Foot contact of joints 7, 8, 10, 11.
+    pub foot_contact: [f32; CONTACT_DIM],
+}
+
+#[derive(Deserialize)]
+struct FrameRepr {
+    index: u64,
+    time_s: f64,
+    poses: Vec<f32>,
+    trans: Vec<f32>,
+    expressions: Vec<f32>,
+    foot_contact: Vec<f32>,
+}
+
+fn to_array<const N: usize>(v: Vec<f32>, name: &str) -> Result<[f32; N], String> {
+    let n = v.len();
+    v.try_into()
+        .map_err(|_| format!("frame field '{name}' has {n} values, expected {N}"))
+}
+
+impl TryFrom<FrameRepr> for Frame {
+    type Error = String;
+
+    fn try_from(r: FrameRepr) -> Result<Self, String> {
+        Ok(Frame {
+            index: r.index,
+            time_s: r.time_s,
+            poses: to_array(r.poses, "poses")?,
+            trans: to_array(r.trans, "trans")?,
+            expressions: to_array(r.expressions, "expressions")?,
+            foot_contact: to_array(r.foot_contact, "foot_contact")?,
+        })
+    }
+}
+
+impl Serialize for Frame {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let mut st = s.serialize_struct("Frame", 6)?;
+        st.serialize_field("index", &self.index)?;
+        st.serialize_field("time_s", &self.time_s)?;
+        st.serialize_field("poses", &self.poses[..])?;
+        st.serialize_field("trans", &self.trans[..])?;
+        st.serialize_field("expressions", &self.expressions[..])?;
+        st.serialize_field("foot_contact", &self.foot_contact[..])?;
+        st.end()
+    }
+}
+
+impl Frame {
+    /// A frame with `time_s = index / 30`.
+    pub fn new(
+        index: u64,
+        poses: [f32; POSE_DIM],
+        trans: [f32; TRANS_DIM],
+        expressions: [f32; EXPR_DIM],
+        foot_contact: [f32; CONTACT_DIM],
+    ) -> Self {
+        Self {
+            index,
+            time_s: Self::time_of(index),
+            poses,
+            trans,
+            expressions,
+            foot_contact,
+        }
+    }
+
+    /// An all-zero frame (rest pose) at `index`.
+    pub fn zeros(index: u64) -> Self {
+        Self::new(
+            index,
+            [0.0; POSE_DIM],
+            [0.0; TRANS_DIM],
+            [0.0; EXPR_DIM],
+            [0.0; CONTACT_DIM],
+        )
+    }
+
+    /// Timestamp of frame `index` in seconds: `index / 30`.
+    pub fn time_of(index: u64) -> f64 {
+        index as f64 / FPS as f64
+    }
+
+    /// An error naming the frame and field if any value is NaN or infinite.
+    pub fn check_finite(&self) -> Result<()> {
+        for (name, v) in [
+            ("poses", &self.poses[..]),
+            ("trans", &self.trans[..]),
+            ("expressions", &self.expressions[..]),
+            ("foot_contact", &self.foot_contact[..]),
+        ] {
+            if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+                bail!("output: frame {} has a non-finite value ({}) in {name}[{i}]; expected finite values", self.index, v[i]);
+            }
+        }
+        ensure!(
+            self.time_s.is_finite(),
+            "output: frame {} has a non-finite time_s",
+            self.index
+        );
+        Ok(())
+    }
+
+    /// The frame as one line of JSON (without the trailing newline).
+    pub fn to_json_line(&self) -> Result<String> {
+        self.check_finite()?;
+        Ok(serde_json::to_string(self)?)
+    }
+
+    /// Parses one JSON line written by [`Frame::to_json_line`].
+    pub fn from_json_line(line: &str) -> Result<Self> {
+        serde_json::from_str(line).context("output: invalid frame JSON line")
+    }
+
+    /// Appends the frame's 1104-byte binary record to `out`.
+    pub fn encode_binary(&self, out: &mut Vec<u8>) {
+        out.reserve(BINARY_RECORD_LEN);
+        out.extend_from_slice(&self.index.to_le_bytes());
+        out.extend_from_slice(&self.time_s.to_le_bytes());
+        for v in self
+            .poses
+            .iter()
+            .chain(&self.trans)
+            .chain(&self.expressions)
+            .chain(&self.foot_contact)
+        {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+
+    /// Decodes one binary record (exactly [`BINARY_RECORD_LEN`] bytes).
+    pub fn decode_binary(rec: &[u8]) -> Result<Self> {
+        ensure!(
+            rec.len() == BINARY_RECORD_LEN,
+            "output: a binary frame record has {BINARY_RECORD_LEN} bytes, got {}",
+            rec.len()
+        );
+        let u64_at = |i: usize| {
+            let mut b = [0u8; 8];
+            b.copy_from_slice(&rec[i..i + 8]);
+            b
+        };
+        let mut floats = rec[16..]
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]));
+        let mut f = Frame::zeros(u64::from_le_bytes(u64_at(0)));
+        f.time_s = f64::from_le_bytes(u64_at(8));
+        for dst in f
+            .poses
+            .iter_mut()
+            .chain(f.trans.iter_mut())
+            .chain(f.expressions.iter_mut())
+            .chain(f.foot_contact.iter_mut())
+        {
+            *dst = floats.next().unwrap_or(0.0);
+        }
+        Ok(f)
+    }
+}
+
+// ----------------------------------------------------------------------------------------- sinks
+
+/// Something frames can be streamed into, one at a time.
+pub trait FrameSink {
+    /// Writes one frame.
+    fn write_frame(&mut self, frame: &Frame) -> Result<()>;
+    /// Ends the stream (flushes, or writes the file for [`NpzFrameWriter`]).
+    fn finish(&mut self) -> Result<()>;
+}
+
+#[cfg(test)]
+mod tests;

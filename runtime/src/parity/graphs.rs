@@ -1,0 +1,174 @@
+//! The graph check: every graph chained over its reference steps on each backend.
+
+use super::*;
+
+/// Outputs (graph order) of every chained step of one graph on one backend.
+pub(super) type StepOutputs = Vec<Vec<Tensor>>;
+
+pub(super) fn chain_graph(
+    backend: &dyn Backend,
+    bundle: &Bundle,
+    spec: &GraphSpec,
+    refv: &ReferenceVectors,
+    n_steps: usize,
+) -> Result<StepOutputs> {
+    let mut runner = backend.load(spec, &bundle.graph_path(spec))?;
+    let batch = refv
+        .get(&format!("step0.input.{}", spec.inputs[0].name))?
+        .batch();
+    let mut caches: Vec<Tensor> = spec.caches.iter().map(|c| c.zeros(batch)).collect();
+    let mut all = Vec::with_capacity(n_steps);
+    for s in 0..n_steps {
+        let mut inputs: Vec<Tensor> = spec
+            .inputs
+            .iter()
+            .map(|i| refv.get(&format!("step{s}.input.{}", i.name)).cloned())
+            .collect::<Result<_, _>>()?;
+        inputs.extend(caches);
+        let out = runner
+            .run(&inputs)
+            .with_context(|| format!("{} step {s}", backend.name()))?;
+        caches = out[spec.outputs.len()..].to_vec();
+        all.push(out);
+    }
+    Ok(all)
+}
+
+pub(super) fn graph_rows(
+    bundle: &Bundle,
+    spec: &GraphSpec,
+    backends: &[(BackendKind, Box<dyn Backend>)],
+    rows: &mut Vec<Row>,
+) -> Result<(), ReferenceError> {
+    let rel = spec
+        .reference
+        .clone()
+        .unwrap_or_else(|| format!("reference/{}.npz", spec.name));
+    let path = bundle.path(&rel);
+    let refv = ReferenceVectors::load(&path)?;
+    let n_steps = refv.scalar("n_steps")?;
+    if n_steps < 1 {
+        return Err(ref_err(&path, format!("n_steps is {n_steps}")));
+    }
+    let n_steps = n_steps as usize;
+    let last = n_steps - 1;
+    // check the reference holds everything before running anything
+    for s in 0..n_steps {
+        for i in &spec.inputs {
+            refv.get(&format!("step{s}.input.{}", i.name))?;
+        }
+        for o in &spec.outputs {
+            refv.get(&format!("step{s}.output.{}", o.name))?;
+        }
+    }
+    for c in &spec.caches {
+        refv.get(&format!("step{last}.new_cache.{}", c.name))?;
+    }
+    // SPEC 7's first row, torch step-by-step vs torch offline, is measured by the exporter (it needs
+    // the PyTorch model) and recorded in the manifest's `checks`: reported as recorded.
+    if let Some(e) = bundle.manifest().checks[&spec.name]["torch_step_vs_offline_max_abs"].as_f64()
+    {
+        rows.push(Row {
+            check: Check::Graph,
+            what: spec.name.clone(),
+            comparison: "torch step vs offline".into(),
+            output: "(all, recorded by export)".into(),
+            step: None,
+            metric: Metric::MaxAbs,
+            error: e,
+            compared: 0,
+            bound: TORCH_STEP_VS_OFFLINE,
+            pass: e <= TORCH_STEP_VS_OFFLINE,
+            detail: Some("measured by export/export.py, read from manifest.json `checks`".into()),
+        });
+    }
+    let mut runs: Vec<(BackendKind, std::result::Result<StepOutputs, String>)> = Vec::new();
+    for (kind, be) in backends {
+        let r =
+            chain_graph(be.as_ref(), bundle, spec, &refv, n_steps).map_err(|e| format!("{e:#}"));
+        runs.push((*kind, r));
+    }
+    let outputs = spec.output_names();
+    for (kind, run) in &runs {
+        let (comparison, bound) = match kind {
+            BackendKind::Ort => ("ort vs torch", ORT_VS_TORCH),
+            BackendKind::Tract => ("tract vs torch", TRACT_VS_TORCH),
+        };
+        let steps = match run {
+            Ok(s) => s,
+            Err(e) => {
+                rows.push(Row::failed(
+                    Check::Graph,
+                    &spec.name,
+                    comparison,
+                    "(all)",
+                    bound,
+                    format!("{kind} could not run the graph: {e}"),
+                ));
+                continue;
+            }
+        };
+        for (k, o) in spec.outputs.iter().enumerate() {
+            let mut m = MaxAbs::default();
+            for (s, out) in steps.iter().enumerate() {
+                m.add(
+                    s as u64,
+                    &out[k],
+                    refv.get(&format!("step{s}.output.{}", o.name))?,
+                );
+            }
+            rows.push(Row::max_abs(
+                Check::Graph,
+                &spec.name,
+                comparison,
+                &o.name,
+                &m,
+                bound,
+            ));
+        }
+        for (k, c) in spec.caches.iter().enumerate() {
+            let mut m = MaxAbs::default();
+            m.add(
+                last as u64,
+                &steps[last][spec.outputs.len() + k],
+                refv.get(&format!("step{last}.new_cache.{}", c.name))?,
+            );
+            rows.push(Row::max_abs(
+                Check::Graph,
+                &spec.name,
+                comparison,
+                &c.output,
+                &m,
+                bound,
+            ));
+        }
+    }
+    let ort = runs.iter().find(|r| r.0 == BackendKind::Ort);
+    let tract = runs.iter().find(|r| r.0 == BackendKind::Tract);
+    if let (Some((_, Ok(o))), Some((_, Ok(t)))) = (ort, tract) {
+        for (k, name) in outputs.iter().enumerate() {
+            let mut m = MaxAbs::default();
+            for s in 0..n_steps {
+                m.add(s as u64, &t[s][k], &o[s][k]);
+            }
+            rows.push(Row::max_abs(
+                Check::Graph,
+                &spec.name,
+                "tract vs ort",
+                *name,
+                &m,
+                TRACT_VS_ORT,
+            ));
+        }
+    } else if ort.is_some() && tract.is_some() {
+        rows.push(Row::failed(
+            Check::Graph,
+            &spec.name,
+            "tract vs ort",
+            "(all)",
+            TRACT_VS_ORT,
+            "not compared: a backend could not run the graph (see above)".into(),
+        ));
+    }
+    Ok(())
+}

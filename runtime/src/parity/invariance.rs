@@ -1,0 +1,200 @@
+//! Chunk-size and batch invariance: the same frames however the audio is chunked or streams batched.
+
+use super::*;
+
+pub(super) fn chunk_rows(
+    p: &mut Pipeline,
+    kind: BackendKind,
+    audio: &[f32],
+    seed: u64,
+    rows: &mut Vec<Row>,
+) {
+    let opts = StreamOptions {
+        seed,
+        ..Default::default()
+    };
+    let comparison = format!("{kind}: chunked vs whole");
+    let whole = match run_stream(p, &opts, audio, audio.len(), true) {
+        Ok(w) => w,
+        Err(e) => {
+            rows.push(Row::failed(
+                Check::Chunks,
+                "whole prefix",
+                comparison,
+                "frames",
+                0.0,
+                format!("{e:#}"),
+            ));
+            return;
+        }
+    };
+    let whole_tokens: Vec<Vec<i64>> = whole.iter().map(|s| s.tokens.clone()).collect();
+    for chunk in CHUNK_SIZES {
+        let what = if chunk == 1 {
+            "chunk 1 sample".to_string()
+        } else {
+            format!("chunk {chunk}")
+        };
+        match run_stream(p, &opts, audio, chunk, true) {
+            Ok(got) => {
+                let tokens: Vec<Vec<i64>> = got.iter().map(|s| s.tokens.clone()).collect();
+                rows.push(token_row(
+                    Check::Chunks,
+                    &what,
+                    &comparison,
+                    &tokens,
+                    &whole_tokens,
+                    None,
+                ));
+                let n = got.len().min(whole.len());
+                frame_rows_steps(
+                    Check::Chunks,
+                    &what,
+                    &comparison,
+                    &[(String::new(), &got[..n], &whole[..n])],
+                    0.0,
+                    rows,
+                );
+            }
+            Err(e) => rows.push(Row::failed(
+                Check::Chunks,
+                what,
+                comparison.clone(),
+                "frames",
+                0.0,
+                format!("{e:#}"),
+            )),
+        }
+    }
+}
+
+pub(super) fn batch_rows(
+    p: &mut Pipeline,
+    kind: BackendKind,
+    clip: &[f32],
+    len: usize,
+    seed: u64,
+    rows: &mut Vec<Row>,
+) {
+    let n_streams = *BATCH_SIZES.iter().max().unwrap_or(&1);
+    // different seeds and audio (offsets into the clip); stream 3 runs without guidance
+    let streams: Vec<(StreamOptions, Vec<f32>)> = (0..n_streams)
+        .map(|i| {
+            let off = (i * 7919 * 3) % clip.len().saturating_sub(len).max(1);
+            let opts = StreamOptions {
+                seed: seed.wrapping_add(i as u64 * 1000 + 1),
+                guidance: (i == 3).then_some(1.0),
+                ..Default::default()
+            };
+            let end = (off + len).min(clip.len());
+            (opts, clip[off..end].to_vec())
+        })
+        .collect();
+    let comparison = format!("{kind}: batched vs separate");
+    let bound = batch_bound(kind);
+    let mut single = Vec::new();
+    for (o, a) in &streams {
+        match run_stream(p, o, a, 3200, false) {
+            Ok(s) => single.push(s),
+            Err(e) => {
+                rows.push(Row::failed(
+                    Check::Batch,
+                    "separate runs",
+                    comparison,
+                    "frames",
+                    bound,
+                    format!("{e:#}"),
+                ));
+                return;
+            }
+        }
+    }
+    for b in BATCH_SIZES {
+        let what = format!("batch {b}");
+        match run_batched(p, &streams[..b], 3200) {
+            Ok(batched) => {
+                let (mut differing, mut compared, mut first) = (0u64, 0u64, None);
+                let mut pairs = Vec::new();
+                for (i, (g, w)) in batched.iter().zip(&single).enumerate() {
+                    let n = g.len().min(w.len());
+                    compared += g.len().max(w.len()) as u64;
+                    differing += (g.len().max(w.len()) - n) as u64;
+                    for (x, y) in g.iter().zip(w) {
+                        if x.tokens != y.tokens {
+                            differing += 1;
+                            first.get_or_insert((
+                                i,
+                                x.token_index,
+                                x.tokens.clone(),
+                                y.tokens.clone(),
+                            ));
+                        }
+                    }
+                    if g.len() != w.len() {
+                        first.get_or_insert((i, n as u64, Vec::new(), Vec::new()));
+                    }
+                    pairs.push((format!("stream {i}, "), &g[..n], &w[..n]));
+                }
+                rows.push(Row {
+                    check: Check::Batch,
+                    what: what.clone(),
+                    comparison: comparison.clone(),
+                    output: "tokens".into(),
+                    step: first.as_ref().map(|f| f.1),
+                    metric: Metric::DifferingSteps,
+                    error: differing as f64,
+                    compared,
+                    bound: 0.0,
+                    pass: differing == 0,
+                    detail: first.map(|(i, t, a, b)| {
+                        format!(
+                            "stream {i} first differs at step {t}: batched {a:?} vs separate {b:?}"
+                        )
+                    }),
+                });
+                frame_rows_steps(Check::Batch, &what, &comparison, &pairs, bound, rows);
+            }
+            Err(e) => rows.push(Row::failed(
+                Check::Batch,
+                what,
+                comparison.clone(),
+                "frames",
+                bound,
+                format!("{e:#}"),
+            )),
+        }
+    }
+}
+
+/// Steps `streams` together with [`Pipeline::step_batch`], feeding each its audio in `chunk`s.
+pub(super) fn run_batched(
+    p: &mut Pipeline,
+    streams: &[(StreamOptions, Vec<f32>)],
+    chunk: usize,
+) -> Result<Vec<Vec<TokenStep>>> {
+    let mut st = streams
+        .iter()
+        .map(|(o, _)| p.new_stream(o))
+        .collect::<Result<Vec<_>>>()?;
+    let mut out: Vec<Vec<TokenStep>> = vec![Vec::new(); streams.len()];
+    let len = streams.iter().map(|(_, a)| a.len()).min().unwrap_or(0);
+    let mut pos = 0;
+    while pos < len {
+        let end = (pos + chunk).min(len);
+        let mels: Vec<_> = st
+            .iter_mut()
+            .zip(streams)
+            .map(|(s, (_, a))| s.push_audio(&a[pos..end]))
+            .collect::<Result<_>>()?;
+        let n = mels.iter().map(Vec::len).min().unwrap_or(0);
+        for k in 0..n {
+            let m: Vec<_> = mels.iter().map(|v| v[k].clone()).collect();
+            let mut refs: Vec<&mut _> = st.iter_mut().collect();
+            for (i, s) in p.step_batch(&mut refs, &m)?.into_iter().enumerate() {
+                out[i].push(s);
+            }
+        }
+        pos = end;
+    }
+    Ok(out)
+}

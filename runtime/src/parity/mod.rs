@@ -1,0 +1,484 @@
+//! The parity suite (SPEC section 7): proves that torch, ONNX Runtime and tract agree on a bundle.
+//!
+//! [`run`] checks any bundle against the torch reference vectors that travel with it
+//! (`export/BUNDLE.md`) and against itself:
+//!
+//! | check | what | bound |
+//! |---|---|---|
+//! | `graph` | every graph, all chained steps of `reference/<graph>.npz` (`n_steps`, 10) from the manifest's zero caches, every output at every step and the caches after the last step: ort vs torch | [`ORT_VS_TORCH`] |
+//! | `graph` | the same, tract vs ort (same inputs, each backend chaining its own caches; every output and cache at every step) | [`TRACT_VS_ORT`] |
+//! | `graph` | the same, tract vs torch (implied by the two above) | [`TRACT_VS_TORCH`] |
+//! | `graph` | torch step-by-step vs torch offline: measured by the exporter (it needs PyTorch) and read from the manifest's `checks` | [`TORCH_STEP_VS_OFFLINE`] |
+//! | `rollout` | the whole seeded rollout (`reference/clip.wav` repeated `clip_repeats` times, the manifest's seed and sampling defaults): tokens identical at every step, frames (poses, trans, expressions, foot contact) | [`ROLLOUT_FRAMES`] |
+//! | `logmel` | the Rust log-mel frontend on `reference/clip.wav` vs `reference/logmel.npy` | [`LOGMEL`] |
+//! | `chunks` | chunks of 1 sample, 160, 3200, 16000 samples and the whole prefix give identical frames, the stream finished at the end of the prefix as `generate` does (SPEC 8: last partial token completed with silence, `ceil(duration x 30)` frames) (on a prefix of the clip, [`ParityOptions::chunk_seconds`]) | exact |
+//! | `batch` | [`Pipeline::step_batch`] with 1, 2 and 5 streams (different seeds, audio, one without guidance) vs separate runs: identical tokens, frames | [`BATCH_FRAMES`] (ort), [`TRACT_BATCH_FRAMES`] (tract) |
+//!
+//! Every comparison is one [`Row`]: the check, the graph (or what is compared), the comparison
+//! (`ort vs torch`, ...), the output, the step of the largest error, the error, the bound and the
+//! verdict. A failed row names the graph, the output, the step and the error.
+//!
+//! # Token divergence
+//!
+//! When two rollouts' tokens differ, [`find_divergence`] names the first diverging step and region
+//! and the two tokens, and measures how close the draw was to a tie from each side's guided logits
+//! ([`Margin`]): the sampler draws by inverse CDF, so what decides a token is where the uniform
+//! draw falls among the cumulative probabilities. The draw is replayed from the seed (one uniform
+//! per region per step), and the margin is the distance, in probability, from the draw to the
+//! nearest edge of the sampled token's interval. A margin of the order of the logit errors
+//! (< [`NEAR_TIE`]) is a numerical near-tie; a large one is a real difference.
+//!
+//! torch's logits are not stored in the bundle, so for torch-vs-backend divergences the margin comes
+//! from the backend's own logits (and the other backend's when both ran).
+
+use std::collections::HashMap;
+use std::fmt;
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use ndarray::{Array2, ArrayD, IxDyn};
+use ndarray_npy::{NpzReader, ReadNpyExt};
+use serde::Serialize;
+
+mod compare;
+mod divergence;
+mod graphs;
+mod invariance;
+mod reference;
+mod report;
+mod rollout;
+
+pub use divergence::{
+    find_divergence, replay_uniform, sampling_margin, Divergence, Margin, RolloutTrace,
+    SamplingParams,
+};
+pub use reference::{ReferenceRollout, ReferenceVectors};
+pub use report::{Metric, Report, Row};
+
+use compare::MaxAbs;
+use graphs::graph_rows;
+use invariance::{batch_rows, chunk_rows};
+use rollout::{frame_rows_steps, rollout_rows, run_stream, token_row};
+
+use crate::audio::{read_wav_16k_mono, AudioSpan};
+use crate::backend::{self, Backend, BackendKind, BackendOptions, Tensor, TensorData};
+use crate::bundle::{Bundle, Family, GraphSpec};
+use crate::frontend::logmel;
+use crate::model::livegesture::{Pipeline, StepLogits, StreamOptions, TokenStep};
+use crate::output::Frame;
+use crate::sampling::{guide, Draw, SplitMix64, TokenDistribution};
+
+/// torch step-by-step vs torch offline causal forward (SPEC 7; measured at export, recorded in the
+/// manifest's `checks`).
+pub const TORCH_STEP_VS_OFFLINE: f64 = 1e-5;
+/// onnxruntime vs torch, every graph output (SPEC 7).
+pub const ORT_VS_TORCH: f64 = 1e-5;
+/// tract vs onnxruntime, every graph output (SPEC 7).
+pub const TRACT_VS_ORT: f64 = 1e-4;
+/// tract vs torch: implied by the two bounds above (triangle inequality).
+pub const TRACT_VS_TORCH: f64 = ORT_VS_TORCH + TRACT_VS_ORT;
+/// Rollout frames, any two of torch, ort, tract (SPEC 7).
+pub const ROLLOUT_FRAMES: f64 = 1e-4;
+/// Rust log-mel frontend vs the Python one (SPEC 7).
+pub const LOGMEL: f64 = 1e-4;
+/// Batched vs separate stepping, frames, on ort (which computes every row alike: exact in practice).
+pub const BATCH_FRAMES: f64 = 1e-6;
+/// Batched vs separate stepping, frames, on tract: tract optimises one plan per batch size and its
+/// kernels may sum in another order, so graph outputs differ by ~1e-7 between batch sizes, and the
+/// rot6d -> axis-angle conversion amplifies that for near-degenerate rot6d (random-weight bundles).
+/// The bound is tract's own tolerance (SPEC 7, "approximate").
+pub const TRACT_BATCH_FRAMES: f64 = TRACT_VS_ORT;
+
+/// The batched-vs-separate frame bound of a backend.
+pub fn batch_bound(kind: BackendKind) -> f64 {
+    match kind {
+        BackendKind::Ort => BATCH_FRAMES,
+        BackendKind::Tract => TRACT_BATCH_FRAMES,
+    }
+}
+/// A sampling margin (probability) below this is reported as a numerical near-tie.
+pub const NEAR_TIE: f64 = 1e-3;
+/// Two candidate tokens whose guided logits are closer than this are a near-tie too: the sampler
+/// orders tokens by guided logit, so such tokens can swap places (and CDF intervals).
+pub const NEAR_TIE_LOGIT: f64 = 1e-3;
+/// Chunk sizes of the chunk-invariance check (samples); the whole prefix is the reference.
+pub const CHUNK_SIZES: [usize; 4] = [1, 160, 3200, 16000];
+/// Batch sizes of the batching check.
+pub const BATCH_SIZES: [usize; 3] = [1, 2, 5];
+
+/// A reference file of the bundle is missing or unreadable: bad input (CLI exit code 2).
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {detail}", .path.display())]
+pub struct ReferenceError {
+    pub path: PathBuf,
+    pub detail: String,
+}
+
+fn ref_err(path: &Path, detail: impl fmt::Display) -> ReferenceError {
+    ReferenceError {
+        path: path.to_path_buf(),
+        detail: detail.to_string(),
+    }
+}
+
+/// The parity checks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, PartialOrd, Ord)]
+#[serde(rename_all = "lowercase")]
+pub enum Check {
+    /// Every graph against the torch reference vectors and across backends.
+    Graph,
+    /// The whole seeded rollout.
+    Rollout,
+    /// The Rust log-mel frontend against the Python one.
+    Logmel,
+    /// Chunk-size invariance.
+    Chunks,
+    /// Batched stepping equals separate streams.
+    Batch,
+}
+
+impl Check {
+    /// All checks, in report order.
+    pub const ALL: [Check; 5] = [
+        Check::Graph,
+        Check::Rollout,
+        Check::Logmel,
+        Check::Chunks,
+        Check::Batch,
+    ];
+
+    /// Lower-case name (`graph`, `rollout`, ...).
+    pub fn name(self) -> &'static str {
+        match self {
+            Check::Graph => "graph",
+            Check::Rollout => "rollout",
+            Check::Logmel => "logmel",
+            Check::Chunks => "chunks",
+            Check::Batch => "batch",
+        }
+    }
+}
+
+impl fmt::Display for Check {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Check {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "graph" | "graphs" => Ok(Check::Graph),
+            "rollout" | "rollouts" => Ok(Check::Rollout),
+            "logmel" | "log-mel" | "frontend" => Ok(Check::Logmel),
+            "chunks" | "chunk" => Ok(Check::Chunks),
+            "batch" | "batches" => Ok(Check::Batch),
+            other => Err(format!(
+                "unknown check '{other}'; expected graph, rollout, logmel, chunks or batch"
+            )),
+        }
+    }
+}
+
+/// What to run.
+#[derive(Debug, Clone)]
+pub struct ParityOptions {
+    /// Backends, each run on its own; ort is the reference of tract when both run.
+    pub backends: Vec<BackendKind>,
+    /// Settings of the ort backend (library, execution provider, threads).
+    pub ort: BackendOptions,
+    /// Checks to run (all by default).
+    pub checks: Vec<Check>,
+    /// Seconds of the reference clip used by the chunk and batch checks.
+    pub chunk_seconds: f64,
+}
+
+impl Default for ParityOptions {
+    fn default() -> Self {
+        Self {
+            backends: vec![BackendKind::Ort, BackendKind::Tract],
+            ort: BackendOptions {
+                kind: BackendKind::Ort,
+                ..Default::default()
+            },
+            checks: Check::ALL.to_vec(),
+            chunk_seconds: 3.0,
+        }
+    }
+}
+
+// ------------------------------------------------------------------------------------------- run
+
+/// Runs the parity suite on the bundle in `dir`. `log` receives progress lines.
+///
+/// Errors when the bundle is invalid ([`crate::bundle::BundleError`]), a reference file is missing
+/// or malformed ([`ReferenceError`]), or a backend cannot start; a graph that a backend cannot load
+/// or run becomes a failed row instead.
+pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Result<Report> {
+    let t0 = Instant::now();
+    let bundle = Bundle::load(dir)?;
+    // the checks below are the LiveGesture family's; another family adds its own here
+    match bundle.family() {
+        Family::LiveGesture => {}
+        other => anyhow::bail!(
+            "{}: the parity suite has no checks for family '{other}' yet",
+            bundle.dir().display()
+        ),
+    }
+    let mut kinds = opts.backends.clone();
+    kinds.sort_by_key(|k| match k {
+        BackendKind::Ort => 0,
+        BackendKind::Tract => 1,
+    });
+    kinds.dedup();
+    anyhow::ensure!(!kinds.is_empty(), "no backend selected");
+    let mut backends: Vec<(BackendKind, Box<dyn Backend>)> = Vec::new();
+    for k in &kinds {
+        let o = BackendOptions {
+            kind: *k,
+            ..if *k == BackendKind::Ort {
+                opts.ort.clone()
+            } else {
+                BackendOptions::default()
+            }
+        };
+        backends.push((
+            *k,
+            backend::create(&o).with_context(|| {
+                format!("starting the {k} backend for the parity checks (choose backends with --backends)")
+            })?,
+        ));
+    }
+    let mut rows = Vec::new();
+    let mut notes = Vec::new();
+    let mut divergences = Vec::new();
+    let want = |c: Check| opts.checks.contains(&c);
+
+    let clip_rel = bundle
+        .reference()
+        .and_then(|r| r.clip.clone())
+        .unwrap_or_else(|| "reference/clip.wav".into());
+    let clip_path = bundle.path(&clip_rel);
+    let need_clip = [Check::Rollout, Check::Logmel, Check::Chunks, Check::Batch]
+        .into_iter()
+        .any(want);
+    let clip = if need_clip {
+        read_wav_16k_mono(&clip_path).map_err(|e| ref_err(&clip_path, e))?
+    } else {
+        Vec::new()
+    };
+
+    if want(Check::Graph) {
+        let t = Instant::now();
+        for g in bundle.graphs() {
+            graph_rows(&bundle, g, &backends, &mut rows)?;
+        }
+        log(&format!(
+            "graphs: {} graphs on {} in {:.1} s",
+            bundle.graphs().len(),
+            kinds
+                .iter()
+                .map(|k| k.to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+            t.elapsed().as_secs_f64()
+        ));
+    }
+
+    if want(Check::Logmel) {
+        let rel = "reference/logmel.npy";
+        let path = bundle.path(rel);
+        let f = File::open(&path).map_err(|e| ref_err(&path, format!("cannot open: {e}")))?;
+        let want_mel = Array2::<f32>::read_npy(f).map_err(|e| ref_err(&path, e))?;
+        match logmel(&clip, bundle.frontend()) {
+            Ok(got) => {
+                let mut m = MaxAbs::default();
+                if got.dim() != want_mel.dim() {
+                    m.problem = Some(format!(
+                        "{} frames x {} mels vs Python {} x {}",
+                        got.nrows(),
+                        got.ncols(),
+                        want_mel.nrows(),
+                        want_mel.ncols()
+                    ));
+                    m.err = f64::INFINITY;
+                } else {
+                    let mpt = bundle.frontend().mel_frames_per_token as usize;
+                    for ((idx, x), y) in got.indexed_iter().zip(want_mel.iter()) {
+                        if (*x as f64 - *y as f64).abs() > m.err || x.is_nan() || m.step.is_none() {
+                            m.add_f32(
+                                (idx.0 / mpt) as u64,
+                                format!("mel frame {}, band {}", idx.0, idx.1),
+                                *x,
+                                *y,
+                            );
+                        } else {
+                            m.count += 1;
+                        }
+                    }
+                }
+                rows.push(Row::max_abs(
+                    Check::Logmel,
+                    "clip.wav",
+                    "rust vs python",
+                    "log-mel",
+                    &m,
+                    LOGMEL,
+                ));
+            }
+            Err(e) => rows.push(Row::failed(
+                Check::Logmel,
+                "clip.wav",
+                "rust vs python",
+                "log-mel",
+                LOGMEL,
+                format!("{e:#}"),
+            )),
+        }
+    }
+
+    let need_pipeline = [Check::Rollout, Check::Chunks, Check::Batch]
+        .into_iter()
+        .any(want);
+    let mut pipelines: Vec<(BackendKind, Pipeline)> = Vec::new();
+    if need_pipeline {
+        for (k, be) in &backends {
+            match Pipeline::new(&bundle, be.as_ref()) {
+                Ok(p) => pipelines.push((*k, p)),
+                Err(e) => rows.push(Row::failed(
+                    Check::Rollout,
+                    "pipeline",
+                    k.to_string(),
+                    "(all)",
+                    0.0,
+                    format!("{k} could not load the pipeline: {e:#}"),
+                )),
+            }
+        }
+    }
+    if want(Check::Rollout) {
+        rollout_rows(
+            &bundle,
+            &mut pipelines,
+            &clip,
+            &mut rows,
+            &mut notes,
+            &mut divergences,
+            log,
+        )?;
+    }
+    let seed = bundle.reference().and_then(|r| r.rollout_seed).unwrap_or(0);
+    let prefix_len = ((opts.chunk_seconds * 16000.0).round() as usize).clamp(1, clip.len().max(1));
+    if want(Check::Chunks) {
+        let t = Instant::now();
+        let prefix = &clip[..prefix_len.min(clip.len())];
+        notes.push(format!(
+            "chunks: on the first {:.2} s of reference/clip.wav ({} samples, {} tokens, finished to {} frames), chunk sizes {:?} samples vs the whole prefix at once",
+            prefix.len() as f64 / 16000.0,
+            prefix.len(),
+            bundle.frontend().n_tokens(prefix.len() as u64),
+            AudioSpan::at_16k(prefix.len() as u64).frames(bundle.frontend().fps),
+            CHUNK_SIZES
+        ));
+        for (k, p) in pipelines.iter_mut() {
+            chunk_rows(p, *k, prefix, seed, &mut rows);
+        }
+        log(&format!("chunks: {:.1} s", t.elapsed().as_secs_f64()));
+    }
+    if want(Check::Batch) {
+        let t = Instant::now();
+        notes.push(format!(
+            "batch: {} streams of {:.2} s from different offsets of reference/clip.wav with different seeds (stream 3 without guidance), batch sizes {:?} vs separate runs",
+            BATCH_SIZES.iter().max().unwrap_or(&1),
+            prefix_len as f64 / 16000.0,
+            BATCH_SIZES
+        ));
+        for (k, p) in pipelines.iter_mut() {
+            batch_rows(p, *k, &clip, prefix_len, seed, &mut rows);
+        }
+        log(&format!("batch: {:.1} s", t.elapsed().as_secs_f64()));
+    }
+    Ok(Report {
+        bundle: bundle.dir().to_path_buf(),
+        backends: kinds.iter().map(|k| k.to_string()).collect(),
+        rows,
+        notes,
+        divergences,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn replayed_uniform_matches_the_generator() {
+        let mut rng = SplitMix64::new(42);
+        let draws: Vec<f64> = (0..12).map(|_| rng.next_f64()).collect();
+        assert_eq!(replay_uniform(42, 4, 2, 1), draws[9]);
+        assert_eq!(replay_uniform(42, 4, 0, 0), draws[0]);
+    }
+
+    #[test]
+    fn check_names_parse() {
+        for c in Check::ALL {
+            assert_eq!(c.name().parse::<Check>().unwrap(), c);
+        }
+        assert!("nope".parse::<Check>().is_err());
+    }
+
+    #[test]
+    fn max_abs_tracks_step_and_nan() {
+        let mut m = MaxAbs::default();
+        let a = Tensor::f32(vec![1, 2], vec![1.0, 2.0]).unwrap();
+        let b = Tensor::f32(vec![1, 2], vec![1.0, 2.5]).unwrap();
+        m.add(0, &a, &a);
+        m.add(3, &a, &b);
+        assert_eq!(m.err, 0.5);
+        assert_eq!(m.step, Some(3));
+        let n = Tensor::f32(vec![1, 2], vec![f32::NAN, 2.0]).unwrap();
+        m.add(5, &n, &a);
+        assert!(m.err.is_infinite());
+        assert_eq!(m.step, Some(5));
+    }
+
+    /// The margin's draw is the sampler's own (one definition): the same token for every seed,
+    /// including exact ties between -0.0 and 0.0, which the sampler orders by index as numpy does.
+    #[test]
+    fn margins_replay_the_samplers_draw() {
+        use crate::sampling::sample_token;
+        let cases: [(&[f32], Option<&[f32]>); 2] = [
+            (&[-0.0, 0.0, -3.0, 0.0], None),
+            (
+                &[0.25, -1.0, 1.5, 1.5, -2.0],
+                Some(&[0.5, -1.0, 1.0, 1.5, -1.0]),
+            ),
+        ];
+        for (cond, uncond) in cases {
+            for (gamma, temperature, top_k) in [(1.0, 1.0, 1), (1.25, 0.7, 3), (2.0, 1.3, 0)] {
+                for seed in 0..100u64 {
+                    let p = SamplingParams {
+                        seed,
+                        guidance: gamma,
+                        temperature,
+                        top_k,
+                        regions: vec!["r".into()],
+                    };
+                    let u = replay_uniform(seed, 1, 0, 0);
+                    let mut rng = SplitMix64::new(seed);
+                    let tok =
+                        sample_token(cond, uncond, &mut rng, gamma, temperature, top_k).unwrap();
+                    let m = sampling_margin("x", cond, uncond, &p, u, tok as i64, 0).unwrap();
+                    assert_eq!(
+                        m.sampled, tok as i64,
+                        "seed {seed}, gamma {gamma}, top-k {top_k}"
+                    );
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,292 @@
+//! The parity report: one [`Row`] per comparison, rendered as a table and a summary.
+
+use super::*;
+
+/// What a row's error measures.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Metric {
+    /// Largest absolute difference of corresponding values.
+    MaxAbs,
+    /// Number of token steps that differ (of `total`).
+    DifferingSteps,
+}
+
+/// One comparison of the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct Row {
+    pub check: Check,
+    /// The graph, or what is compared (`rollout`, `clip.wav`, `chunk 160`, `batch 5`).
+    pub what: String,
+    /// `ort vs torch`, `tract vs ort`, `tract vs torch`, `rust vs python`, `tract` (self-consistency).
+    pub comparison: String,
+    /// The output (graph output name, `tokens`, `poses`, ...).
+    pub output: String,
+    /// The step (token) of the largest error, or the first diverging step.
+    pub step: Option<u64>,
+    pub metric: Metric,
+    /// The error: a max abs difference, or a count of differing steps.
+    pub error: f64,
+    /// Steps compared (for [`Metric::DifferingSteps`]) or values compared.
+    pub compared: u64,
+    pub bound: f64,
+    pub pass: bool,
+    /// Where the largest error is, why the check could not run, or the divergence report.
+    pub detail: Option<String>,
+}
+
+impl Row {
+    pub(super) fn max_abs(
+        check: Check,
+        what: impl Into<String>,
+        comparison: impl Into<String>,
+        output: impl Into<String>,
+        m: &MaxAbs,
+        bound: f64,
+    ) -> Row {
+        Row {
+            check,
+            what: what.into(),
+            comparison: comparison.into(),
+            output: output.into(),
+            step: m.step,
+            metric: Metric::MaxAbs,
+            error: m.err,
+            compared: m.count,
+            bound,
+            pass: m.err <= bound && m.problem.is_none(),
+            detail: m.problem.clone().or_else(|| m.location.clone()),
+        }
+    }
+
+    pub(super) fn failed(
+        check: Check,
+        what: impl Into<String>,
+        comparison: impl Into<String>,
+        output: impl Into<String>,
+        bound: f64,
+        why: String,
+    ) -> Row {
+        Row {
+            check,
+            what: what.into(),
+            comparison: comparison.into(),
+            output: output.into(),
+            step: None,
+            metric: Metric::MaxAbs,
+            error: f64::INFINITY,
+            compared: 0,
+            bound,
+            pass: false,
+            detail: Some(why),
+        }
+    }
+
+    /// The error as the table shows it.
+    pub fn error_text(&self) -> String {
+        match self.metric {
+            Metric::MaxAbs if self.error.is_infinite() => "-".into(),
+            Metric::MaxAbs if self.error == 0.0 => "0".into(),
+            Metric::MaxAbs => format!("{:.3e}", self.error),
+            Metric::DifferingSteps => format!("{} of {} steps", self.error, self.compared),
+        }
+    }
+
+    /// The bound as the table shows it.
+    pub fn bound_text(&self) -> String {
+        match self.metric {
+            Metric::MaxAbs if self.bound == 0.0 => "exact".into(),
+            Metric::MaxAbs => format!("{:.1e}", self.bound),
+            Metric::DifferingSteps => "0 (identical)".into(),
+        }
+    }
+
+    /// One line naming everything about a failure (graph, output, step, error).
+    pub fn failure_line(&self) -> String {
+        let step = self
+            .step
+            .map(|s| format!(" at step {s}"))
+            .unwrap_or_default();
+        let mut s = format!(
+            "FAIL {} {} ({}): output '{}'{step}: error {} > bound {}",
+            self.check,
+            self.what,
+            self.comparison,
+            self.output,
+            self.error_text(),
+            self.bound_text()
+        );
+        if let Some(d) = &self.detail {
+            s.push_str("; ");
+            s.push_str(d);
+        }
+        s
+    }
+}
+
+/// The report of a parity run.
+#[derive(Debug, Clone, Serialize)]
+pub struct Report {
+    pub bundle: PathBuf,
+    pub backends: Vec<String>,
+    pub rows: Vec<Row>,
+    /// Remarks (what was run on which data, skipped comparisons).
+    pub notes: Vec<String>,
+    /// Token divergences found in rollouts.
+    pub divergences: Vec<Divergence>,
+    pub seconds: f64,
+}
+
+impl Report {
+    /// True when every row passed.
+    pub fn passed(&self) -> bool {
+        self.rows.iter().all(|r| r.pass)
+    }
+
+    /// The rows that failed.
+    pub fn failures(&self) -> Vec<&Row> {
+        self.rows.iter().filter(|r| !r.pass).collect()
+    }
+
+    /// The rows of one check on one graph (or `what`).
+    pub fn rows_for(&self, check: Check, what: &str) -> Vec<&Row> {
+        self.rows
+            .iter()
+            .filter(|r| r.check == check && r.what == what)
+            .collect()
+    }
+
+    /// The report as a text table. Without `all`, rows of one (check, what, comparison) that all
+    /// pass are summarised by their worst output; failing rows are always shown one by one.
+    pub fn table(&self, all: bool) -> String {
+        let mut shown: Vec<(Row, usize)> = Vec::new();
+        let mut i = 0;
+        while i < self.rows.len() {
+            let r = &self.rows[i];
+            let mut j = i + 1;
+            while j < self.rows.len()
+                && self.rows[j].check == r.check
+                && self.rows[j].what == r.what
+                && self.rows[j].comparison == r.comparison
+                && self.rows[j].metric == Metric::MaxAbs
+                && r.metric == Metric::MaxAbs
+            {
+                j += 1;
+            }
+            let group = &self.rows[i..j];
+            if all || group.len() == 1 || group.iter().any(|r| !r.pass) {
+                shown.extend(group.iter().map(|r| (r.clone(), 1)));
+            } else {
+                // the worst relative to its bound; the first of equals
+                let rel = |r: &Row| r.error / r.bound.max(f64::MIN_POSITIVE);
+                let worst = group
+                    .iter()
+                    .fold(None::<&Row>, |w, r| match w {
+                        Some(w) if rel(w) >= rel(r) => Some(w),
+                        _ => Some(r),
+                    })
+                    .cloned()
+                    .unwrap_or_else(|| r.clone());
+                shown.push((worst, group.len()));
+            }
+            i = j;
+        }
+        let header = [
+            "CHECK",
+            "GRAPH/WHAT",
+            "COMPARISON",
+            "OUTPUT",
+            "STEP",
+            "MAX ABS ERROR",
+            "BOUND",
+            "RESULT",
+        ];
+        let cells: Vec<[String; 8]> = shown
+            .iter()
+            .map(|(r, n)| {
+                let output = if *n > 1 {
+                    format!("{} (worst of {n})", r.output)
+                } else {
+                    r.output.clone()
+                };
+                [
+                    r.check.to_string(),
+                    r.what.clone(),
+                    r.comparison.clone(),
+                    output,
+                    r.step.map(|s| s.to_string()).unwrap_or_else(|| "-".into()),
+                    r.error_text(),
+                    r.bound_text(),
+                    if r.pass { "PASS" } else { "FAIL" }.to_string(),
+                ]
+            })
+            .collect();
+        let mut widths: Vec<usize> = header.iter().map(|h| h.len()).collect();
+        for c in &cells {
+            for (w, s) in widths.iter_mut().zip(c) {
+                *w = (*w).max(s.chars().count());
+            }
+        }
+        let line = |c: &[String]| -> String {
+            let mut s = String::new();
+            for (k, (cell, w)) in c.iter().zip(&widths).enumerate() {
+                if k > 0 {
+                    s.push_str("  ");
+                }
+                s.push_str(&format!("{cell:<w$}"));
+            }
+            s.trim_end().to_string() + "\n"
+        };
+        let mut out = line(&header.map(String::from));
+        out.push_str(&line(
+            &widths.iter().map(|w| "-".repeat(*w)).collect::<Vec<_>>(),
+        ));
+        for c in &cells {
+            out.push_str(&line(c));
+        }
+        out
+    }
+
+    /// A human summary: notes, divergences, failures and the verdict.
+    pub fn summary(&self) -> String {
+        let mut s = String::new();
+        for n in &self.notes {
+            s.push_str(&format!("note: {n}\n"));
+        }
+        for d in &self.divergences {
+            s.push_str(&format!("divergence: {d}\n"));
+        }
+        let failures = self.failures();
+        for f in &failures {
+            if f.check == Check::Rollout
+                && f.metric == Metric::DifferingSteps
+                && !self.divergences.is_empty()
+            {
+                // the divergence line above already says everything about it
+                let mut short = (*f).clone();
+                short.detail = Some("see the divergence above".into());
+                s.push_str(&short.failure_line());
+            } else {
+                s.push_str(&f.failure_line());
+            }
+            s.push('\n');
+        }
+        if failures.is_empty() {
+            s.push_str(&format!(
+                "parity: all {} comparisons PASS ({}; {:.1} s)\n",
+                self.rows.len(),
+                self.backends.join(", "),
+                self.seconds
+            ));
+        } else {
+            s.push_str(&format!(
+                "parity: {} of {} comparisons FAIL ({}; {:.1} s)\n",
+                failures.len(),
+                self.rows.len(),
+                self.backends.join(", "),
+                self.seconds
+            ));
+        }
+        s
+    }
+}

@@ -1,0 +1,366 @@
+//! The rollout check: the whole seeded rollout on each backend against torch and each other.
+
+use super::*;
+
+/// The frame fields compared by the rollout, chunk and batch checks.
+pub(super) const FRAME_FIELDS: [&str; 4] = ["poses", "trans", "expressions", "foot_contact"];
+
+pub(super) fn field(f: &Frame, k: usize) -> &[f32] {
+    match k {
+        0 => &f.poses,
+        1 => &f.trans,
+        2 => &f.expressions,
+        _ => &f.foot_contact,
+    }
+}
+
+/// Runs one stream over `audio` in chunks of `chunk` samples; with `finish`, ends it as `generate`
+/// does (SPEC 8: the last partial token completed with silence, frames cut at the audio's end).
+pub(super) fn run_stream(
+    p: &mut Pipeline,
+    opts: &StreamOptions,
+    audio: &[f32],
+    chunk: usize,
+    finish: bool,
+) -> Result<Vec<TokenStep>> {
+    let mut s = p.new_stream(opts)?;
+    let mut steps = Vec::new();
+    for c in audio.chunks(chunk.max(1)) {
+        steps.extend(p.push_steps(&mut s, c)?);
+    }
+    if finish {
+        steps.extend(p.finish_steps(&mut s, AudioSpan::at_16k(audio.len() as u64))?);
+    }
+    Ok(steps)
+}
+
+/// Compares the frames of token steps pairwise: `pairs` are (label naming the stream in the report,
+/// got, want).
+pub(super) fn frame_rows_steps(
+    check: Check,
+    what: &str,
+    comparison: &str,
+    pairs: &[(String, &[TokenStep], &[TokenStep])],
+    bound: f64,
+    rows: &mut Vec<Row>,
+) {
+    for (k, name) in FRAME_FIELDS.iter().enumerate() {
+        let mut m = MaxAbs::default();
+        for (label, got, want) in pairs {
+            for (a, b) in got.iter().zip(want.iter()) {
+                for (fa, fb) in a.frames.iter().zip(&b.frames) {
+                    for (j, (x, y)) in field(fa, k).iter().zip(field(fb, k)).enumerate() {
+                        if (*x as f64 - *y as f64).abs() > m.err || x.is_nan() || m.step.is_none() {
+                            m.add_f32(
+                                a.token_index,
+                                format!("{label}frame {}, {name}[{j}]", fa.index),
+                                *x,
+                                *y,
+                            );
+                        } else {
+                            m.count += 1;
+                        }
+                    }
+                }
+            }
+        }
+        rows.push(Row::max_abs(check, what, comparison, *name, &m, bound));
+    }
+}
+
+pub(super) fn token_row(
+    check: Check,
+    what: &str,
+    comparison: &str,
+    got: &[Vec<i64>],
+    want: &[Vec<i64>],
+    detail: Option<String>,
+) -> Row {
+    let n = got.len().min(want.len());
+    let mut differing = got.iter().zip(want).filter(|(a, b)| a != b).count() as u64;
+    differing += (got.len().max(want.len()) - n) as u64;
+    let first = (0..n)
+        .find(|&t| got[t] != want[t])
+        .or((got.len() != want.len()).then_some(n));
+    let detail = detail.or_else(|| {
+        (got.len() != want.len()).then(|| format!("{} steps vs {}", got.len(), want.len()))
+    });
+    Row {
+        check,
+        what: what.into(),
+        comparison: comparison.into(),
+        output: "tokens".into(),
+        step: first.map(|s| s as u64),
+        metric: Metric::DifferingSteps,
+        error: differing as f64,
+        compared: got.len().max(want.len()) as u64,
+        bound: 0.0,
+        pass: differing == 0,
+        detail,
+    }
+}
+
+pub(super) struct BackendRollout {
+    kind: BackendKind,
+    steps: Vec<TokenStep>,
+}
+
+impl BackendRollout {
+    fn trace(&self) -> RolloutTrace {
+        RolloutTrace {
+            name: self.kind.to_string(),
+            tokens: self.steps.iter().map(|s| s.tokens.clone()).collect(),
+            logits: Some(
+                self.steps
+                    .iter()
+                    .map(|s| {
+                        s.logits.clone().unwrap_or(StepLogits {
+                            cond: Vec::new(),
+                            uncond: None,
+                        })
+                    })
+                    .collect(),
+            ),
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+pub(super) fn rollout_rows(
+    bundle: &Bundle,
+    pipelines: &mut [(BackendKind, Pipeline)],
+    clip: &[f32],
+    rows: &mut Vec<Row>,
+    notes: &mut Vec<String>,
+    divergences: &mut Vec<Divergence>,
+    log: &mut dyn FnMut(&str),
+) -> Result<(), ReferenceError> {
+    let rel = bundle
+        .reference()
+        .and_then(|r| r.rollout.clone())
+        .unwrap_or_else(|| "reference/rollout.npz".into());
+    let path = bundle.path(&rel);
+    let reference = ReferenceRollout::load(&path)?;
+    let seed = bundle
+        .reference()
+        .and_then(|r| r.rollout_seed)
+        .ok_or_else(|| ref_err(&bundle.manifest_path(), "reference.rollout_seed is missing"))?;
+    let lg = bundle
+        .livegesture()
+        .map_err(|e| ref_err(&bundle.manifest_path(), e))?;
+    let s = &lg.sampling;
+    if let Some(g) = bundle.reference().and_then(|r| r.rollout_guidance) {
+        if g != s.guidance {
+            notes.push(format!(
+                "the reference rollout was made with guidance {g}, the manifest's default is {}",
+                s.guidance
+            ));
+        }
+    }
+    let params = SamplingParams {
+        seed,
+        guidance: s.guidance,
+        temperature: s.temperature,
+        top_k: s.top_k,
+        regions: lg.region_names().iter().map(|r| r.to_string()).collect(),
+    };
+    let mut audio = Vec::with_capacity(clip.len() * reference.clip_repeats);
+    for _ in 0..reference.clip_repeats {
+        audio.extend_from_slice(clip);
+    }
+    notes.push(format!(
+        "rollout: reference/clip.wav x {} ({:.1} s), seed {seed}, guidance {}, temperature {}, top_k {}, {} torch tokens",
+        reference.clip_repeats,
+        audio.len() as f64 / 16000.0,
+        s.guidance,
+        s.temperature,
+        s.top_k,
+        reference.tokens.len()
+    ));
+    let opts = StreamOptions {
+        seed,
+        record_logits: true,
+        ..Default::default()
+    };
+    let torch_trace = RolloutTrace {
+        name: "torch".into(),
+        tokens: reference.tokens.clone(),
+        logits: None,
+    };
+    let mut runs: Vec<BackendRollout> = Vec::new();
+    for (kind, p) in pipelines.iter_mut() {
+        let t0 = Instant::now();
+        match run_stream(p, &opts, &audio, 16000, false) {
+            Ok(steps) => {
+                log(&format!(
+                    "rollout on {kind}: {} tokens in {:.1} s",
+                    steps.len(),
+                    t0.elapsed().as_secs_f64()
+                ));
+                runs.push(BackendRollout { kind: *kind, steps });
+            }
+            Err(e) => rows.push(Row::failed(
+                Check::Rollout,
+                "rollout",
+                format!("{kind} vs torch"),
+                "tokens",
+                0.0,
+                format!("{kind} failed: {e:#}"),
+            )),
+        }
+    }
+    // each backend vs torch
+    for run in &runs {
+        let comparison = format!("{} vs torch", run.kind);
+        let trace = run.trace();
+        let other: Vec<RolloutTrace> = runs
+            .iter()
+            .filter(|r| r.kind != run.kind)
+            .map(BackendRollout::trace)
+            .collect();
+        let div = find_divergence(&trace, &torch_trace, &params).map_err(|e| ref_err(&path, e))?;
+        let div = div.map(|mut d| {
+            // margins from the other backend's logits too (torch stored none)
+            for o in &other {
+                if let Some(l) = o.logits.as_ref().and_then(|l| l.get(d.step as usize)) {
+                    let nr = params.regions.len();
+                    let k = l.cond.len() / nr;
+                    let r = d.region_index;
+                    let c = &l.cond[r * k..(r + 1) * k];
+                    let un = l.uncond.as_ref().map(|u| &u[r * k..(r + 1) * k]);
+                    let u = replay_uniform(seed, nr, d.step, r);
+                    if let Ok(m) =
+                        sampling_margin(&o.name, c, un, &params, u, d.first_token, d.second_token)
+                    {
+                        d.margins.push(m);
+                    }
+                }
+            }
+            d
+        });
+        let prefix = div.as_ref().map(|d| d.step as usize).unwrap_or(usize::MAX);
+        rows.push(token_row(
+            Check::Rollout,
+            "rollout",
+            &comparison,
+            &trace.tokens,
+            &reference.tokens,
+            div.as_ref().map(|d| d.to_string()),
+        ));
+        // frames (over the steps before any divergence)
+        let n = run.steps.len().min(reference.tokens.len()).min(prefix);
+        let fpt = run.steps.first().map(|s| s.frames.len()).unwrap_or(4);
+        for (k, name) in FRAME_FIELDS.iter().enumerate() {
+            let want = match k {
+                0 => &reference.poses,
+                1 => &reference.trans,
+                2 => &reference.expressions,
+                _ => &reference.foot_contact,
+            };
+            let mut m = MaxAbs::default();
+            for st in &run.steps[..n] {
+                for fr in &st.frames {
+                    let i = fr.index as usize;
+                    if i >= want.nrows() {
+                        m.problem.get_or_insert_with(|| {
+                            format!(
+                                "frame {i} is beyond the reference's {} frames",
+                                want.nrows()
+                            )
+                        });
+                        continue;
+                    }
+                    let row = want.row(i);
+                    if row.len() != field(fr, k).len() {
+                        m.problem.get_or_insert_with(|| {
+                            format!(
+                                "{name} has {} values per frame, reference {}",
+                                field(fr, k).len(),
+                                row.len()
+                            )
+                        });
+                        continue;
+                    }
+                    for (j, (x, y)) in field(fr, k).iter().zip(row.iter()).enumerate() {
+                        if (*x as f64 - *y as f64).abs() > m.err || x.is_nan() || m.step.is_none() {
+                            m.add_f32(st.token_index, format!("frame {i}, {name}[{j}]"), *x, *y);
+                        } else {
+                            m.count += 1;
+                        }
+                    }
+                }
+            }
+            let mut row = Row::max_abs(
+                Check::Rollout,
+                "rollout",
+                &comparison,
+                *name,
+                &m,
+                ROLLOUT_FRAMES,
+            );
+            if n < run.steps.len().max(reference.tokens.len()) && m.problem.is_none() {
+                let d = format!(
+                    "frames compared over the first {} frames, before the token divergence",
+                    n * fpt
+                );
+                row.detail = Some(match row.detail {
+                    Some(x) => format!("{x}; {d}"),
+                    None => d,
+                });
+            }
+            rows.push(row);
+        }
+        if let Some(d) = div {
+            divergences.push(d);
+        }
+    }
+    // tract vs ort
+    let ort = runs.iter().find(|r| r.kind == BackendKind::Ort);
+    let tract = runs.iter().find(|r| r.kind == BackendKind::Tract);
+    if let (Some(o), Some(t)) = (ort, tract) {
+        let (to, tt) = (o.trace(), t.trace());
+        let div = find_divergence(&tt, &to, &params).map_err(|e| ref_err(&path, e))?;
+        let prefix = div.as_ref().map(|d| d.step as usize).unwrap_or(usize::MAX);
+        rows.push(token_row(
+            Check::Rollout,
+            "rollout",
+            "tract vs ort",
+            &tt.tokens,
+            &to.tokens,
+            div.as_ref().map(|d| d.to_string()),
+        ));
+        let n = t.steps.len().min(o.steps.len()).min(prefix);
+        frame_rows_steps(
+            Check::Rollout,
+            "rollout",
+            "tract vs ort",
+            &[(String::new(), &t.steps[..n], &o.steps[..n])],
+            ROLLOUT_FRAMES,
+            rows,
+        );
+        // the fusion logits over the whole rollout (informative; same bound as the graphs)
+        let mut m = MaxAbs::default();
+        for (a, b) in t.steps[..n].iter().zip(&o.steps[..n]) {
+            if let (Some(la), Some(lb)) = (&a.logits, &b.logits) {
+                if let (Ok(x), Ok(y)) = (
+                    Tensor::f32(vec![la.cond.len()], la.cond.clone()),
+                    Tensor::f32(vec![lb.cond.len()], lb.cond.clone()),
+                ) {
+                    m.add(a.token_index, &x, &y);
+                }
+            }
+        }
+        rows.push(Row::max_abs(
+            Check::Rollout,
+            "rollout",
+            "tract vs ort",
+            "logits (cond)",
+            &m,
+            TRACT_VS_ORT,
+        ));
+        if let Some(d) = div {
+            divergences.push(d);
+        }
+    }
+    Ok(())
+}
