@@ -47,7 +47,9 @@ if ! command -v chromium >/dev/null 2>&1; then
   if [ "$(id -u)" = 0 ]; then _sudo=""; else _sudo="sudo"; fi
   $_sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $_sudo apt-get install -y -qq chromium >/dev/null
 fi
-(cd runtime/web && npm ci --no-audit --no-fund --loglevel=error)
+# the locked versions; not `npm ci`, which refuses the lock file where the registry serves only this
+# platform's build of rollup (404 for the other @rollup/rollup-* packages, as on this project's machine)
+(cd runtime/web && npm install --no-save --no-audit --no-fund --loglevel=error)
 timeout 300 node runtime/web/tests/browser.mjs target/release/livegesture models/default \
   models/default/reference/clip.wav target/browser
 
