@@ -4,7 +4,9 @@
 #      metrics, export);
 #   2. fresh exports of the tiny configs of both families (the exporter verifies every graph against torch);
 #   3. the Rust build and the parity checks (torch vs ort vs tract) on that export and on models/default;
-#   4. the Rust tests (runtime numerics, bundles, pipeline, CLI, parity suite incl. its must-fail cases).
+#   4. the Rust tests (runtime numerics, bundles, pipeline, CLI, serve, parity suite incl. its must-fail cases);
+#   5. the serve protocol with independent Python/JS clients, BVH read back with a PyPI reader;
+#   6. the browser page in Debian's chromium with a fake microphone (screenshot in target/browser/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/env.sh
@@ -43,5 +45,20 @@ if command -v cargo-nextest >/dev/null 2>&1; then
 else
   cargo test --workspace --release --no-fail-fast
 fi
+
+stage "serve and BVH: independent Python/JS clients vs generate, BVH read back by the bvh package"
+"$LIVEGESTURE_VENV/bin/pip" install -q websockets==15.0.1 bvh==0.3
+LIVEGESTURE_BIN="$PWD/target/release/livegesture" "$LIVEGESTURE_PY" -m pytest -q runtime/tests/py
+
+stage "browser: the served page in Debian's chromium with a fake microphone (playwright-core)"
+if ! command -v chromium >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ]; then _sudo=""; else _sudo="sudo"; fi
+  $_sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $_sudo apt-get install -y -qq chromium >/dev/null
+fi
+# the locked versions; not `npm ci`, which refuses the lock file where the registry serves only this
+# platform's build of rollup (404 for the other @rollup/rollup-* packages, as on this project's machine)
+(cd runtime/web && npm install --no-save --no-audit --no-fund --loglevel=error)
+timeout 300 node runtime/web/tests/browser.mjs target/release/livegesture models/default \
+  models/default/reference/clip.wav target/browser
 
 stage "all tests passed"

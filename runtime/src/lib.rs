@@ -14,19 +14,23 @@
 //! - [`frontend`]: the log-mel audio frontend (the Python training frontend's definition, within 1e-4);
 //! - [`sampling`]: the portable seeded sampler (SplitMix64 + guided top-k sampling);
 //! - [`rotation`]: rot6d / matrix / quaternion / axis-angle conversions;
-//! - [`output`]: frames, BEAT2 `.npz` files and live records (JSON lines and binary).
+//! - [`output`]: frames, BEAT2 `.npz` files and live records (JSON lines and binary);
+//! - [`skeleton`] and [`bvh`]: the project's own skeleton (SMPL-X joint names and hierarchy) and BVH
+//!   output on it.
 //!
 //! Tools, behind cargo features that are on by default (the `livegesture` binary uses them; a program
 //! that only runs bundles can depend on the crate with `default-features = false, features = ["ort"]`):
 //!
 //! - `parity` ([`parity`]): the parity suite of SPEC section 7;
-//! - `bench` ([`bench`]): the benchmarks of SPEC section 11.
+//! - `bench` ([`bench`]): the benchmarks of SPEC section 11;
+//! - `serve` ([`serve`]): live serving over WebSocket (SPEC 12), sessions stepped together in batches.
 
 pub mod audio;
 pub mod backend;
 #[cfg(feature = "bench")]
 pub mod bench;
 pub mod bundle;
+pub mod bvh;
 pub mod frontend;
 pub mod model;
 pub mod output;
@@ -34,6 +38,9 @@ pub mod output;
 pub mod parity;
 pub mod rotation;
 pub mod sampling;
+#[cfg(feature = "serve")]
+pub mod serve;
+pub mod skeleton;
 
 /// The former path of [`model::livegesture`] (streams, [`model::livegesture::StreamBatch`]), kept so
 /// code written against it still builds; new code names [`model::livegesture`].

@@ -32,8 +32,9 @@
 //! read from the manifest: initial caches are zeros of the shapes listed there ([`CacheSpec::zeros`]),
 //! never hard-coded.
 //!
-//! The default bundle is the repository's `models/default` (see [`default_bundle_dir`]); the
-//! environment variable `LIVEGESTURE_BUNDLE` overrides it.
+//! The default bundle is a bundle installed beside the executable, else the repository's
+//! `models/default` (see [`default_bundle_dir`]); the environment variable `LIVEGESTURE_BUNDLE`
+//! overrides it.
 
 use std::collections::BTreeMap;
 use std::fmt;
@@ -73,15 +74,29 @@ pub fn repo_default_bundle() -> PathBuf {
         .join("default")
 }
 
-/// The bundle to use: `explicit` if given, else `$LIVEGESTURE_BUNDLE`, else [`repo_default_bundle`].
+/// The bundle to use: `explicit` if given, else `$LIVEGESTURE_BUNDLE`, else a bundle installed beside
+/// the executable ([`installed_default_bundle`]), else [`repo_default_bundle`] (the build-time path).
 pub fn default_bundle_dir(explicit: Option<&Path>) -> PathBuf {
     if let Some(p) = explicit {
         return p.to_path_buf();
     }
     match std::env::var_os(BUNDLE_ENV) {
         Some(v) if !v.is_empty() => PathBuf::from(v),
-        _ => repo_default_bundle(),
+        _ => installed_default_bundle().unwrap_or_else(repo_default_bundle),
     }
+}
+
+/// A default bundle installed beside the executable: `<exe_dir>/../share/livegesture/models/default`
+/// or `<exe_dir>/models/default`, the first that holds a `manifest.json`.
+pub fn installed_default_bundle() -> Option<PathBuf> {
+    let exe = std::env::current_exe().ok()?.canonicalize().ok()?;
+    let dir = exe.parent()?;
+    [
+        dir.join("../share/livegesture/models/default"),
+        dir.join("models/default"),
+    ]
+    .into_iter()
+    .find(|p| p.join("manifest.json").is_file())
 }
 
 /// Why a bundle was refused. Every variant names the file concerned.

@@ -26,7 +26,8 @@ pub struct Args {
     /// Input WAV file (any sample rate and channel count; 8/16/24/32-bit PCM or 32-bit float).
     #[arg(value_name = "IN.wav")]
     pub input: PathBuf,
-    /// Output BEAT2 .npz (poses, trans, expressions, betas, model, gender, mocap_frame_rate).
+    /// Output BEAT2 .npz (poses, trans, expressions, betas, model, gender, mocap_frame_rate), or a
+    /// .bvh on the project's own skeleton (body and hands; no face parameters).
     #[arg(short, long, value_name = "OUT.npz")]
     pub output: PathBuf,
     #[command(flatten)]
@@ -95,7 +96,14 @@ pub fn run(a: Args) -> Result<()> {
         writer.write_frame(f)?;
     }
     bar.finish_and_clear();
-    writer.finish()?;
+    if a.output
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("bvh"))
+    {
+        livegesture::bvh::write_bvh(&a.output, &writer.motion()?)?; // SPEC 8: face stays in the npz
+    } else {
+        writer.finish()?;
+    }
     eprintln!(
         "livegesture: wrote {} frames ({:.3} s of audio at {} Hz, {} fps, {} model on {}) to {}",
         writer.frames(),

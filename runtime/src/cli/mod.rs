@@ -17,6 +17,8 @@ pub mod generate;
 pub mod info;
 #[cfg(feature = "parity")]
 pub mod parity;
+#[cfg(feature = "serve")]
+pub mod serve;
 pub mod stream;
 
 pub use common::exit_code;
@@ -26,6 +28,7 @@ pub use common::exit_code;
 /// Audio goes in (a WAV file or raw PCM on stdin); SMPL-X motion at 30 fps comes out, covering the
 /// whole audio (ceil(duration x 30) frames). The bundle's family picks the model: livegesture emits
 /// four frames per 133.3 ms motion token, with zero look-ahead. Without --bundle the bundle is $LIVEGESTURE_BUNDLE,
+/// else one installed beside the executable (../share/livegesture/models/default or models/default),
 /// else the repository's models/default.
 #[derive(Debug, Parser)]
 #[command(
@@ -56,6 +59,9 @@ pub enum Command {
     /// Benchmark a bundle on one core: step times per graph and whole chain, first-frame latency,
     /// state bytes, peak RSS, real-time streams per core with batched stepping.
     Bench(bench::Args),
+    #[cfg(feature = "serve")]
+    /// Serve live sessions over WebSocket (SPEC 12), stepped together in batches; the browser page at /.
+    Serve(serve::Args),
 }
 
 /// Runs the parsed command.
@@ -68,5 +74,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Parity(a) => parity::run(a),
         #[cfg(feature = "bench")]
         Command::Bench(a) => bench::run(a),
+        #[cfg(feature = "serve")]
+        Command::Serve(a) => serve::run(a),
     }
 }

@@ -1,0 +1,141 @@
+//! `livegesture serve`: the WebSocket server of SPEC section 12 (see `docs/serve.md`).
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use sha2::{Digest, Sha256};
+
+use livegesture::backend;
+use livegesture::bundle::Family;
+use livegesture::model::livegesture::Pipeline;
+use livegesture::serve::{ModelInfo, ServeConfig, Server};
+
+use super::common::{InputError, ModelArgs};
+
+#[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  livegesture serve --backend ort --addr 127.0.0.1:8765\n  then open http://127.0.0.1:8765/ (protocol: docs/serve.md)"
+)]
+pub struct Args {
+    /// Address to listen on.
+    #[arg(long, default_value = "127.0.0.1:8765")]
+    pub addr: SocketAddr,
+    #[command(flatten)]
+    pub model: ModelArgs,
+    /// Most concurrent sessions; more are refused with HTTP 503.
+    #[arg(long, default_value_t = 64)]
+    pub max_sessions: usize,
+    /// Largest client message in bytes (larger: close 1009).
+    #[arg(long, default_value_t = 1 << 20)]
+    pub max_message_bytes: usize,
+    /// Frames queued for sending per session; a client that lets more pile up is disconnected (1008).
+    #[arg(long, default_value_t = 240)]
+    pub queue_frames: usize,
+    /// Complete tokens of one session waiting for their step before its socket is no longer read.
+    #[arg(long, default_value_t = 16)]
+    pub max_pending_tokens: usize,
+    /// Seconds without a client message before the session is closed (1008).
+    #[arg(long, default_value_t = 30.0)]
+    pub idle_timeout: f64,
+    /// Milliseconds the oldest complete token waits for other sessions to join its batched step.
+    #[arg(long, default_value_t = 30.0)]
+    pub batch_wait_ms: f64,
+    /// Seconds to wait for sessions to drain on SIGINT/SIGTERM.
+    #[arg(long, default_value_t = 10.0)]
+    pub drain_timeout: f64,
+}
+
+fn secs(name: &str, v: f64) -> Result<Duration> {
+    if v.is_finite() && v > 0.0 && v < 1e7 {
+        Ok(Duration::from_secs_f64(v))
+    } else {
+        Err(InputError(format!(
+            "--{name} must be a positive number of seconds, got {v}"
+        ))
+        .into())
+    }
+}
+
+pub fn run(a: Args) -> Result<()> {
+    if a.max_sessions == 0
+        || a.max_message_bytes == 0
+        || a.queue_frames == 0
+        || a.max_pending_tokens == 0
+    {
+        return Err(InputError(
+            "--max-sessions, --max-message-bytes, --queue-frames and --max-pending-tokens must be at least 1".into(),
+        )
+        .into());
+    }
+    let cfg = ServeConfig {
+        max_sessions: a.max_sessions,
+        max_message_bytes: a.max_message_bytes,
+        queue_frames: a.queue_frames,
+        max_pending_tokens: a.max_pending_tokens,
+        idle_timeout: secs("idle-timeout", a.idle_timeout)?,
+        batch_wait: secs("batch-wait-ms", a.batch_wait_ms / 1e3)?,
+        drain_timeout: secs("drain-timeout", a.drain_timeout)?,
+    };
+    let bundle = a.model.bundle()?;
+    // the scheduler steps sessions together with LiveGesture's batched token steps
+    if bundle.family() != Family::LiveGesture {
+        return Err(InputError(format!(
+            "{}: family {}: serve runs {} bundles only (batched token steps)",
+            bundle.manifest_path().display(),
+            bundle.family(),
+            Family::LiveGesture
+        ))
+        .into());
+    }
+    let backend_opts = a.model.backend_options()?;
+    let manifest = std::fs::read(bundle.manifest_path())
+        .with_context(|| format!("reading {}", bundle.manifest_path().display()))?;
+    let server = Server::start(a.addr, cfg, move || {
+        let be = backend::create(&backend_opts)?;
+        let pipeline = Pipeline::new(&bundle, be.as_ref()).with_context(|| {
+            format!(
+                "loading the bundle {} with {}",
+                bundle.dir().display(),
+                be.describe()
+            )
+        })?;
+        let m = bundle.manifest();
+        let info = ModelInfo {
+            model: m
+                .model
+                .name
+                .clone()
+                .or_else(|| m.model.config_name.clone())
+                .unwrap_or_else(|| bundle.dir().display().to_string()),
+            bundle_sha256: hex::encode(Sha256::digest(&manifest)),
+            backend: pipeline.backend_name().to_string(),
+            fps: bundle.frontend().fps,
+            frames_per_token: bundle.frontend().frames_per_token,
+            frontend: bundle.frontend().clone(),
+        };
+        Ok((pipeline, info))
+    })?;
+    eprintln!(
+        "livegesture serve: listening on http://{} (WebSocket /v1/stream, page /, /healthz, /metrics)",
+        server.addr()
+    );
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    let signalled = rt.block_on(async {
+        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => Ok::<_, anyhow::Error>(Some("SIGINT")),
+            _ = term.recv() => Ok(Some("SIGTERM")),
+            _ = server.finished() => Ok(None),
+        }
+    })?;
+    if let Some(sig) = signalled {
+        eprintln!("livegesture serve: {sig}: draining (no new sessions; finishing arrived tokens; closing 1001)");
+        server.shutdown();
+    }
+    server.join()?;
+    eprintln!("livegesture serve: stopped");
+    Ok(())
+}

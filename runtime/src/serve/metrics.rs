@@ -1,0 +1,235 @@
+//! Server metrics and their Prometheus text exposition (format 0.0.4), names prefixed `livegesture_`.
+
+use std::fmt::Write as _;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
+
+/// A histogram with fixed upper bounds (cumulative buckets are computed when rendered).
+#[derive(Debug)]
+pub struct Histogram {
+    bounds: Vec<f64>,
+    inner: Mutex<HistState>,
+}
+
+#[derive(Debug, Default, Clone)]
+struct HistState {
+    counts: Vec<u64>,
+    sum: f64,
+    count: u64,
+}
+
+impl Histogram {
+    pub fn new(bounds: &[f64]) -> Self {
+        Self {
+            bounds: bounds.to_vec(),
+            inner: Mutex::new(HistState {
+                counts: vec![0; bounds.len()],
+                ..Default::default()
+            }),
+        }
+    }
+
+    pub fn observe(&self, v: f64) {
+        let mut s = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(i) = self.bounds.iter().position(|&b| v <= b) {
+            s.counts[i] += 1;
+        }
+        s.sum += v;
+        s.count += 1;
+    }
+
+    fn render(&self, out: &mut String, name: &str, help: &str) {
+        let s = self.inner.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        let _ = writeln!(out, "# HELP {name} {help}\n# TYPE {name} histogram");
+        let mut cum = 0;
+        for (b, c) in self.bounds.iter().zip(&s.counts) {
+            cum += c;
+            let _ = writeln!(out, "{name}_bucket{{le=\"{}\"}} {cum}", fmt_f64(*b));
+        }
+        let _ = writeln!(out, "{name}_bucket{{le=\"+Inf\"}} {}", s.count);
+        let _ = writeln!(out, "{name}_sum {}", fmt_f64(s.sum));
+        let _ = writeln!(out, "{name}_count {}", s.count);
+    }
+}
+
+fn fmt_f64(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v:?}")
+    } else if v.is_nan() {
+        "NaN".into()
+    } else if v > 0.0 {
+        "+Inf".into()
+    } else {
+        "-Inf".into()
+    }
+}
+
+/// Reasons a session or connection is refused or cut (label values of `livegesture_refusals_total`).
+pub const REFUSAL_REASONS: [&str; 8] = [
+    "bad_request",
+    "capacity",
+    "shutting_down",
+    "malformed",
+    "unknown_message",
+    "oversize",
+    "idle",
+    "slow_client",
+];
+
+/// All counters and histograms of one server.
+#[derive(Debug)]
+pub struct Metrics {
+    pub sessions_active: AtomicU64,
+    pub sessions_total: AtomicU64,
+    pub tokens_total: AtomicU64,
+    pub frames_total: AtomicU64,
+    pub steps_total: AtomicU64,
+    pub audio_samples_total: AtomicU64,
+    refusals: [AtomicU64; REFUSAL_REASONS.len()],
+    pub batch_size: Histogram,
+    pub step_seconds: Histogram,
+    pub token_latency_seconds: Histogram,
+}
+
+impl Default for Metrics {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Metrics {
+    pub fn new() -> Self {
+        let lat = [
+            0.001, 0.0025, 0.005, 0.01, 0.02, 0.03, 0.05, 0.075, 0.1, 0.15, 0.2, 0.3, 0.5, 1.0,
+            2.5, 5.0,
+        ];
+        Self {
+            sessions_active: AtomicU64::new(0),
+            sessions_total: AtomicU64::new(0),
+            tokens_total: AtomicU64::new(0),
+            frames_total: AtomicU64::new(0),
+            steps_total: AtomicU64::new(0),
+            audio_samples_total: AtomicU64::new(0),
+            refusals: Default::default(),
+            batch_size: Histogram::new(&[
+                1.0, 2.0, 4.0, 8.0, 16.0, 24.0, 32.0, 48.0, 64.0, 96.0, 128.0, 256.0,
+            ]),
+            step_seconds: Histogram::new(&lat),
+            token_latency_seconds: Histogram::new(&lat),
+        }
+    }
+
+    /// Counts a refusal; `reason` must be one of [`REFUSAL_REASONS`].
+    pub fn refuse(&self, reason: &str) {
+        if let Some(i) = REFUSAL_REASONS.iter().position(|r| *r == reason) {
+            self.refusals[i].fetch_add(1, Ordering::Relaxed);
+        } else {
+            debug_assert!(false, "unknown refusal reason {reason}");
+        }
+    }
+
+    pub fn refusals(&self, reason: &str) -> u64 {
+        REFUSAL_REASONS
+            .iter()
+            .position(|r| *r == reason)
+            .map_or(0, |i| self.refusals[i].load(Ordering::Relaxed))
+    }
+
+    /// The Prometheus text exposition.
+    pub fn render(&self) -> String {
+        let mut o = String::with_capacity(4096);
+        let g = |o: &mut String, name: &str, kind: &str, help: &str, v: u64| {
+            let _ = writeln!(o, "# HELP {name} {help}\n# TYPE {name} {kind}\n{name} {v}");
+        };
+        let ld = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        g(
+            &mut o,
+            "livegesture_sessions_active",
+            "gauge",
+            "Live WebSocket sessions.",
+            ld(&self.sessions_active),
+        );
+        g(
+            &mut o,
+            "livegesture_sessions_total",
+            "counter",
+            "Sessions accepted since start.",
+            ld(&self.sessions_total),
+        );
+        g(
+            &mut o,
+            "livegesture_tokens_total",
+            "counter",
+            "Motion tokens generated (one per session per token step).",
+            ld(&self.tokens_total),
+        );
+        g(
+            &mut o,
+            "livegesture_frames_total",
+            "counter",
+            "Motion frames sent.",
+            ld(&self.frames_total),
+        );
+        g(
+            &mut o,
+            "livegesture_steps_total",
+            "counter",
+            "Batched token steps (one run of every graph).",
+            ld(&self.steps_total),
+        );
+        g(
+            &mut o,
+            "livegesture_audio_samples_total",
+            "counter",
+            "16 kHz audio samples received.",
+            ld(&self.audio_samples_total),
+        );
+        let _ = writeln!(o, "# HELP livegesture_refusals_total Requests refused and sessions closed by the server, by reason.\n# TYPE livegesture_refusals_total counter");
+        for (r, c) in REFUSAL_REASONS.iter().zip(&self.refusals) {
+            let _ = writeln!(o, "livegesture_refusals_total{{reason=\"{r}\"}} {}", ld(c));
+        }
+        self.batch_size.render(
+            &mut o,
+            "livegesture_batch_size",
+            "Sessions stepped together per token step.",
+        );
+        self.step_seconds.render(
+            &mut o,
+            "livegesture_step_seconds",
+            "Wall time of one batched token step (all graphs).",
+        );
+        self.token_latency_seconds.render(
+            &mut o,
+            "livegesture_token_latency_seconds",
+            "From the message completing a token's audio to its frames queued for sending.",
+        );
+        o
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exposition() {
+        let m = Metrics::new();
+        m.sessions_total.fetch_add(2, Ordering::Relaxed);
+        m.refuse("capacity");
+        m.step_seconds.observe(0.004);
+        m.step_seconds.observe(0.04);
+        m.step_seconds.observe(50.0);
+        let t = m.render();
+        assert!(t.contains("livegesture_sessions_total 2\n"), "{t}");
+        assert!(t.contains("livegesture_refusals_total{reason=\"capacity\"} 1\n"));
+        assert!(t.contains("livegesture_step_seconds_bucket{le=\"0.005\"} 1\n"));
+        assert!(t.contains("livegesture_step_seconds_bucket{le=\"0.05\"} 2\n"));
+        assert!(t.contains("livegesture_step_seconds_bucket{le=\"+Inf\"} 3\n"));
+        assert!(t.contains("livegesture_step_seconds_count 3\n"));
+        for line in t.lines().filter(|l| !l.starts_with('#')) {
+            assert!(line.starts_with("livegesture_"), "{line}");
+            let v = line.rsplit(' ').next().unwrap();
+            assert!(v.parse::<f64>().is_ok(), "{line}");
+        }
+    }
+}

@@ -1,0 +1,299 @@
+//! `livegesture serve`: many live sessions over WebSocket, stepped together (SPEC section 12).
+//!
+//! - [`protocol`]: query parameters, client messages and close codes;
+//! - [`scheduler`]: the thread that owns the [`Pipeline`] and steps all sessions with a complete
+//!   token in one batched run per graph per token tick;
+//! - [`session`]: one WebSocket session (decoding, resampling, back-pressure, limits);
+//! - [`metrics`]: counters and histograms, Prometheus text format;
+//! - [`web`]: the browser page, embedded in the binary.
+//!
+//! [`Server::start`] binds, loads the model on the scheduler thread and serves until
+//! [`Server::shutdown`]: new connections are refused, every session's tokens whose audio has arrived
+//! are stepped and sent, every session is closed with 1001, then [`Server::join`] returns.
+
+pub mod metrics;
+pub mod protocol;
+pub mod scheduler;
+pub mod session;
+pub mod web;
+
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use axum::extract::State;
+use axum::http::{header, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use axum::Router;
+use tokio::sync::{mpsc, watch, Notify};
+
+use crate::model::livegesture::Pipeline;
+
+use metrics::Metrics;
+use scheduler::{Cmd, SchedConfig, Scheduler};
+
+/// Limits and settings of a server.
+#[derive(Debug, Clone)]
+pub struct ServeConfig {
+    /// Most concurrent sessions; more are refused with HTTP 503.
+    pub max_sessions: usize,
+    /// Largest accepted client message in bytes; larger ones close the session with 1009.
+    pub max_message_bytes: usize,
+    /// Frames waiting to be sent per session; a client that lets more pile up is disconnected (1008).
+    pub queue_frames: usize,
+    /// Completed tokens of one session waiting for their step; beyond this the server stops reading
+    /// the session's socket until the scheduler catches up (TCP back-pressure).
+    pub max_pending_tokens: usize,
+    /// A session without any message for this long is closed with 1008.
+    pub idle_timeout: Duration,
+    /// How long the oldest complete token waits for other sessions' tokens to join its step.
+    pub batch_wait: Duration,
+    /// On shutdown, how long to wait for sessions to finish before exiting anyway.
+    pub drain_timeout: Duration,
+}
+
+impl Default for ServeConfig {
+    fn default() -> Self {
+        Self {
+            max_sessions: 64,
+            max_message_bytes: 1 << 20,
+            queue_frames: 240,
+            max_pending_tokens: 16,
+            idle_timeout: Duration::from_secs(30),
+            batch_wait: Duration::from_millis(30),
+            drain_timeout: Duration::from_secs(10),
+        }
+    }
+}
+
+/// What the `ready` message says about the model.
+#[derive(Debug, Clone)]
+pub struct ModelInfo {
+    /// Model name from the manifest.
+    pub model: String,
+    /// sha256 of the bundle's `manifest.json` (which holds the sha256 of every graph).
+    pub bundle_sha256: String,
+    pub backend: String,
+    pub fps: u64,
+    pub frames_per_token: u64,
+    /// 16 kHz samples of the first token's audio span and of every later one (integer grid).
+    pub frontend: crate::frontend::FrontendConfig,
+}
+
+pub(crate) struct AppState {
+    pub cfg: ServeConfig,
+    pub info: ModelInfo,
+    pub metrics: Arc<Metrics>,
+    pub cmd: mpsc::Sender<Cmd>,
+    pub shutdown: watch::Receiver<bool>,
+    pub draining: AtomicBool,
+    /// Sessions holding a slot (reserved before the upgrade).
+    pub slots: AtomicU64,
+    pub next_sid: AtomicU64,
+    /// Notified whenever a session ends.
+    pub ended: Notify,
+}
+
+/// A running server.
+pub struct Server {
+    addr: SocketAddr,
+    shutdown: watch::Sender<bool>,
+    thread: Option<std::thread::JoinHandle<Result<()>>>,
+    metrics: Arc<Metrics>,
+    finished: Arc<Notify>,
+    finished_flag: Arc<AtomicBool>,
+}
+
+impl Server {
+    /// Binds `addr`, builds the pipeline with `make_pipeline` on the scheduler thread, and serves in
+    /// background threads. Returns once the model is loaded and the socket is listening.
+    pub fn start<F>(addr: SocketAddr, cfg: ServeConfig, make_pipeline: F) -> Result<Server>
+    where
+        F: FnOnce() -> Result<(Pipeline, ModelInfo)> + Send + 'static,
+    {
+        let metrics = Arc::new(Metrics::new());
+        let (cmd_tx, cmd_rx) = mpsc::channel::<Cmd>(1024);
+        let (info_tx, info_rx) = std::sync::mpsc::channel::<Result<ModelInfo>>();
+        let sched_cfg = SchedConfig {
+            batch_wait: cfg.batch_wait,
+        };
+        let m2 = metrics.clone();
+        let sched = std::thread::Builder::new()
+            .name("livegesture-scheduler".into())
+            .spawn(move || match make_pipeline() {
+                Ok((p, info)) => {
+                    let _ = info_tx.send(Ok(info));
+                    Scheduler::new(p, m2, sched_cfg).run(cmd_rx);
+                }
+                Err(e) => {
+                    let _ = info_tx.send(Err(e));
+                }
+            })
+            .context("starting the scheduler thread")?;
+        let info = match info_rx.recv() {
+            Ok(r) => r?,
+            Err(_) => {
+                let _ = sched.join();
+                anyhow::bail!("the scheduler thread ended before loading the model");
+            }
+        };
+        let std_listener = std::net::TcpListener::bind(addr)
+            .with_context(|| format!("--addr {addr}: cannot listen"))?;
+        std_listener.set_nonblocking(true)?;
+        let local = std_listener.local_addr()?;
+        let (sd_tx, sd_rx) = watch::channel(false);
+        let state = Arc::new(AppState {
+            cfg: cfg.clone(),
+            info,
+            metrics: metrics.clone(),
+            cmd: cmd_tx,
+            shutdown: sd_rx.clone(),
+            draining: AtomicBool::new(false),
+            slots: AtomicU64::new(0),
+            next_sid: AtomicU64::new(1),
+            ended: Notify::new(),
+        });
+        let finished = Arc::new(Notify::new());
+        let finished_flag = Arc::new(AtomicBool::new(false));
+        let (f2, ff2) = (finished.clone(), finished_flag.clone());
+        let thread = std::thread::Builder::new()
+            .name("livegesture-server".into())
+            .spawn(move || {
+                let rt = tokio::runtime::Builder::new_multi_thread()
+                    .worker_threads(2)
+                    .enable_all()
+                    .build()
+                    .context("building the async runtime")?;
+                let r = rt.block_on(serve_until_shutdown(std_listener, state, sd_rx));
+                // the last command senders are gone with the state: the scheduler ends
+                drop(rt);
+                let _ = sched.join();
+                ff2.store(true, Ordering::SeqCst);
+                f2.notify_waiters();
+                r
+            })
+            .context("starting the server thread")?;
+        Ok(Server {
+            addr: local,
+            shutdown: sd_tx,
+            thread: Some(thread),
+            metrics,
+            finished,
+            finished_flag,
+        })
+    }
+
+    /// The address the server listens on.
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    pub fn metrics(&self) -> &Arc<Metrics> {
+        &self.metrics
+    }
+
+    /// Starts the drain (see the module docs); returns at once.
+    pub fn shutdown(&self) {
+        let _ = self.shutdown.send(true);
+    }
+
+    /// Waits until the server has stopped (after [`Server::shutdown`], or a fatal error).
+    pub fn join(mut self) -> Result<()> {
+        match self.thread.take() {
+            Some(t) => t
+                .join()
+                .map_err(|_| anyhow::anyhow!("the server thread panicked"))?,
+            None => Ok(()),
+        }
+    }
+
+    /// Resolves when the server thread has ended.
+    pub async fn finished(&self) {
+        loop {
+            let n = self.finished.notified();
+            if self.finished_flag.load(Ordering::SeqCst) {
+                return;
+            }
+            n.await;
+        }
+    }
+}
+
+async fn serve_until_shutdown(
+    std_listener: std::net::TcpListener,
+    state: Arc<AppState>,
+    mut sd: watch::Receiver<bool>,
+) -> Result<()> {
+    let listener = tokio::net::TcpListener::from_std(std_listener)?;
+    let app = Router::new()
+        .route("/v1/stream", get(session::upgrade))
+        .route("/healthz", get(healthz))
+        .route("/metrics", get(metrics_text))
+        .merge(web::routes())
+        .with_state(state.clone());
+    let mut sd2 = sd.clone();
+    let st2 = state.clone();
+    let http = axum::serve(
+        listener,
+        app.into_make_service_with_connect_info::<SocketAddr>(),
+    )
+    .with_graceful_shutdown(async move {
+        let _ = sd2.wait_for(|v| *v).await;
+        st2.draining.store(true, Ordering::SeqCst);
+    });
+    let http = tokio::spawn(async move { http.await });
+    let _ = sd.wait_for(|v| *v).await;
+    state.draining.store(true, Ordering::SeqCst);
+    // sessions see the same signal: they stop reading, their arrived tokens are stepped, close 1001
+    let deadline = tokio::time::Instant::now() + state.cfg.drain_timeout;
+    loop {
+        let n = state.ended.notified();
+        if state.slots.load(Ordering::SeqCst) == 0 {
+            break;
+        }
+        if tokio::time::timeout_at(deadline, n).await.is_err() {
+            eprintln!(
+                "livegesture serve: drain timeout: {} sessions still open",
+                state.slots.load(Ordering::SeqCst)
+            );
+            break;
+        }
+    }
+    let _ = tokio::time::timeout(Duration::from_secs(2), http).await;
+    Ok(())
+}
+
+async fn healthz(State(st): State<Arc<AppState>>) -> Response {
+    if st.draining.load(Ordering::SeqCst) {
+        (
+            StatusCode::SERVICE_UNAVAILABLE,
+            "draining: the server is shutting down\n",
+        )
+            .into_response()
+    } else {
+        (
+            StatusCode::OK,
+            format!(
+                "ok: model {} ({}), {} sessions\n",
+                st.info.model,
+                st.info.backend,
+                st.metrics.sessions_active.load(Ordering::Relaxed)
+            ),
+        )
+            .into_response()
+    }
+}
+
+async fn metrics_text(State(st): State<Arc<AppState>>) -> Response {
+    (
+        [(
+            header::CONTENT_TYPE,
+            "text/plain; version=0.0.4; charset=utf-8",
+        )],
+        st.metrics.render(),
+    )
+        .into_response()
+}

@@ -1,0 +1,249 @@
+//! The wire protocol of SPEC section 12: query parameters, client messages, close codes.
+
+use crate::audio::RawFormat;
+
+/// Close code: normal end after `{"type":"done"}`.
+pub const CLOSE_NORMAL: u16 = 1000;
+/// Close code: the server is shutting down.
+pub const CLOSE_GOING_AWAY: u16 = 1001;
+/// Close code: a message of a kind the server does not accept (unknown `type`, audio after `end`).
+pub const CLOSE_UNSUPPORTED: u16 = 1003;
+/// Close code: a malformed message (not a JSON object with a `type`, non-finite float samples, a
+/// stream ending in the middle of a sample frame).
+pub const CLOSE_INVALID: u16 = 1007;
+/// Close code: idle past the timeout, or a client too slow to take its frames.
+pub const CLOSE_POLICY: u16 = 1008;
+/// Close code: a message over the size limit.
+pub const CLOSE_TOO_BIG: u16 = 1009;
+/// Close code: an internal error (a failed graph run).
+pub const CLOSE_INTERNAL: u16 = 1011;
+/// Close code: at capacity (the server refuses with HTTP 503 before the upgrade where it can).
+pub const CLOSE_TRY_AGAIN: u16 = 1013;
+
+/// Frame message encoding.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OutputKind {
+    /// One text message per frame: the `livegesture stream` JSON line object.
+    Json,
+    /// One binary message per frame: the 1104-byte record of `stream --output binary`.
+    Binary,
+}
+
+impl OutputKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            OutputKind::Json => "json",
+            OutputKind::Binary => "binary",
+        }
+    }
+}
+
+/// The validated query parameters of `GET /v1/stream`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SessionParams {
+    /// Input sample rate in Hz.
+    pub rate: u32,
+    /// Interleaved input channels.
+    pub channels: u16,
+    /// Input sample encoding (`s16le` or `f32le`).
+    pub format: RawFormat,
+    /// Sampler seed.
+    pub seed: u64,
+    /// Guidance scale (`None`: the bundle's).
+    pub guidance: Option<f64>,
+    /// Frame encoding.
+    pub output: OutputKind,
+}
+
+/// Highest accepted input rate (Hz).
+pub const MAX_RATE: u32 = 384_000;
+/// Most accepted input channels.
+pub const MAX_CHANNELS: u16 = 32;
+
+impl SessionParams {
+    /// Parses the query pairs; an error is the HTTP 400 body.
+    pub fn parse(pairs: &[(String, String)]) -> Result<Self, String> {
+        let mut p = SessionParams {
+            rate: 16000,
+            channels: 1,
+            format: RawFormat::S16Le,
+            seed: 0,
+            guidance: None,
+            output: OutputKind::Json,
+        };
+        let mut seen: Vec<&str> = Vec::new();
+        for (k, v) in pairs {
+            if seen.contains(&k.as_str()) {
+                return Err(format!("query parameter '{k}' is given more than once"));
+            }
+            seen.push(k);
+            match k.as_str() {
+                "rate" => {
+                    p.rate = v
+                        .parse::<u32>()
+                        .ok()
+                        .filter(|r| (1..=MAX_RATE).contains(r))
+                        .ok_or_else(|| {
+                            format!("rate={v:?}: expected an integer sample rate in Hz, 1 to {MAX_RATE}")
+                        })?
+                }
+                "channels" => {
+                    p.channels = v
+                        .parse::<u16>()
+                        .ok()
+                        .filter(|c| (1..=MAX_CHANNELS).contains(c))
+                        .ok_or_else(|| {
+                            format!("channels={v:?}: expected an integer channel count, 1 to {MAX_CHANNELS}")
+                        })?
+                }
+                "format" => {
+                    p.format = match v.as_str() {
+                        "s16le" => RawFormat::S16Le,
+                        "f32le" => RawFormat::F32Le,
+                        _ => return Err(format!("format={v:?}: expected s16le or f32le")),
+                    }
+                }
+                "seed" => {
+                    p.seed = v.parse::<u64>().map_err(|_| {
+                        format!("seed={v:?}: expected an unsigned 64-bit integer")
+                    })?
+                }
+                "guidance" => {
+                    let g = v
+                        .parse::<f64>()
+                        .ok()
+                        .filter(|g| g.is_finite())
+                        .ok_or_else(|| format!("guidance={v:?}: expected a finite number"))?;
+                    p.guidance = Some(g);
+                }
+                "output" => {
+                    p.output = match v.as_str() {
+                        "json" => OutputKind::Json,
+                        "binary" => OutputKind::Binary,
+                        _ => return Err(format!("output={v:?}: expected json or binary")),
+                    }
+                }
+                other => {
+                    return Err(format!(
+                        "unknown query parameter '{other}'; expected rate, channels, format, seed, guidance or output"
+                    ))
+                }
+            }
+        }
+        Ok(p)
+    }
+
+    /// Bytes of one input frame (one sample of every channel).
+    pub fn frame_bytes(&self) -> usize {
+        self.channels as usize * self.format.bytes_per_sample()
+    }
+}
+
+/// A text message from the client.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ClientText {
+    /// `{"type":"end"}`.
+    End,
+}
+
+/// Why a text message was refused: (close code, reason).
+pub fn parse_client_text(text: &str) -> Result<ClientText, (u16, String)> {
+    let v: serde_json::Value = serde_json::from_str(text)
+        .map_err(|e| (CLOSE_INVALID, format!("malformed message: not JSON ({e})")))?;
+    let obj = v.as_object().ok_or_else(|| {
+        (
+            CLOSE_INVALID,
+            "malformed message: expected a JSON object with a \"type\"".to_string(),
+        )
+    })?;
+    let ty = obj.get("type").and_then(|t| t.as_str()).ok_or_else(|| {
+        (
+            CLOSE_INVALID,
+            "malformed message: no string \"type\" field".to_string(),
+        )
+    })?;
+    match ty {
+        "end" => Ok(ClientText::End),
+        other => Err((
+            CLOSE_UNSUPPORTED,
+            format!(
+                "unknown message type {:?}; the client sends binary PCM and {{\"type\":\"end\"}}",
+                truncate(other, 40)
+            ),
+        )),
+    }
+}
+
+/// `s` cut to at most `n` bytes on a character boundary.
+pub fn truncate(s: &str, n: usize) -> &str {
+    if s.len() <= n {
+        return s;
+    }
+    let mut i = n;
+    while !s.is_char_boundary(i) {
+        i -= 1;
+    }
+    &s[..i]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn q(s: &[(&str, &str)]) -> Vec<(String, String)> {
+        s.iter()
+            .map(|(a, b)| (a.to_string(), b.to_string()))
+            .collect()
+    }
+
+    #[test]
+    fn defaults_and_values() {
+        let p = SessionParams::parse(&[]).unwrap();
+        assert_eq!(
+            (p.rate, p.channels, p.format, p.seed, p.guidance, p.output),
+            (16000, 1, RawFormat::S16Le, 0, None, OutputKind::Json)
+        );
+        let p = SessionParams::parse(&q(&[
+            ("rate", "44100"),
+            ("channels", "2"),
+            ("format", "f32le"),
+            ("seed", "7"),
+            ("guidance", "1.5"),
+            ("output", "binary"),
+        ]))
+        .unwrap();
+        assert_eq!(
+            (p.rate, p.channels, p.format, p.seed, p.guidance, p.output),
+            (44100, 2, RawFormat::F32Le, 7, Some(1.5), OutputKind::Binary)
+        );
+        for bad in [
+            ("rate", "0"),
+            ("rate", "x"),
+            ("channels", "0"),
+            ("format", "s32le"),
+            ("seed", "-1"),
+            ("guidance", "nan"),
+            ("output", "xml"),
+            ("volume", "3"),
+        ] {
+            let e = SessionParams::parse(&q(&[bad])).unwrap_err();
+            assert!(e.contains(bad.0), "{e}");
+        }
+        assert!(SessionParams::parse(&q(&[("seed", "1"), ("seed", "2")])).is_err());
+    }
+
+    #[test]
+    fn client_text() {
+        assert_eq!(parse_client_text(r#"{"type":"end"}"#), Ok(ClientText::End));
+        assert_eq!(parse_client_text("nope").unwrap_err().0, CLOSE_INVALID);
+        assert_eq!(parse_client_text("[1]").unwrap_err().0, CLOSE_INVALID);
+        assert_eq!(
+            parse_client_text(r#"{"type":3}"#).unwrap_err().0,
+            CLOSE_INVALID
+        );
+        assert_eq!(
+            parse_client_text(r#"{"type":"pause"}"#).unwrap_err().0,
+            CLOSE_UNSUPPORTED
+        );
+    }
+}

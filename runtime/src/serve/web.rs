@@ -1,0 +1,67 @@
+//! The browser page, embedded in the binary: `runtime/web/dist/` (built by vite from `runtime/web/`,
+//! committed, so `cargo build` needs no npm; rebuild with `cd runtime/web && npm ci && npm run build`),
+//! and `/skeleton.json`, the project's skeleton ([`crate::skeleton`]) the page poses.
+
+use std::sync::Arc;
+
+use axum::http::header;
+use axum::response::IntoResponse;
+use axum::routing::get;
+use axum::Router;
+
+use super::AppState;
+use crate::skeleton::{rest_offsets, JOINT_NAMES, PARENTS};
+
+const INDEX_HTML: &[u8] = include_bytes!("../../web/dist/index.html");
+const APP_JS: &[u8] = include_bytes!("../../web/dist/assets/app.js");
+const WORKLET_JS: &[u8] = include_bytes!("../../web/dist/worklet.js");
+
+fn asset(body: &'static [u8], mime: &'static str) -> impl IntoResponse {
+    (
+        [
+            (header::CONTENT_TYPE, mime),
+            (header::CACHE_CONTROL, "no-cache"),
+        ],
+        body,
+    )
+}
+
+/// The skeleton as JSON: `names`, `parents` (-1 for the root), `offsets` (metres, from the parent).
+pub fn skeleton_json() -> String {
+    serde_json::json!({
+        "names": &JOINT_NAMES[..],
+        "parents": &PARENTS[..],
+        "offsets": rest_offsets().to_vec(),
+        "units": "m",
+    })
+    .to_string()
+}
+
+pub(crate) fn routes() -> Router<Arc<AppState>> {
+    Router::new()
+        .route(
+            "/",
+            get(|| async { asset(INDEX_HTML, "text/html; charset=utf-8") }),
+        )
+        .route(
+            "/index.html",
+            get(|| async { asset(INDEX_HTML, "text/html; charset=utf-8") }),
+        )
+        .route(
+            "/assets/app.js",
+            get(|| async { asset(APP_JS, "text/javascript; charset=utf-8") }),
+        )
+        .route(
+            "/worklet.js",
+            get(|| async { asset(WORKLET_JS, "text/javascript; charset=utf-8") }),
+        )
+        .route(
+            "/skeleton.json",
+            get(|| async {
+                (
+                    [(header::CONTENT_TYPE, "application/json")],
+                    skeleton_json(),
+                )
+            }),
+        )
+}

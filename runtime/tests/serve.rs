@@ -1,0 +1,721 @@
+//! `livegesture serve` over loopback: SPEC 12's protocol, frames equal to `generate`'s computation,
+//! refusals with reasons, limits, batching of concurrent sessions, and the shutdown drain.
+//!
+//! The reference for a session is what `generate` computes for the same audio written as a WAV file:
+//! `read_wav_16k_mono` (the WAV reader and resampler `generate` streams through), the pipeline on
+//! one stream with the same seed and backend, ended by the stream's `finish` with the input's own
+//! sample count and rate (SPEC 8: the last token completed with silence, `ceil(n_in * 30 / rate)`
+//! frames). One test also runs the `generate` binary itself.
+
+use livegesture_parity_tests as common;
+
+use std::net::SocketAddr;
+use std::path::Path;
+use std::time::Duration;
+
+use futures_util::{SinkExt, StreamExt};
+use livegesture::audio::{read_wav_16k_mono, AudioSpan};
+use livegesture::backend::{self, BackendKind, BackendOptions};
+use livegesture::bundle::Bundle;
+use livegesture::model::livegesture::{Pipeline, StreamOptions};
+use livegesture::output::{Frame, FPS};
+use livegesture::serve::{ModelInfo, ServeConfig, Server};
+use tokio_tungstenite::tungstenite::Message;
+
+fn make_pipeline() -> (Bundle, Pipeline) {
+    let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
+    let be = backend::create(&BackendOptions {
+        kind: BackendKind::Tract,
+        execution_provider: "cpu".into(),
+        intra_threads: 1,
+        ort_library: None,
+    })
+    .expect("backend");
+    let p = Pipeline::new(&bundle, be.as_ref()).expect("pipeline");
+    (bundle, p)
+}
+
+fn start(cfg: ServeConfig) -> Server {
+    Server::start("127.0.0.1:0".parse().unwrap(), cfg, || {
+        let (bundle, p) = make_pipeline();
+        let info = ModelInfo {
+            model: "test".into(),
+            bundle_sha256: "0".repeat(64),
+            backend: p.backend_name().into(),
+            fps: bundle.frontend().fps,
+            frames_per_token: bundle.frontend().frames_per_token,
+            frontend: bundle.frontend().clone(),
+        };
+        Ok((p, info))
+    })
+    .expect("server starts")
+}
+
+/// `seconds` of the bundle's reference speech clip at 16 kHz (repeated if shorter).
+fn speech(seconds: f64) -> Vec<f32> {
+    let clip = read_wav_16k_mono(common::tiny_bundle().join("reference/clip.wav")).unwrap();
+    let n = (seconds * 16000.0) as usize;
+    clip.iter().copied().cycle().take(n).collect()
+}
+
+/// A deterministic stereo signal at `rate` (a voiced-like buzz with an envelope, the channels differ).
+fn stereo(rate: u32, seconds: f64) -> Vec<[f32; 2]> {
+    let n = (seconds * rate as f64) as usize;
+    (0..n)
+        .map(|i| {
+            let t = i as f64 / rate as f64;
+            let env = (0.5 + 0.5 * (t * 3.1).sin()).powi(2);
+            let f0 = 140.0 + 30.0 * (t * 1.7).sin();
+            let v = env
+                * ((2.0 * std::f64::consts::PI * f0 * t).sin() * 0.4
+                    + (2.0 * std::f64::consts::PI * 3.0 * f0 * t).sin() * 0.1);
+            [v as f32, (0.7 * v + 0.05 * (t * 9000.0).sin()) as f32]
+        })
+        .collect()
+}
+
+fn write_wav(path: &Path, rate: u32, channels: u16, float: bool, samples: &[f32]) {
+    let spec = hound::WavSpec {
+        channels,
+        sample_rate: rate,
+        bits_per_sample: if float { 32 } else { 16 },
+        sample_format: if float {
+            hound::SampleFormat::Float
+        } else {
+            hound::SampleFormat::Int
+        },
+    };
+    let mut w = hound::WavWriter::create(path, spec).unwrap();
+    for &s in samples {
+        if float {
+            w.write_sample(s).unwrap();
+        } else {
+            w.write_sample(s16(s)).unwrap();
+        }
+    }
+    w.finalize().unwrap();
+}
+
+fn s16(x: f32) -> i16 {
+    (x * 32768.0).round().clamp(-32768.0, 32767.0) as i16
+}
+
+fn pcm_bytes(samples: &[f32], float: bool) -> Vec<u8> {
+    let mut b = Vec::with_capacity(samples.len() * 4);
+    for &s in samples {
+        if float {
+            b.extend_from_slice(&s.to_le_bytes());
+        } else {
+            b.extend_from_slice(&s16(s).to_le_bytes());
+        }
+    }
+    b
+}
+
+/// What `generate` computes for these interleaved samples (see the module docs).
+fn reference(samples: &[f32], rate: u32, channels: u16, float: bool, seed: u64) -> Vec<Frame> {
+    let dir = tempfile::tempdir().unwrap();
+    let wav = dir.path().join("in.wav");
+    write_wav(&wav, rate, channels, float, samples);
+    let a16 = read_wav_16k_mono(&wav).unwrap();
+    let (_bundle, mut p) = make_pipeline();
+    let input = AudioSpan::new((samples.len() / channels as usize) as u64, rate);
+    let mut s = p
+        .new_stream(&StreamOptions {
+            seed,
+            ..Default::default()
+        })
+        .unwrap();
+    let mut out = p.push(&mut s, &a16).unwrap();
+    out.extend(p.finish(&mut s, input).unwrap());
+    assert_eq!(out.len() as u64, input.frames(FPS as u64));
+    out
+}
+
+#[derive(Debug, Default)]
+struct Outcome {
+    ready: Option<serde_json::Value>,
+    frames: Vec<Frame>,
+    done: Option<u64>,
+    close: Option<(u16, String)>,
+}
+
+fn url(addr: SocketAddr, q: &str) -> String {
+    format!("ws://{addr}/v1/stream{q}")
+}
+
+type Ws =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+async fn connect(addr: SocketAddr, q: &str) -> Ws {
+    let (ws, resp) = tokio_tungstenite::connect_async(url(addr, q))
+        .await
+        .expect("upgrade");
+    assert_eq!(resp.status(), 101);
+    ws
+}
+
+async fn collect(ws: &mut Ws, out: &mut Outcome) {
+    while let Some(m) = ws.next().await {
+        match m {
+            Ok(Message::Text(t)) => {
+                let v: serde_json::Value = serde_json::from_str(&t).expect("server text is JSON");
+                match v.get("type").and_then(|t| t.as_str()) {
+                    Some("ready") => out.ready = Some(v),
+                    Some("done") => out.done = v["frames"].as_u64(),
+                    Some(other) => panic!("unexpected control message {other}"),
+                    None => out
+                        .frames
+                        .push(Frame::from_json_line(&t).expect("frame JSON")),
+                }
+            }
+            Ok(Message::Binary(b)) => out
+                .frames
+                .push(Frame::decode_binary(&b).expect("frame record")),
+            Ok(Message::Close(c)) => {
+                out.close = c.map(|c| (u16::from(c.code), c.reason.to_string()));
+            }
+            Ok(_) => {}
+            Err(_) => break,
+        }
+    }
+}
+
+/// Sends `bytes` cut at `cuts` (message lengths, cycled), then `{"type":"end"}`, and collects.
+async fn session(addr: SocketAddr, q: &str, bytes: &[u8], cuts: &[usize]) -> Outcome {
+    let mut ws = connect(addr, q).await;
+    let mut i = 0;
+    let mut k = 0;
+    while i < bytes.len() {
+        let n = cuts[k % cuts.len()].min(bytes.len() - i);
+        ws.send(Message::Binary(bytes[i..i + n].to_vec().into()))
+            .await
+            .unwrap();
+        i += n;
+        k += 1;
+    }
+    ws.send(Message::Text(r#"{"type":"end"}"#.into()))
+        .await
+        .unwrap();
+    let mut out = Outcome::default();
+    collect(&mut ws, &mut out).await;
+    out
+}
+
+fn assert_equal(got: &[Frame], want: &[Frame], what: &str) {
+    assert_eq!(got.len(), want.len(), "{what}: frame count");
+    let mut worst = 0f32;
+    for (g, w) in got.iter().zip(want) {
+        assert_eq!(g.index, w.index, "{what}: index");
+        assert!((g.time_s - w.time_s).abs() < 1e-12, "{what}: time_s");
+        for (a, b) in g
+            .poses
+            .iter()
+            .chain(&g.trans)
+            .chain(&g.expressions)
+            .zip(w.poses.iter().chain(&w.trans).chain(&w.expressions))
+        {
+            worst = worst.max((a - b).abs());
+        }
+    }
+    assert!(
+        worst <= 1e-4,
+        "{what}: frames differ from generate by {worst} (bound 1e-4)"
+    );
+}
+
+fn rt() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+fn within<F: std::future::Future>(secs: u64, f: F) -> F::Output {
+    rt().block_on(async {
+        tokio::time::timeout(Duration::from_secs(secs), f)
+            .await
+            .expect("test timed out")
+    })
+}
+
+#[test]
+fn frames_equal_generate_whatever_the_split() {
+    let server = start(ServeConfig::default());
+    let addr = server.addr();
+    let audio = speech(2.37); // not a whole number of tokens: the last one is completed with silence
+    let want = reference(&audio, 16000, 1, false, 3);
+    let bytes = pcm_bytes(&audio, false);
+    // whole, odd sizes (a sample's two bytes straddle messages), 10 ms, 1 byte then larger
+    for cuts in [
+        vec![bytes.len()],
+        vec![333, 7, 1001],
+        vec![320],
+        vec![1, 4097, 3],
+    ] {
+        let got = within(60, session(addr, "?seed=3", &bytes, &cuts));
+        let ready = got.ready.as_ref().expect("ready message");
+        assert_eq!(ready["fps"], 30);
+        assert_eq!(ready["frames_per_token"], 4);
+        assert_eq!(ready["seed"], 3);
+        assert_equal(&got.frames, &want, &format!("split {cuts:?}"));
+        assert_eq!(got.done, Some(want.len() as u64));
+        assert_eq!(got.close.as_ref().map(|c| c.0), Some(1000));
+    }
+    // a different seed gives different motion (the comparison above can fail)
+    let other = within(60, session(addr, "?seed=4", &bytes, &[3200]));
+    assert_eq!(other.frames.len(), want.len());
+    assert!(other
+        .frames
+        .iter()
+        .zip(&want)
+        .any(|(a, b)| a.poses != b.poses));
+    server.shutdown();
+    server.join().unwrap();
+}
+
+#[test]
+fn stereo_44k_f32_binary_equals_generate() {
+    let server = start(ServeConfig::default());
+    let addr = server.addr();
+    let st = stereo(44100, 1.9);
+    let inter: Vec<f32> = st.iter().flat_map(|f| *f).collect();
+    let want = reference(&inter, 44100, 2, true, 9);
+    assert_eq!(
+        want.len() as u64,
+        AudioSpan::new(st.len() as u64, 44100).frames(30)
+    );
+    let bytes = pcm_bytes(&inter, true);
+    for cuts in [vec![4410 * 8], vec![8191, 5, 3]] {
+        let got = within(
+            60,
+            session(
+                addr,
+                "?rate=44100&channels=2&format=f32le&output=binary&seed=9",
+                &bytes,
+                &cuts,
+            ),
+        );
+        assert_equal(
+            &got.frames,
+            &want,
+            &format!("44.1 kHz stereo f32le, split {cuts:?}"),
+        );
+        assert_eq!(got.close.as_ref().map(|c| c.0), Some(1000));
+    }
+    // s16le stereo 44.1 kHz, JSON
+    let want16 = reference(&inter, 44100, 2, false, 9);
+    let got = within(
+        60,
+        session(
+            addr,
+            "?rate=44100&channels=2&seed=9",
+            &pcm_bytes(&inter, false),
+            &[1234],
+        ),
+    );
+    assert_equal(&got.frames, &want16, "44.1 kHz stereo s16le");
+    server.shutdown();
+    server.join().unwrap();
+}
+
+#[test]
+fn frames_equal_the_generate_binary() {
+    let server = start(ServeConfig::default());
+    let audio = speech(1.6);
+    let dir = tempfile::tempdir().unwrap();
+    let wav = dir.path().join("a.wav");
+    write_wav(&wav, 16000, 1, false, &audio);
+    let npz = dir.path().join("a.npz");
+    let st = std::process::Command::new(env!("CARGO_BIN_EXE_livegesture"))
+        .args([
+            "generate",
+            wav.to_str().unwrap(),
+            "-o",
+            npz.to_str().unwrap(),
+            "--seed",
+            "5",
+            "--backend",
+            "tract",
+            "--bundle",
+        ])
+        .arg(common::tiny_bundle())
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    let m = livegesture::output::read_beat2_npz(&npz).unwrap();
+    let got = within(
+        60,
+        session(server.addr(), "?seed=5", &pcm_bytes(&audio, false), &[640]),
+    );
+    // both cover the whole audio with the same frames (SPEC 8)
+    assert_eq!(
+        got.frames.len() as u64,
+        AudioSpan::at_16k(audio.len() as u64).frames(30)
+    );
+    assert_eq!(m.len(), got.frames.len());
+    for (t, f) in got.frames.iter().enumerate() {
+        for j in 0..165 {
+            assert!(
+                (f.poses[j] - m.poses[[t, j]]).abs() <= 1e-4,
+                "frame {t} pose {j}"
+            );
+        }
+        for j in 0..100 {
+            assert!((f.expressions[j] - m.expressions[[t, j]]).abs() <= 1e-4);
+        }
+    }
+    server.shutdown();
+    server.join().unwrap();
+}
+
+#[test]
+fn two_sessions_joining_at_different_times_each_equal_their_generate() {
+    let server = start(ServeConfig {
+        batch_wait: Duration::from_millis(40),
+        ..Default::default()
+    });
+    let addr = server.addr();
+    let a = speech(3.0);
+    let b: Vec<f32> = speech(4.0)[16000..].to_vec();
+    let (wa, wb) = (
+        reference(&a, 16000, 1, false, 1),
+        reference(&b, 16000, 1, false, 2),
+    );
+    let (ba, bb) = (pcm_bytes(&a, false), pcm_bytes(&b, false));
+    let (ga, gb) = within(120, async move {
+        let mut sa = connect(addr, "?seed=1").await;
+        let chunk = 640; // 20 ms
+        let mut ia = 0;
+        // A alone for a while
+        while ia < ba.len() / 3 {
+            sa.send(Message::Binary(ba[ia..ia + chunk].to_vec().into()))
+                .await
+                .unwrap();
+            ia += chunk;
+        }
+        let mut sb = connect(addr, "?seed=2").await;
+        let mut ib = 0;
+        // then both, interleaved in real time so that their tokens complete together
+        while ia < ba.len() || ib < bb.len() {
+            if ia < ba.len() {
+                let n = chunk.min(ba.len() - ia);
+                sa.send(Message::Binary(ba[ia..ia + n].to_vec().into()))
+                    .await
+                    .unwrap();
+                ia += n;
+            }
+            if ib < bb.len() {
+                let n = chunk.min(bb.len() - ib);
+                sb.send(Message::Binary(bb[ib..ib + n].to_vec().into()))
+                    .await
+                    .unwrap();
+                ib += n;
+            }
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+        for s in [&mut sa, &mut sb] {
+            s.send(Message::Text(r#"{"type":"end"}"#.into()))
+                .await
+                .unwrap();
+        }
+        let (mut oa, mut ob) = (Outcome::default(), Outcome::default());
+        tokio::join!(collect(&mut sa, &mut oa), collect(&mut sb, &mut ob));
+        (oa, ob)
+    });
+    assert_equal(&ga.frames, &wa, "session A");
+    assert_equal(&gb.frames, &wb, "session B");
+    // they were stepped together: some step had two sessions
+    let m = server.metrics().render();
+    let count = metric(&m, "livegesture_batch_size_count");
+    let ones = metric(&m, "livegesture_batch_size_bucket{le=\"1.0\"}");
+    assert!(ones < count, "no step batched both sessions:\n{m}");
+    assert_eq!(metric(&m, "livegesture_sessions_total"), 2.0);
+    server.shutdown();
+    server.join().unwrap();
+}
+
+fn metric(text: &str, name: &str) -> f64 {
+    text.lines()
+        .find_map(|l| l.strip_prefix(name).and_then(|r| r.strip_prefix(' ')))
+        .unwrap_or_else(|| panic!("{name} not in\n{text}"))
+        .parse()
+        .unwrap()
+}
+
+async fn http_status(addr: SocketAddr, q: &str) -> (u16, String) {
+    match tokio_tungstenite::connect_async(url(addr, q)).await {
+        Ok(_) => (101, String::new()),
+        Err(tokio_tungstenite::tungstenite::Error::Http(r)) => (
+            r.status().as_u16(),
+            String::from_utf8_lossy(r.body().as_deref().unwrap_or_default()).into_owned(),
+        ),
+        Err(e) => panic!("{e}"),
+    }
+}
+
+#[test]
+fn bad_parameters_are_refused_with_400_and_a_reason() {
+    let server = start(ServeConfig::default());
+    let addr = server.addr();
+    within(30, async {
+        for (q, word) in [
+            ("?rate=0", "rate"),
+            ("?rate=abc", "rate"),
+            ("?channels=0", "channels"),
+            ("?format=s24le", "format"),
+            ("?seed=-3", "seed"),
+            ("?guidance=inf", "guidance"),
+            ("?output=xml", "output"),
+            ("?colour=red", "colour"),
+        ] {
+            let (status, body) = http_status(addr, q).await;
+            assert_eq!(status, 400, "{q}");
+            assert!(body.contains(word), "{q}: {body}");
+        }
+        assert_eq!(
+            http_status(
+                addr,
+                "?rate=48000&channels=2&format=f32le&seed=1&guidance=1.0&output=binary"
+            )
+            .await
+            .0,
+            101
+        );
+    });
+    assert_eq!(server.metrics().refusals("bad_request"), 8);
+    server.shutdown();
+    server.join().unwrap();
+}
+
+async fn close_of(ws: &mut Ws) -> (u16, String) {
+    let mut out = Outcome::default();
+    collect(ws, &mut out).await;
+    out.close.expect("a close frame with a reason")
+}
+
+#[test]
+fn malformed_unknown_and_oversize_messages_are_closed_with_reasons() {
+    let server = start(ServeConfig {
+        max_message_bytes: 4096,
+        ..Default::default()
+    });
+    let addr = server.addr();
+    within(30, async {
+        for (msg, code, word) in [
+            (Message::Text("hello".into()), 1007, "malformed"),
+            (Message::Text(r#"{"kind":"end"}"#.into()), 1007, "type"),
+            (Message::Text(r#"{"type":"pause"}"#.into()), 1003, "pause"),
+            (Message::Binary(vec![0u8; 4097].into()), 1009, "limit"),
+            (Message::Binary(vec![0u8; 200_000].into()), 1009, "limit"),
+        ] {
+            let mut ws = connect(addr, "").await;
+            ws.send(msg).await.unwrap();
+            let (c, reason) = close_of(&mut ws).await;
+            assert_eq!(c, code, "{reason}");
+            assert!(reason.contains(word), "{reason}");
+        }
+        // non-finite f32 samples
+        let mut ws = connect(addr, "?format=f32le").await;
+        ws.send(Message::Binary(f32::NAN.to_le_bytes().to_vec().into()))
+            .await
+            .unwrap();
+        assert_eq!(close_of(&mut ws).await.0, 1007);
+        // the stream ends in the middle of a sample
+        let mut ws = connect(addr, "").await;
+        ws.send(Message::Binary(vec![1, 2, 3].into()))
+            .await
+            .unwrap();
+        ws.send(Message::Text(r#"{"type":"end"}"#.into()))
+            .await
+            .unwrap();
+        let (c, reason) = close_of(&mut ws).await;
+        assert_eq!(c, 1007, "{reason}");
+        // audio after the end
+        let mut ws = connect(addr, "").await;
+        ws.send(Message::Text(r#"{"type":"end"}"#.into()))
+            .await
+            .unwrap();
+        let mut out = Outcome::default();
+        collect(&mut ws, &mut out).await;
+        assert_eq!(out.done, Some(0));
+        assert_eq!(out.close.unwrap().0, 1000);
+    });
+    let m = server.metrics();
+    assert_eq!(m.refusals("malformed"), 4);
+    assert_eq!(m.refusals("unknown_message"), 1);
+    assert_eq!(m.refusals("oversize"), 2);
+    server.shutdown();
+    server.join().unwrap();
+}
+
+#[test]
+fn capacity_idle_and_health() {
+    let server = start(ServeConfig {
+        max_sessions: 2,
+        idle_timeout: Duration::from_millis(700),
+        ..Default::default()
+    });
+    let addr = server.addr();
+    within(30, async {
+        let mut a = connect(addr, "").await;
+        let _b = connect(addr, "").await;
+        let (status, body) = http_status(addr, "").await;
+        assert_eq!(status, 503);
+        assert!(body.contains("capacity"), "{body}");
+        // idle: no message for 0.7 s
+        let (c, reason) = close_of(&mut a).await;
+        assert_eq!(c, 1008);
+        assert!(reason.contains("idle"), "{reason}");
+        // a slot is free again once the idle session is gone
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let _c = connect(addr, "").await;
+        let body = reqwest_like(addr, "/healthz").await;
+        assert!(body.starts_with("HTTP/1.1 200"), "{body}");
+        let body = reqwest_like(addr, "/metrics").await;
+        assert!(
+            body.contains("livegesture_refusals_total{reason=\"idle\"} "),
+            "{body}"
+        );
+        assert!(
+            !body.contains("livegesture_refusals_total{reason=\"idle\"} 0"),
+            "{body}"
+        );
+        assert!(
+            body.contains("livegesture_refusals_total{reason=\"capacity\"} 1"),
+            "{body}"
+        );
+    });
+    server.shutdown();
+    server.join().unwrap();
+}
+
+/// A minimal HTTP/1.1 GET over a raw socket (the test needs no HTTP client crate).
+async fn reqwest_like(addr: SocketAddr, path: &str) -> String {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    s.write_all(format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").as_bytes())
+        .await
+        .unwrap();
+    let mut buf = Vec::new();
+    s.read_to_end(&mut buf).await.unwrap();
+    String::from_utf8_lossy(&buf).into_owned()
+}
+
+#[test]
+fn a_slow_client_is_disconnected_and_memory_stays_bounded() {
+    let server = start(ServeConfig {
+        queue_frames: 8,
+        max_message_bytes: 8 << 20,
+        max_pending_tokens: 4096,
+        ..Default::default()
+    });
+    let addr = server.addr();
+    let audio = speech(90.0);
+    let bytes = pcm_bytes(&audio, false);
+    let m = server.metrics().clone();
+    within(120, async move {
+        let mut ws = connect(addr, "").await;
+        ws.send(Message::Binary(bytes.into())).await.unwrap();
+        // never read: the frames pile up in the socket buffers, then in the session's queue
+        for _ in 0..600 {
+            if m.refusals("slow_client") > 0 {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        assert_eq!(m.refusals("slow_client"), 1);
+        let mut out = Outcome::default();
+        collect(&mut ws, &mut out).await;
+        assert!(
+            (out.frames.len() as u64) < 90 * 30,
+            "the slow client got everything"
+        );
+        if let Some((c, reason)) = out.close {
+            assert_eq!(c, 1008, "{reason}");
+            assert!(reason.contains("slow"), "{reason}");
+        }
+    });
+    server.shutdown();
+    server.join().unwrap();
+}
+
+#[test]
+fn sigterm_drains_arrived_tokens_closes_1001_and_exits_0() {
+    use std::io::{BufRead, BufReader};
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_livegesture"))
+        .args([
+            "serve",
+            "--addr",
+            "127.0.0.1:0",
+            "--backend",
+            "tract",
+            "--max-pending-tokens",
+            "256",
+            "--bundle",
+        ])
+        .arg(common::tiny_bundle())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut line = String::new();
+    let addr: SocketAddr = loop {
+        line.clear();
+        assert!(
+            err.read_line(&mut line).unwrap() > 0,
+            "serve ended before listening"
+        );
+        if let Some(rest) = line.split("listening on http://").nth(1) {
+            break rest.split_whitespace().next().unwrap().parse().unwrap();
+        }
+    };
+    let log = std::thread::spawn(move || {
+        let mut all = String::new();
+        for l in err.lines() {
+            all.push_str(&l.unwrap());
+            all.push('\n');
+        }
+        all
+    });
+    let audio = speech(3.1); // 23 whole tokens and a partial one
+    let pid = child.id() as i32;
+    let got = within(60, async move {
+        let mut ws = connect(addr, "?seed=2").await;
+        ws.send(Message::Binary(pcm_bytes(&audio, false).into()))
+            .await
+            .unwrap();
+        let mut out = Outcome::default();
+        // the first frame proves the whole message was read (it is forwarded before the next read)
+        while out.frames.is_empty() {
+            match ws.next().await.unwrap().unwrap() {
+                Message::Text(t) if t.contains("\"index\"") => {
+                    out.frames.push(Frame::from_json_line(&t).unwrap())
+                }
+                _ => {}
+            }
+        }
+        unsafe { libc::kill(pid, libc::SIGTERM) };
+        collect(&mut ws, &mut out).await;
+        out
+    });
+    let status = child.wait().unwrap();
+    let log = log.join().unwrap();
+    assert!(status.success(), "serve exited with {status}\n{log}");
+    assert_eq!(got.close.as_ref().map(|c| c.0), Some(1001), "{got:?}");
+    let want = reference(&speech(3.1), 16000, 1, false, 2);
+    let f = Bundle::load(common::tiny_bundle())
+        .unwrap()
+        .frontend()
+        .clone();
+    let whole = f.n_tokens((3.1 * 16000.0) as u64); // the complete tokens of the audio sent
+    assert!(whole >= 20);
+    assert_equal(&got.frames, &want[..(whole * 4) as usize], "drained frames");
+    assert!(log.contains("session 1 start"), "{log}");
+    assert!(log.contains("session 1 end: close 1001"), "{log}");
+}

@@ -1,0 +1,438 @@
+// LiveGesture browser page: microphone (getUserMedia + AudioWorklet) or a WAV file -> WebSocket
+// (/v1/stream, SPEC 12) -> live 3D skeleton; or a generated .npz / .bvh with its audio.
+// The skeleton (names, parents, rest offsets) comes from the server's /skeleton.json, the Rust mirror
+// of python/livegesture/skeleton.py; joints are posed by forward kinematics from the frames' axis-angle.
+import * as THREE from 'three';
+
+const $ = (id) => document.getElementById(id);
+const N = 55;
+const RECORD = 1104;
+const N_EXPR_SHOWN = 6;
+
+// state the browser test reads (runtime/web/tests/browser.mjs)
+const state = (window.lgState = {
+  status: 'idle', frames: 0, lastIndex: -1, moved: 0, latencyMs: null, error: null, webgl: false,
+});
+
+let SK = null; // { names, parents, offsets }
+let first = null; // joint positions of the first frame shown (to measure movement)
+
+// ------------------------------------------------------------------------------------------ FK
+
+const tmpQ = new THREE.Quaternion();
+const tmpV = new THREE.Vector3();
+const axis = new THREE.Vector3();
+
+function aaQuat(x, y, z, out) {
+  const a = Math.hypot(x, y, z);
+  if (a < 1e-12) return out.set(0, 0, 0, 1);
+  axis.set(x / a, y / a, z / a);
+  return out.setFromAxisAngle(axis, a);
+}
+
+const G = Array.from({ length: N }, () => new THREE.Quaternion());
+const P = Array.from({ length: N }, () => new THREE.Vector3());
+
+// poses: 165 axis-angle values, trans: 3 -> P (joint positions, metres)
+function forwardKinematics(poses, trans) {
+  for (let j = 0; j < N; j++) {
+    aaQuat(poses[3 * j], poses[3 * j + 1], poses[3 * j + 2], tmpQ);
+    const p = SK.parents[j];
+    const o = SK.offsets[j];
+    if (p < 0) {
+      G[j].copy(tmpQ);
+      P[j].set(trans[0] + o[0], trans[1] + o[1], trans[2] + o[2]);
+    } else {
+      G[j].copy(G[p]).multiply(tmpQ);
+      tmpV.set(o[0], o[1], o[2]).applyQuaternion(G[p]);
+      P[j].copy(P[p]).add(tmpV);
+    }
+  }
+  return P;
+}
+
+// ------------------------------------------------------------------------------------------ drawing
+
+const canvas = $('c');
+let renderer = null, scene, camera, jointMesh, boneGeom, ctx2d = null;
+
+function initView() {
+  try {
+    renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
+    state.webgl = true;
+  } catch (e) {
+    renderer = null;
+    ctx2d = canvas.getContext('2d');
+    console.warn('WebGL unavailable, drawing in 2D:', e.message);
+  }
+  scene = new THREE.Scene();
+  scene.background = new THREE.Color(0x14161a);
+  camera = new THREE.PerspectiveCamera(35, 1, 0.05, 50);
+  camera.position.set(1.1, 1.25, 3.2);
+  camera.lookAt(0, 0.9, 0);
+  scene.add(new THREE.HemisphereLight(0xddeeff, 0x202020, 2.0));
+  const dl = new THREE.DirectionalLight(0xffffff, 1.5);
+  dl.position.set(2, 4, 3);
+  scene.add(dl);
+  const grid = new THREE.GridHelper(4, 16, 0x445066, 0x2a303a);
+  scene.add(grid);
+  jointMesh = new THREE.InstancedMesh(
+    new THREE.SphereGeometry(0.018, 12, 8),
+    new THREE.MeshStandardMaterial({ color: 0xf0a030, roughness: 0.5 }), N);
+  scene.add(jointMesh);
+  boneGeom = new THREE.BufferGeometry();
+  boneGeom.setAttribute('position', new THREE.BufferAttribute(new Float32Array((N - 1) * 6), 3));
+  scene.add(new THREE.LineSegments(boneGeom, new THREE.LineBasicMaterial({ color: 0x9fc3ff })));
+  const resize = () => {
+    const w = canvas.clientWidth, h = canvas.clientHeight;
+    if (renderer) renderer.setSize(w, h, false);
+    else { canvas.width = w; canvas.height = h; }
+    camera.aspect = w / Math.max(h, 1);
+    camera.updateProjectionMatrix();
+  };
+  window.addEventListener('resize', resize);
+  resize();
+}
+
+const m4 = new THREE.Matrix4();
+function drawSkeleton(pos) {
+  for (let j = 0; j < N; j++) {
+    const s = j >= 25 ? 0.45 : j === 22 ? 0.8 : 1;
+    m4.makeScale(s, s, s).setPosition(pos[j]);
+    jointMesh.setMatrixAt(j, m4);
+  }
+  jointMesh.instanceMatrix.needsUpdate = true;
+  const a = boneGeom.attributes.position.array;
+  let k = 0;
+  for (let j = 1; j < N; j++) {
+    const p = pos[SK.parents[j]], c = pos[j];
+    a[k++] = p.x; a[k++] = p.y; a[k++] = p.z; a[k++] = c.x; a[k++] = c.y; a[k++] = c.z;
+  }
+  boneGeom.attributes.position.needsUpdate = true;
+  boneGeom.computeBoundingSphere();
+}
+
+function render() {
+  if (renderer) {
+    renderer.render(scene, camera);
+  } else if (ctx2d && SK) {
+    const w = canvas.width, h = canvas.height;
+    ctx2d.fillStyle = '#14161a'; ctx2d.fillRect(0, 0, w, h);
+    const pr = (v) => { const q = v.clone().project(camera); return [(q.x + 1) / 2 * w, (1 - q.y) / 2 * h]; };
+    ctx2d.strokeStyle = '#9fc3ff'; ctx2d.lineWidth = 2;
+    for (let j = 1; j < N; j++) {
+      const [x0, y0] = pr(P[SK.parents[j]]), [x1, y1] = pr(P[j]);
+      ctx2d.beginPath(); ctx2d.moveTo(x0, y0); ctx2d.lineTo(x1, y1); ctx2d.stroke();
+    }
+    ctx2d.fillStyle = '#f0a030';
+    for (let j = 0; j < N; j++) { const [x, y] = pr(P[j]); ctx2d.fillRect(x - 3, y - 3, 6, 6); }
+  }
+  requestAnimationFrame(render);
+}
+
+// ------------------------------------------------------------------------------------------ frames
+
+const exprBars = [];
+function initFace() {
+  const box = $('exprs');
+  for (let i = 0; i < N_EXPR_SHOWN; i++) {
+    const row = document.createElement('div');
+    row.innerHTML = `<div class="row"><span class="k">expression ${i}</span><span>0.00</span></div><div class="bar"><div></div></div>`;
+    box.appendChild(row);
+    exprBars.push([row.querySelector('.row span:last-child'), row.querySelector('.bar div')]);
+  }
+}
+
+function showFrame(f) {
+  const pos = forwardKinematics(f.poses, f.trans);
+  if (!first) first = pos.map((v) => v.clone());
+  else {
+    let m = 0;
+    for (let j = 0; j < N; j++) m = Math.max(m, pos[j].distanceTo(first[j]));
+    state.moved = Math.max(state.moved, m);
+  }
+  drawSkeleton(pos);
+  const jaw = Math.hypot(f.poses[66], f.poses[67], f.poses[68]);
+  $('jawv').textContent = jaw.toFixed(3);
+  $('jaw').style.width = `${Math.min(100, (jaw / 0.35) * 100)}%`;
+  for (let i = 0; i < N_EXPR_SHOWN; i++) {
+    const v = f.expressions[i];
+    exprBars[i][0].textContent = v.toFixed(2);
+    exprBars[i][1].style.width = `${Math.min(100, (Math.abs(v) / 2) * 100)}%`;
+  }
+  $('mtime').textContent = `${f.time_s.toFixed(2)} s`;
+}
+
+function decodeRecord(buf) {
+  const dv = new DataView(buf);
+  const f32 = (off, n) => { const a = new Float32Array(n); for (let i = 0; i < n; i++) a[i] = dv.getFloat32(off + 4 * i, true); return a; };
+  return {
+    index: Number(dv.getBigUint64(0, true)),
+    time_s: dv.getFloat64(8, true),
+    poses: f32(16, 165), trans: f32(676, 3), expressions: f32(688, 100),
+  };
+}
+
+function setStatus(s, kind = s) {
+  state.status = s;
+  $('status').textContent = s;
+  $('status').dataset.state = kind;
+}
+
+// ------------------------------------------------------------------------------------------ live session
+
+let ws = null, sentSamples = 0, sentLog = [], rate = 16000, latencies = [];
+let stopSource = null;
+
+function openSession(inputRate) {
+  rate = inputRate;
+  sentSamples = 0; sentLog = []; latencies = []; first = null;
+  state.frames = 0; state.moved = 0;
+  const proto = location.protocol === 'https:' ? 'wss' : 'ws';
+  ws = new WebSocket(`${proto}://${location.host}/v1/stream?rate=${Math.round(rate)}&channels=1&format=f32le&output=binary`);
+  ws.binaryType = 'arraybuffer';
+  setStatus('connecting');
+  ws.onopen = () => setStatus('connected');
+  ws.onmessage = (ev) => {
+    if (typeof ev.data === 'string') {
+      const m = JSON.parse(ev.data);
+      if (m.type === 'ready') { setStatus('live'); $('model').textContent = `${m.model} (${m.backend})`; }
+      else if (m.type === 'done') setStatus(`done: ${m.frames} frames`, 'idle');
+      return;
+    }
+    if (ev.data.byteLength !== RECORD) return;
+    const f = decodeRecord(ev.data);
+    state.frames++; state.lastIndex = f.index;
+    $('frames').textContent = state.frames;
+    if (f.index % 4 === 3) tokenLatency(f.index);
+    showFrame(f);
+  };
+  ws.onclose = (ev) => {
+    if (state.status === 'live' || state.status === 'connected' || state.status === 'connecting')
+      setStatus(`closed ${ev.code}${ev.reason ? ': ' + ev.reason : ''}`, ev.code === 1000 ? 'idle' : 'error');
+    stopInput();
+  };
+  ws.onerror = () => { state.error = 'websocket error'; setStatus('connection error', 'error'); };
+}
+
+// latency: from sending the audio that completes token t to receiving its last frame
+function tokenLatency(index) {
+  const need = (index + 1) / 30; // seconds of audio the token needs
+  while (sentLog.length && sentLog[0].upTo < need) sentLog.shift();
+  if (!sentLog.length) return;
+  latencies.push(performance.now() - sentLog[0].t);
+  if (latencies.length > 40) latencies.shift();
+  const s = [...latencies].sort((a, b) => a - b);
+  state.latencyMs = s[Math.floor(s.length / 2)];
+  $('latency').textContent = `${state.latencyMs.toFixed(0)} ms (median of ${s.length})`;
+}
+
+function sendSamples(f32) {
+  if (!ws || ws.readyState !== WebSocket.OPEN) return;
+  ws.send(f32.buffer.slice(f32.byteOffset, f32.byteOffset + f32.byteLength));
+  sentSamples += f32.length;
+  sentLog.push({ t: performance.now(), upTo: sentSamples / rate });
+}
+
+function endSession() {
+  if (ws && ws.readyState === WebSocket.OPEN) ws.send(JSON.stringify({ type: 'end' }));
+  stopInput();
+}
+
+function stopInput() {
+  if (stopSource) { const s = stopSource; stopSource = null; s(); }
+  $('mic').disabled = false; $('stop').disabled = true;
+}
+
+let audioCtx = null;
+async function context() {
+  if (!audioCtx) {
+    audioCtx = new AudioContext();
+    await audioCtx.audioWorklet.addModule('/worklet.js');
+  }
+  if (audioCtx.state === 'suspended') await audioCtx.resume();
+  return audioCtx;
+}
+
+async function startMic() {
+  try {
+    $('mic').disabled = true; $('stop').disabled = false;
+    const ctx = await context();
+    const media = await navigator.mediaDevices.getUserMedia({
+      audio: { channelCount: 1, echoCancellation: false, noiseSuppression: false, autoGainControl: false },
+    });
+    const src = ctx.createMediaStreamSource(media);
+    const node = new AudioWorkletNode(ctx, 'lg-capture');
+    const mute = ctx.createGain(); mute.gain.value = 0;
+    src.connect(node); node.connect(mute); mute.connect(ctx.destination);
+    node.port.onmessage = (e) => sendSamples(e.data);
+    stopSource = () => { node.port.onmessage = null; src.disconnect(); node.disconnect(); media.getTracks().forEach((t) => t.stop()); };
+    openSession(ctx.sampleRate);
+  } catch (e) {
+    state.error = String(e); setStatus(`microphone: ${e.message || e}`, 'error'); stopInput();
+  }
+}
+
+async function playWav(file) {
+  try {
+    const ctx = await context();
+    const buf = await ctx.decodeAudioData(await file.arrayBuffer());
+    const mono = new Float32Array(buf.length);
+    for (let c = 0; c < buf.numberOfChannels; c++) {
+      const d = buf.getChannelData(c);
+      for (let i = 0; i < d.length; i++) mono[i] += d[i] / buf.numberOfChannels;
+    }
+    openSession(buf.sampleRate);
+    await new Promise((res) => { const t = setInterval(() => { if (state.status === 'live') { clearInterval(t); res(); } }, 10); });
+    const src = ctx.createBufferSource(); src.buffer = buf; src.connect(ctx.destination);
+    const t0 = ctx.currentTime; src.start();
+    let sent = 0;
+    const timer = setInterval(() => {
+      const upTo = Math.min(mono.length, Math.floor((ctx.currentTime - t0) * buf.sampleRate));
+      if (upTo > sent) { sendSamples(mono.subarray(sent, upTo)); sent = upTo; }
+      if (sent >= mono.length) { clearInterval(timer); endSession(); }
+    }, 20);
+    $('mic').disabled = true; $('stop').disabled = false;
+    stopSource = () => { clearInterval(timer); try { src.stop(); } catch (_) { /* already stopped */ } };
+  } catch (e) {
+    state.error = String(e); setStatus(`file: ${e.message || e}`, 'error');
+  }
+}
+
+// ------------------------------------------------------------------------------------------ file viewer
+
+async function inflateRaw(bytes) {
+  const s = new Blob([bytes]).stream().pipeThrough(new DecompressionStream('deflate-raw'));
+  return new Uint8Array(await new Response(s).arrayBuffer());
+}
+
+async function readZip(buf) {
+  const dv = new DataView(buf), out = {};
+  let off = 0;
+  while (off + 30 <= buf.byteLength && dv.getUint32(off, true) === 0x04034b50) {
+    const method = dv.getUint16(off + 8, true);
+    let csize = dv.getUint32(off + 18, true);
+    const nlen = dv.getUint16(off + 26, true), xlen = dv.getUint16(off + 28, true);
+    const name = new TextDecoder().decode(new Uint8Array(buf, off + 30, nlen));
+    const start = off + 30 + nlen + xlen;
+    if (csize === 0xffffffff) throw new Error('zip64 .npz files are not supported here');
+    const data = new Uint8Array(buf, start, csize);
+    out[name] = method === 0 ? data.slice() : method === 8 ? await inflateRaw(data) : null;
+    if (out[name] === null) throw new Error(`${name}: unsupported zip compression ${method}`);
+    off = start + csize;
+  }
+  return out;
+}
+
+function readNpy(bytes) {
+  const dv = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
+  const major = bytes[6];
+  const hlen = major === 1 ? dv.getUint16(8, true) : dv.getUint32(8, true);
+  const hstart = major === 1 ? 10 : 12;
+  const header = new TextDecoder().decode(bytes.subarray(hstart, hstart + hlen));
+  const descr = /'descr':\s*'([^']+)'/.exec(header)[1];
+  const shape = /'shape':\s*\(([^)]*)\)/.exec(header)[1].split(',').filter((s) => s.trim()).map(Number);
+  const data = bytes.slice(hstart + hlen);
+  const arr = descr === '<f4' ? new Float32Array(data.buffer) : descr === '<f8' ? new Float64Array(data.buffer) : null;
+  if (!arr) throw new Error(`unsupported dtype ${descr}`);
+  return { shape, data: arr };
+}
+
+async function loadNpz(file) {
+  const z = await readZip(await file.arrayBuffer());
+  const get = (k) => { if (!z[`${k}.npy`]) throw new Error(`${file.name}: no '${k}' array`); return readNpy(z[`${k}.npy`]); };
+  const poses = get('poses'), trans = get('trans'), expr = get('expressions');
+  const T = poses.shape[0];
+  return Array.from({ length: T }, (_, t) => ({
+    index: t, time_s: t / 30,
+    poses: poses.data.subarray(165 * t, 165 * t + 165),
+    trans: trans.data.subarray(3 * t, 3 * t + 3),
+    expressions: expr.data.subarray(100 * t, 100 * t + 100),
+  }));
+}
+
+// BVH written by `livegesture generate -o x.bvh` (or any BVH on the same joint names; centimetres)
+async function loadBvh(file) {
+  const text = await file.text();
+  const [head, motion] = text.split(/^MOTION\s*$/m);
+  const joints = [];
+  const re = /(ROOT|JOINT)\s+(\S+)[\s\S]*?CHANNELS\s+(\d+)\s+([^\n]+)/g;
+  let m;
+  while ((m = re.exec(head))) joints.push({ name: m[2], channels: m[4].trim().split(/\s+/) });
+  const lines = motion.trim().split('\n');
+  const frameTime = parseFloat(lines[1].split(':')[1]);
+  const idx = joints.map((j) => SK.names.indexOf(j.name));
+  const frames = [];
+  const q = new THREE.Quaternion(), e = new THREE.Euler();
+  for (let t = 0; t + 2 < lines.length; t++) {
+    const v = lines[t + 2].trim().split(/\s+/).map(Number);
+    const poses = new Float32Array(165), trans = new Float32Array(3);
+    let k = 0;
+    joints.forEach((j, ji) => {
+      const ang = {};
+      for (const c of j.channels) {
+        const x = v[k++];
+        if (c.endsWith('position')) trans['XYZ'.indexOf(c[0])] = x / 100 - SK.offsets[0]['XYZ'.indexOf(c[0])];
+        else ang[c[0]] = (x * Math.PI) / 180;
+      }
+      const order = j.channels.filter((c) => c.endsWith('rotation')).map((c) => c[0]).join('');
+      e.set(ang.X || 0, ang.Y || 0, ang.Z || 0, order);
+      q.setFromEuler(e);
+      const s = Math.sqrt(Math.max(0, 1 - q.w * q.w));
+      const a = 2 * Math.acos(Math.min(1, Math.max(-1, q.w)));
+      const jj = idx[ji];
+      if (jj >= 0 && s > 1e-9) { poses[3 * jj] = (q.x / s) * a; poses[3 * jj + 1] = (q.y / s) * a; poses[3 * jj + 2] = (q.z / s) * a; }
+    });
+    frames.push({ index: t, time_s: t * frameTime, poses, trans, expressions: new Float32Array(100) });
+  }
+  return frames;
+}
+
+let fileFrames = null;
+async function loadMotion(file) {
+  try {
+    fileFrames = file.name.toLowerCase().endsWith('.bvh') ? await loadBvh(file) : await loadNpz(file);
+    setStatus(`file: ${fileFrames.length} frames`, 'idle');
+    first = null; state.moved = 0;
+    showFrame(fileFrames[0]);
+    $('playFile').disabled = false;
+  } catch (e) {
+    state.error = String(e); setStatus(`file: ${e.message || e}`, 'error');
+  }
+}
+
+function playFile() {
+  if (!fileFrames) return;
+  const audioFile = $('motionAudio').files[0];
+  let audio = null;
+  if (audioFile) { audio = new Audio(URL.createObjectURL(audioFile)); audio.play(); }
+  const t0 = performance.now();
+  const tick = () => {
+    const t = audio ? audio.currentTime : (performance.now() - t0) / 1000;
+    const i = Math.min(fileFrames.length - 1, Math.floor(t * 30));
+    showFrame(fileFrames[i]);
+    state.frames = i + 1;
+    $('frames').textContent = `${i + 1} / ${fileFrames.length}`;
+    if (i < fileFrames.length - 1 && !(audio && audio.ended)) requestAnimationFrame(tick);
+  };
+  tick();
+}
+
+// ------------------------------------------------------------------------------------------ start
+
+async function main() {
+  initView();
+  initFace();
+  SK = await (await fetch('/skeleton.json')).json();
+  showFrame({ index: 0, time_s: 0, poses: new Float32Array(165), trans: new Float32Array(3), expressions: new Float32Array(100) });
+  first = null;
+  render();
+  $('mic').onclick = startMic;
+  $('stop').onclick = endSession;
+  $('wav').onchange = (e) => e.target.files[0] && playWav(e.target.files[0]);
+  $('motion').onchange = (e) => e.target.files[0] && loadMotion(e.target.files[0]);
+  $('playFile').onclick = playFile;
+  state.ready = true;
+}
+
+main().catch((e) => { state.error = String(e); setStatus(`error: ${e.message || e}`, 'error'); });

@@ -1,0 +1,22 @@
+import { defineConfig } from 'vite';
+
+// Fixed file names: the binary embeds dist/index.html, dist/assets/app.js and dist/worklet.js by name
+// (runtime/src/serve/web.rs), so a rebuild only changes their contents.
+export default defineConfig({
+  base: '/',
+  build: {
+    outDir: 'dist',
+    emptyOutDir: true,
+    assetsInlineLimit: 0,
+    chunkSizeWarningLimit: 800, // three.js is most of app.js
+    modulePreload: { polyfill: false },
+    rollupOptions: {
+      output: {
+        entryFileNames: 'assets/app.js',
+        chunkFileNames: 'assets/[name].js',
+        assetFileNames: 'assets/[name][extname]',
+        inlineDynamicImports: true,
+      },
+    },
+  },
+});
