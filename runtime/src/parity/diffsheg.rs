@@ -597,12 +597,7 @@ fn graph_calls(
     backends: &[(BackendKind, Box<dyn Backend>)],
     rows: &mut Vec<Row>,
 ) -> Result<(), ReferenceError> {
-    let rel = spec
-        .reference
-        .clone()
-        .unwrap_or_else(|| format!("reference/{}.npz", spec.name));
-    let path = bundle.path(&rel);
-    let refv = ReferenceVectors::load(&path)?;
+    let (path, refv) = super::graphs::graph_reference(bundle, spec)?;
     let mut calls = 0;
     while refv
         .get(&format!("call{calls}.input.{}", spec.inputs[0].name))

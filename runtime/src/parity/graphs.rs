@@ -34,18 +34,27 @@ pub(super) fn chain_graph(
     Ok(all)
 }
 
-pub(super) fn graph_rows(
+/// A graph's reference vectors (`graphs[i].reference`, else `reference/<graph>.npz`) and their path.
+pub(super) fn graph_reference(
     bundle: &Bundle,
     spec: &GraphSpec,
-    backends: &[(BackendKind, Box<dyn Backend>)],
-    rows: &mut Vec<Row>,
-) -> Result<(), ReferenceError> {
+) -> Result<(PathBuf, ReferenceVectors), ReferenceError> {
     let rel = spec
         .reference
         .clone()
         .unwrap_or_else(|| format!("reference/{}.npz", spec.name));
     let path = bundle.path(&rel);
     let refv = ReferenceVectors::load(&path)?;
+    Ok((path, refv))
+}
+
+pub(super) fn graph_rows(
+    bundle: &Bundle,
+    spec: &GraphSpec,
+    backends: &[(BackendKind, Box<dyn Backend>)],
+    rows: &mut Vec<Row>,
+) -> Result<(), ReferenceError> {
+    let (path, refv) = graph_reference(bundle, spec)?;
     let n_steps = refv.scalar("n_steps")?;
     if n_steps < 1 {
         return Err(ref_err(&path, format!("n_steps is {n_steps}")));
