@@ -28,6 +28,7 @@ Public API: ``N_JOINTS``, ``PARENTS``, ``JOINT_NAMES``, ``REST_OFFSETS``, ``rest
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 N_JOINTS = 55
 
@@ -101,25 +102,16 @@ REST_OFFSETS.setflags(write=False)
 
 def rest_joints() -> np.ndarray:
     """(55, 3) joint positions of the rest pose with ``trans = 0``."""
-    out = np.zeros((N_JOINTS, 3))
-    for j in range(N_JOINTS):
-        p = PARENTS[j]
-        out[j] = REST_OFFSETS[j] if p < 0 else out[p] + REST_OFFSETS[j]
-    return out
+    return forward_kinematics(np.zeros(3 * N_JOINTS))
 
 
 def axis_angle_to_matrix_np(aa: np.ndarray) -> np.ndarray:
-    """(..., 3) axis-angle -> (..., 3, 3) rotation matrices (Rodrigues, float64, series near 0)."""
+    """(..., 3) axis-angle -> (..., 3, 3) rotation matrices, float64 (scipy's ``Rotation.from_rotvec``)."""
     aa = np.asarray(aa, dtype=np.float64)
-    theta2 = (aa * aa).sum(-1)[..., None, None]
-    theta = np.sqrt(np.maximum(theta2, 1e-24))
-    small = theta2 < 1e-8
-    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(theta) / theta)
-    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(theta)) / np.maximum(theta2, 1e-24))
-    x, y, z = aa[..., 0], aa[..., 1], aa[..., 2]
-    zero = np.zeros_like(x)
-    K = np.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(aa.shape[:-1] + (3, 3))
-    return np.eye(3) + a * K + b * (K @ K)
+    flat = aa.reshape(-1, 3)
+    if len(flat) == 0:
+        return np.zeros(aa.shape[:-1] + (3, 3))
+    return Rotation.from_rotvec(flat).as_matrix().reshape(aa.shape[:-1] + (3, 3))
 
 
 def _check(poses, trans):
@@ -127,6 +119,24 @@ def _check(poses, trans):
         raise ValueError(f"forward_kinematics: poses must end in {3 * N_JOINTS}, got {poses.shape}")
     if trans.shape[-1] != 3 or trans.shape[:-1] != poses.shape[:-1]:
         raise ValueError(f"forward_kinematics: trans {trans.shape} does not match poses {poses.shape}")
+
+
+def _chain(R, trans, offsets, stack):
+    """The kinematic chain, written once for numpy and torch: local rotations R (..., 55, 3, 3), trans
+    (..., 3), rest offsets (55, 3) -> (joints (..., 55, 3), global rotations (..., 55, 3, 3)), with
+    ``global_rot[j] = global_rot[parent] @ R[j]`` and ``joint[j] = joint[parent] + global_rot[parent] @
+    offset[j]`` (the root at ``trans + offset[0]``). ``stack(list, axis)`` joins the per-joint arrays."""
+    G: list = [None] * N_JOINTS
+    J: list = [None] * N_JOINTS
+    for j in range(N_JOINTS):
+        p = PARENTS[j]
+        if p < 0:
+            G[j] = R[..., j, :, :]
+            J[j] = trans + offsets[j]
+        else:
+            G[j] = G[p] @ R[..., j, :, :]
+            J[j] = J[p] + G[p] @ offsets[j]
+    return stack(J, -2), stack(G, -3)
 
 
 def forward_kinematics(poses: np.ndarray, trans: np.ndarray | None = None,
@@ -140,22 +150,13 @@ def forward_kinematics(poses: np.ndarray, trans: np.ndarray | None = None,
     trans = np.zeros(poses.shape[:-1] + (3,)) if trans is None else np.asarray(trans, dtype=np.float64)
     _check(poses, trans)
     R = axis_angle_to_matrix_np(poses.reshape(poses.shape[:-1] + (N_JOINTS, 3)))
-    G = np.empty_like(R)
-    J = np.empty(poses.shape[:-1] + (N_JOINTS, 3))
-    for j in range(N_JOINTS):
-        p = PARENTS[j]
-        if p < 0:
-            G[..., j, :, :] = R[..., j, :, :]
-            J[..., j, :] = trans + REST_OFFSETS[j]
-        else:
-            G[..., j, :, :] = G[..., p, :, :] @ R[..., j, :, :]
-            J[..., j, :] = J[..., p, :] + G[..., p, :, :] @ REST_OFFSETS[j]
+    J, G = _chain(R, trans, REST_OFFSETS, lambda xs, axis: np.stack(xs, axis=axis))
     return (J, G) if return_rotations else J
 
 
 def forward_kinematics_torch(poses, trans=None):
-    """Differentiable torch version of :func:`forward_kinematics`: (..., 165), (..., 3) -> (..., 55, 3),
-    in the dtype and on the device of ``poses``."""
+    """Differentiable torch version of :func:`forward_kinematics` (the same chain):
+    (..., 165), (..., 3) -> (..., 55, 3), in the dtype and on the device of ``poses``."""
     import torch
 
     from .rotation import axis_angle_to_matrix
@@ -165,14 +166,5 @@ def forward_kinematics_torch(poses, trans=None):
     _check(poses, trans)
     R = axis_angle_to_matrix(poses.reshape(poses.shape[:-1] + (N_JOINTS, 3)))
     off = torch.as_tensor(np.array(REST_OFFSETS), dtype=poses.dtype, device=poses.device)
-    G: list = [None] * N_JOINTS
-    J: list = [None] * N_JOINTS
-    for j in range(N_JOINTS):
-        p = PARENTS[j]
-        if p < 0:
-            G[j] = R[..., j, :, :]
-            J[j] = trans + off[j]
-        else:
-            G[j] = G[p] @ R[..., j, :, :]
-            J[j] = J[p] + (G[p] @ off[j][:, None])[..., 0]
-    return torch.stack(J, dim=-2)
+    J, _ = _chain(R, trans, off, lambda xs, axis: torch.stack(xs, dim=axis))
+    return J

@@ -23,7 +23,8 @@ voice and per-phrase rate/pitch/amplitude jitter, pauses between phrases and sen
 long pauses), resampled 22050 -> 16000 Hz, a random spectral tilt and a low noise floor.
 
 Motion, 30 fps, computed from an analysis of the final 16 kHz audio (:func:`analyse_audio`: RMS energy
-envelope, spectral-flux onsets picked like ``librosa.onset.onset_detect``, autocorrelation pitch).
+envelope, spectral-flux onsets picked like ``librosa.onset.onset_detect``: the project's onset detector
+:func:`livegesture.onsets.detect_onsets` with :data:`~livegesture.onsets.SYNTH_ONSETS`, autocorrelation pitch).
 Everything audio-driven is causal: an onset at time t only changes frames at or after t.
 
 - arm strokes at stressed onsets: shoulder/elbow/wrist kernels ``(u^2) exp(2 (1 - u))``, ``u = (t - t0)
@@ -62,7 +63,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
+from ..onsets import SYNTH_ONSETS, detect_onsets
 from ..regions import FPS, N_EXPRESSIONS, N_JOINTS, SAMPLE_RATE
 from ..skeleton import REST_OFFSETS, axis_angle_to_matrix_np
 
@@ -378,7 +381,7 @@ def synth_speech(plan: ClipPlan, style: Style, rng: np.random.Generator, tmp: Pa
 
 # ----------------------------------------------------------------------------- audio analysis
 
-HOP = 160          # 10 ms analysis hop
+HOP = SYNTH_ONSETS.hop   # 10 ms analysis hop (160 samples), the onset detector's
 ANALYSIS_RATE = SAMPLE_RATE / HOP
 
 
@@ -402,18 +405,12 @@ def _frames(x: np.ndarray, win: int, hop: int) -> np.ndarray:
     return pad[idx]
 
 
-def _mel_fb(n_fft: int, n_mels: int, sr: int) -> np.ndarray:
-    from ..frontend import FrontendConfig, mel_filterbank
-    return mel_filterbank(FrontendConfig(sample_rate=sr, n_fft=n_fft, n_mels=n_mels, f_max=sr / 2))
-
-
 def analyse_audio(audio: np.ndarray, sr: int = SAMPLE_RATE) -> AudioAnalysis:
     """Energy envelope, speech activity, spectral-flux onsets and autocorrelation pitch of a clip."""
     x = np.asarray(audio, dtype=np.float64)
     if sr != SAMPLE_RATE:
         raise ValueError("analyse_audio expects 16 kHz audio")
-    win, n_fft = 400, 512
-    fr = _frames(x, win, HOP)
+    fr = _frames(x, SYNTH_ONSETS.win_length, HOP)
     n = len(fr)
     times = np.arange(n) * HOP / sr
     rms = np.sqrt((fr ** 2).mean(1) + 1e-12)
@@ -428,29 +425,9 @@ def analyse_audio(audio: np.ndarray, sr: int = SAMPLE_RATE) -> AudioAnalysis:
         if act_raw[i]:
             last = i
         active[i] = i - last <= 15
-    # spectral flux on a log-mel spectrogram (librosa.onset.onset_strength-like)
-    spec = np.abs(np.fft.rfft(fr * np.hanning(win + 2)[1:-1], n=n_fft, axis=1)) ** 2
-    mel = spec @ _mel_fb(n_fft, 40, sr).T
-    S = 10 * np.log10(np.maximum(mel, 1e-10))
-    S = np.maximum(S, S.max() - 80.0)
-    flux = np.zeros(n)
-    flux[1:] = np.maximum(0.0, S[1:] - S[:-1]).mean(1)
-    oe = flux - flux.min()
-    oe = np.clip(oe / (np.percentile(oe, 99.5) + 1e-9), 0.0, 1.0)
-    # peak picking (librosa defaults at 100 Hz: pre_max 3, post_max 1, pre/post avg 10/11, delta .07, wait 3)
-    onsets = []
-    for i in range(1, n):
-        lo, hi = max(0, i - 3), min(n, i + 2)
-        if oe[i] < oe[lo:hi].max() or oe[i] <= 0:
-            continue
-        if oe[i] < oe[max(0, i - 10):min(n, i + 12)].mean() + 0.07:
-            continue
-        if onsets and i - onsets[-1] <= 3:
-            continue
-        if not active[i]:
-            continue
-        onsets.append(i)
-    onsets = np.asarray(onsets, dtype=np.int64)
+    # onsets: the project's onset detector with the corpus settings, only where speech is active
+    on = detect_onsets(x, sr, SYNTH_ONSETS, gate=active)
+    oe, onsets = on.envelope, on.frames
     # pitch: normalised autocorrelation over 40 ms on active frames
     f0 = np.zeros(n)
     pw, nfft_p = 640, 1024
@@ -486,32 +463,28 @@ def onset_times(audio: np.ndarray, sr: int = SAMPLE_RATE) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- motion helpers
 
+def _rot(axes: str, *angles) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of intrinsic rotations about ``axes`` (upper case, e.g. ``"XYZ"``:
+    ``Rx(a) @ Ry(b) @ Rz(c)``) by the broadcast angle arrays, via scipy's ``Rotation.from_euler``."""
+    ang = np.stack(np.broadcast_arrays(*[np.asarray(x, dtype=np.float64) for x in angles]), -1)
+    flat = ang.reshape(-1, len(axes))
+    return Rotation.from_euler(axes, flat).as_matrix().reshape(ang.shape[:-1] + (3, 3))
+
+
 def _rx(a):
-    c, s = np.cos(a), np.sin(a)
-    R = np.zeros(np.shape(a) + (3, 3))
-    R[..., 0, 0] = 1
-    R[..., 1, 1], R[..., 1, 2], R[..., 2, 1], R[..., 2, 2] = c, -s, s, c
-    return R
+    return _rot("X", a)
 
 
 def _ry(a):
-    c, s = np.cos(a), np.sin(a)
-    R = np.zeros(np.shape(a) + (3, 3))
-    R[..., 1, 1] = 1
-    R[..., 0, 0], R[..., 0, 2], R[..., 2, 0], R[..., 2, 2] = c, s, -s, c
-    return R
+    return _rot("Y", a)
 
 
 def _rz(a):
-    c, s = np.cos(a), np.sin(a)
-    R = np.zeros(np.shape(a) + (3, 3))
-    R[..., 2, 2] = 1
-    R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1] = c, -s, s, c
-    return R
+    return _rot("Z", a)
 
 
 def _euler(x, y, z):
-    return _rx(x) @ _ry(y) @ _rz(z)
+    return _rot("XYZ", x, y, z)
 
 
 _MIRROR = np.outer([-1.0, 1.0, 1.0], [-1.0, 1.0, 1.0])  # M R M for the mirror x -> -x
@@ -798,10 +771,7 @@ def generate_motion(analysis: AudioAnalysis, n_frames: int, style: Style, rng: n
     pelvis_R, trans = _lower_body(T, a, style, rng, act, breath, R)
     R[:, 0] = pelvis_R
 
-    from ..rotation import matrix_to_axis_angle
-    import torch
-
-    aa = matrix_to_axis_angle(torch.from_numpy(R)).numpy()
+    aa = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(T, N_JOINTS, 3)
     aa[:, 23:25] = 0.0
     poses = aa.reshape(T, 3 * N_JOINTS)
     return poses.astype(np.float32), trans.astype(np.float32), expr.astype(np.float32)

@@ -59,7 +59,6 @@ Face error
 """
 from __future__ import annotations
 
-import math
 import warnings
 from typing import Callable, Iterable, Sequence
 
@@ -67,6 +66,8 @@ import numpy as np
 from scipy import linalg
 from scipy.signal import argrelextrema
 
+from ..onsets import detect_onsets as _detect_onsets
+from ..onsets import eval_onset_params, peak_pick, spectral_flux
 from ..regions import FPS, JAW_JOINT, UPPER_JOINTS
 
 SIGMA_S = 0.3             # BC temporal tolerance (seconds)
@@ -172,17 +173,11 @@ def motion_beats(joints: np.ndarray, fps: float = FPS, joint_ids: Sequence[int] 
 
 # ============================================================================ audio onsets
 
-def _mel_fb(sr: int, n_fft: int, n_mels: int) -> np.ndarray:
-    from ..frontend import FrontendConfig, mel_filterbank
-    cfg = FrontendConfig(sample_rate=int(sr), n_fft=n_fft, win_length=n_fft, n_mels=n_mels,
-                         f_min=0.0, f_max=sr / 2.0)
-    return mel_filterbank(cfg)
-
-
 def onset_strength(audio: np.ndarray, sample_rate: int, hop_s: float = 0.01, win_s: float = 0.032,
                    n_mels: int = 64, log_gain: float | None = 1000.0,
                    top_db: float = 80.0) -> tuple[np.ndarray, np.ndarray]:
-    """Spectral-flux onset envelope. Returns (envelope (F,), frame times (F,) in seconds).
+    """Spectral-flux onset envelope (not normalised) of :func:`detect_onsets`. Returns (envelope (F,), frame
+    times (F,) in seconds); the settings are :func:`livegesture.onsets.eval_onset_params`'s.
 
     Centred STFT (zero padding of half a window at both ends), periodic Hann window of ``win_s`` (rounded
     to a power of two in samples), hop ``hop_s``; power spectrum -> mel -> log compression
@@ -192,82 +187,40 @@ def onset_strength(audio: np.ndarray, sample_rate: int, hop_s: float = 0.01, win
     Flux = mean over mel bands of the half-wave rectified first difference (lag 1 frame).
     Frame n's flux is the change between frames n-1 and n, stamped at the midpoint of their centres.
     """
-    x = np.asarray(audio, dtype=np.float64)
-    if x.ndim == 2:  # (n, channels) -> mono
-        x = x.mean(axis=1)
-    sr = int(sample_rate)
-    hop = max(1, int(round(hop_s * sr)))
-    n_fft = 1 << max(4, int(round(math.log2(max(16, win_s * sr)))))
-    n_frames = 1 + len(x) // hop
-    if len(x) == 0:
+    if len(audio) == 0:
         return np.zeros(0), np.zeros(0)
-    xp = np.concatenate([np.zeros(n_fft // 2), x, np.zeros(n_fft // 2 + hop)])
-    win = 0.5 - 0.5 * np.cos(2.0 * np.pi * np.arange(n_fft) / n_fft)
-    fb = _mel_fb(sr, n_fft, n_mels)
-    mel = np.empty((n_frames, n_mels))
-    block = 4096
-    for b0 in range(0, n_frames, block):
-        b1 = min(n_frames, b0 + block)
-        idx = (np.arange(b0, b1) * hop)[:, None] + np.arange(n_fft)[None, :]
-        spec = np.fft.rfft(xp[idx] * win, axis=-1)
-        mel[b0:b1] = (spec.real ** 2 + spec.imag ** 2) @ fb.T
-    if log_gain is None:
-        db = 10.0 * np.log10(np.maximum(mel, 1e-10))
-        db = np.maximum(db, db.max() - top_db)
-    else:
-        db = np.log1p(log_gain * mel / max(mel.max(), 1e-20))
-    flux = np.zeros(n_frames)
-    flux[1:] = np.maximum(0.0, db[1:] - db[:-1]).mean(axis=1)
-    times = (np.arange(n_frames) - 0.5) * hop / sr
+    p = eval_onset_params(sample_rate, hop_s=hop_s, win_s=win_s, log_gain=log_gain, n_mels=n_mels,
+                          top_db=top_db)
+    flux = spectral_flux(audio, sample_rate, p)
+    return flux, _flux_times(len(flux), p.hop, sample_rate)
+
+
+def _flux_times(n: int, hop: int, sample_rate: int) -> np.ndarray:
+    """Frame n's flux stamped between the centres of frames n-1 and n (frame 0 at 0 s)."""
+    times = (np.arange(n) - 0.5) * hop / int(sample_rate)
     times[0] = 0.0
-    return flux, times
-
-
-def peak_pick(env: np.ndarray, pre_max: int, post_max: int, pre_avg: int, post_avg: int, delta: float,
-              wait: int) -> np.ndarray:
-    """librosa-style peak picking: n is a peak when ``env[n] == max(env[n-pre_max : n+post_max+1])``,
-    ``env[n] >= mean(env[n-pre_avg : n+post_avg+1]) + delta`` and n is at least ``wait`` frames after the
-    previous peak."""
-    env = np.asarray(env, dtype=np.float64)
-    N = len(env)
-    if N == 0:
-        return np.zeros(0, dtype=np.int64)
-    n = np.arange(N)
-    # running max over [n - pre_max, n + post_max] (clipped to the signal)
-    padded = np.concatenate([np.full(pre_max, -np.inf), env, np.full(post_max, -np.inf)])
-    mx = np.lib.stride_tricks.sliding_window_view(padded, pre_max + post_max + 1).max(axis=1)
-    # running mean over [n - pre_avg, n + post_avg] (clipped to the signal)
-    c = np.concatenate([[0.0], np.cumsum(env)])
-    lo, hi = np.maximum(0, n - pre_avg), np.minimum(N, n + post_avg + 1)
-    avg = (c[hi] - c[lo]) / (hi - lo)
-    cand = np.nonzero((env >= mx) & (env > 0) & (env >= avg + delta))[0]
-    peaks = []
-    last = -np.inf
-    for i in cand:
-        if i - last >= wait:
-            peaks.append(i)
-            last = i
-    return np.asarray(peaks, dtype=np.int64)
+    return times
 
 
 def detect_onsets(audio: np.ndarray, sample_rate: int, hop_s: float = 0.01, win_s: float = 0.032,
                   delta: float = 0.07, wait_s: float = 0.1, pre_max_s: float = 0.03,
                   post_max_s: float = 0.03, pre_avg_s: float = 0.1, post_avg_s: float = 0.1,
                   log_gain: float | None = 1000.0) -> np.ndarray:
-    """Audio beats: onset times in seconds (sorted).
+    """Audio beats: onset times in seconds (sorted), the project's one onset detector
+    (:func:`livegesture.onsets.detect_onsets`) with the Beat Constancy settings
+    (:func:`livegesture.onsets.eval_onset_params`).
 
     The envelope of :func:`onset_strength` is normalised to [0, 1] (minus min, over max, as librosa's
     ``onset_detect``), then peak-picked with :func:`peak_pick` (librosa's defaults, a 30 ms max window on
     both sides, and a 100 ms refractory ``wait`` so that one syllable onset is one beat).
     """
-    env, times = onset_strength(audio, sample_rate, hop_s=hop_s, win_s=win_s, log_gain=log_gain)
-    if len(env) == 0 or env.max() - env.min() <= 0:
+    if len(audio) == 0:
         return np.zeros(0)
-    env = (env - env.min()) / (env.max() - env.min())
-    hop = max(1, int(round(hop_s * sample_rate))) / sample_rate
-    f = lambda s: max(0, int(round(s / hop)))  # noqa: E731
-    peaks = peak_pick(env, f(pre_max_s), f(post_max_s), f(pre_avg_s), f(post_avg_s), delta, max(1, f(wait_s)))
-    return times[peaks]
+    p = eval_onset_params(sample_rate, hop_s=hop_s, win_s=win_s, delta=delta, wait_s=wait_s,
+                          pre_max_s=pre_max_s, post_max_s=post_max_s, pre_avg_s=pre_avg_s,
+                          post_avg_s=post_avg_s, log_gain=log_gain)
+    on = _detect_onsets(audio, sample_rate, p)
+    return _flux_times(len(on.envelope), p.hop, sample_rate)[on.frames]
 
 
 # ============================================================================ Beat Constancy
