@@ -26,7 +26,6 @@ from livegesture.diffsheg.denoiser import EXP_DIM, GES_DIM, MOTION_DIM
 from livegesture.diffsheg.foppas import SamplerOptions, TorchBackend, generate_clip, plan_windows
 from livegesture.diffsheg.model import DiffSHEG, motion_layout
 from livegesture.frontend import logmel
-from livegesture.regions import region_layout
 
 from verify import ExportCheckError
 
@@ -210,7 +209,7 @@ def rollout_audio(clip: np.ndarray, cfg, windows: int) -> tuple[np.ndarray, int]
 
 def build(model: DiffSHEG, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_tokens, log,
           rollout_windows: int = 5) -> dict:
-    from export import OPSET as _OP, SCHEMA_VERSION, export_provenance, file_table, reference_audio, write_manifest, write_wav
+    from export import OPSET as _OP, export_provenance, file_table, manifest_head, reference_audio, write_manifest, write_wav
     assert _OP == OPSET
     cfg = model.cfg
     if rollout_windows < 4:
@@ -291,19 +290,10 @@ def build(model: DiffSHEG, tmp: Path, *, provenance, reference_wav, ref_seconds,
     ab = schedule.alphas_cumprod(cfg.diffusion_steps, cfg.beta_start, cfg.beta_end)
     taus = schedule.ddim_timesteps(opts.steps, cfg.diffusion_steps)
     manifest = {
-        "schema_version": SCHEMA_VERSION,
-        "format": "livegesture-bundle",
-        "family": "diffsheg",
-        "model": {"name": "DiffSHEG", "config_name": cfg.name, "config": cfg.to_dict(),
-                  "parameters": {g: int(sum(p.numel() for p in c.parameters())) for g, c in model.components().items()}},
-        "rates": {"sample_rate": cfg.frontend.sample_rate, "fps": cfg.frontend.fps,
-                  "frames_per_token": cfg.frontend.frames_per_token,
-                  "mel_frames_per_token": cfg.frontend.mel_frames_per_token,
-                  "mel_frames_per_frame": cfg.frontend.mel_frames_per_token // cfg.frontend.frames_per_token,
-                  "frame_start_sample": "k * sample_rate // fps",
-                  "frames_for_samples": "(n_samples * fps + sample_rate - 1) // sample_rate"},
-        "frontend": cfg.frontend.to_dict(),
-        "regions": region_layout(),
+        **manifest_head("diffsheg", "DiffSHEG", cfg, model, {
+            "mel_frames_per_frame": cfg.frontend.mel_frames_per_token // cfg.frontend.frames_per_token,
+            "frame_start_sample": "k * sample_rate // fps",
+            "frames_for_samples": "(n_samples * fps + sample_rate - 1) // sample_rate"}),
         "motion": {
             "dim": MOTION_DIM, "layout": motion_layout(),
             "gesture_branch": {"offset": 0, "dim": GES_DIM}, "expression_branch": {"offset": GES_DIM, "dim": EXP_DIM},

@@ -58,6 +58,24 @@ def sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+def manifest_head(family: str, name: str, cfg, model, rates: dict) -> dict:
+    """The manifest's first keys, the same for every family: schema, format, family, model (config and
+    parameter counts per graph component), rates (the frontend's sample rate, fps and token sizes, then the
+    family's own ``rates``), frontend, regions."""
+    f = cfg.frontend
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "format": "livegesture-bundle",
+        "family": family,
+        "model": {"name": name, "config_name": cfg.name, "config": cfg.to_dict(),
+                  "parameters": {g: int(sum(p.numel() for p in c.parameters())) for g, c in model.components().items()}},
+        "rates": {"sample_rate": f.sample_rate, "fps": f.fps, "frames_per_token": f.frames_per_token,
+                  "mel_frames_per_token": f.mel_frames_per_token, **rates},
+        "frontend": f.to_dict(),
+        "regions": region_layout(),
+    }
+
+
 def cache_entries(comp) -> list[dict]:
     return [{"name": s.name, "input": f"cache.{s.name}", "output": f"new_cache.{s.name}", "dtype": s.dtype,
              "shape": ["batch", *s.shape], "init": s.init} for s in comp.cache_specs()]
@@ -228,18 +246,9 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
 
     files.update(file_table(tmp))
     manifest = {
-        "schema_version": SCHEMA_VERSION,
-        "format": "livegesture-bundle",
-        "family": "livegesture",
-        "model": {"name": "LiveGesture", "config_name": cfg.name, "config": cfg.to_dict(),
-                  "parameters": {g: int(sum(p.numel() for p in c.parameters())) for g, c in model.components().items()}},
-        "rates": {"sample_rate": cfg.frontend.sample_rate, "fps": cfg.frontend.fps,
-                  "frames_per_token": cfg.frontend.frames_per_token,
-                  "mel_frames_per_token": cfg.frontend.mel_frames_per_token,
-                  "tokens_per_second": cfg.frontend.fps / cfg.frontend.frames_per_token,
-                  "frame_start_sample": "k * sample_rate // fps"},
-        "frontend": cfg.frontend.to_dict(),
-        "regions": region_layout(),
+        **manifest_head("livegesture", "LiveGesture", cfg, model, {
+            "tokens_per_second": cfg.frontend.fps / cfg.frontend.frames_per_token,
+            "frame_start_sample": "k * sample_rate // fps"}),
         "vocab": {"codebook_size": cfg.codebook_size, "bos_token": cfg.bos_token, "mask_token": cfg.mask_token},
         "graphs": graphs,
         "pipeline": {
