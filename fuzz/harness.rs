@@ -8,6 +8,10 @@ use std::io::Write;
 
 use livegesture::audio::{RawFormat, RawPcmDecoder, RawPcmStream, WavStream};
 use livegesture::bundle::parse_manifest;
+#[cfg(feature = "serve")]
+use livegesture::serve::protocol::{
+    SessionInput, SessionParams, CLOSE_INTERNAL, CLOSE_INVALID, CLOSE_UNSUPPORTED,
+};
 
 /// The WAV reader: the bytes as a `.wav` file, read to the end through [`WavStream`] (header probe,
 /// hound, mono mix, resampling to 16 kHz).
@@ -63,5 +67,78 @@ pub fn manifest(data: &[u8]) {
     };
     if let Ok(m) = parse_manifest(text, std::path::Path::new("fuzz/manifest.json")) {
         let _ = m.check();
+    }
+}
+
+/// The serve protocol (SPEC 12), everything a session does with a client's bytes: the input's first
+/// line is the query string of `GET /v1/stream`, parsed as the server parses it (axum's `Query`,
+/// then [`SessionParams::parse`]); the rest is a sequence of client messages for [`SessionInput`],
+/// each a header byte (`% 3`: 0 binary PCM, 1 text, 2 the server starting to drain, no payload)
+/// and, for binary and text, a 2-byte little-endian length and the payload, until a message is
+/// refused (the session closes). Beyond not panicking it checks that a refusal carries one of the
+/// protocol's close codes and that at `{"type":"end"}` the 16 kHz output has exactly
+/// `floor(frames * 16000 / rate)` samples (the resampler's promise, SPEC 8).
+#[cfg(feature = "serve")]
+pub fn serve_protocol(data: &[u8]) {
+    use axum::extract::Query;
+
+    let (query, mut rest) = match data.iter().position(|&b| b == b'\n') {
+        Some(i) => (&data[..i], &data[i + 1..]),
+        None => (data, &[][..]),
+    };
+    let Ok(query) = std::str::from_utf8(query) else {
+        return;
+    };
+    let Ok(uri) = format!("/v1/stream?{query}").parse::<axum::http::Uri>() else {
+        return;
+    };
+    let Ok(Query(pairs)) = Query::<Vec<(String, String)>>::try_from_uri(&uri) else {
+        return;
+    };
+    let Ok(params) = SessionParams::parse(&pairs) else {
+        return;
+    };
+    let mut input = SessionInput::new(&params, "fuzz".into())
+        .unwrap_or_else(|e| panic!("validated parameters {params:?} make no session: {e}"));
+    let mut out: u64 = 0;
+    while let [head, tail @ ..] = rest {
+        if head % 3 == 2 {
+            input.drain();
+            rest = tail;
+            continue;
+        }
+        let [l0, l1, tail @ ..] = tail else {
+            return;
+        };
+        let n = usize::from(u16::from_le_bytes([*l0, *l1])).min(tail.len());
+        let (msg, next) = tail.split_at(n);
+        rest = next;
+        let handled = if head % 3 == 0 {
+            input.binary(msg).map(|s16| out += s16.len() as u64)
+        } else {
+            // a WebSocket text message is UTF-8 (tungstenite refuses others before the session)
+            let Ok(text) = std::str::from_utf8(msg) else {
+                continue;
+            };
+            input.text(text).map(|end| {
+                out += end.tail.len() as u64;
+                let want = end.input.samples * 16_000 / u64::from(end.input.sample_rate);
+                assert_eq!(
+                    out, want,
+                    "{params:?}: {} input frames gave {out} samples at 16 kHz",
+                    end.input.samples
+                );
+            })
+        };
+        if let Err(r) = handled {
+            assert!(
+                [CLOSE_UNSUPPORTED, CLOSE_INVALID, CLOSE_INTERNAL].contains(&r.code),
+                "refusal with close code {}: {}",
+                r.code,
+                r.reason
+            );
+            assert!(!r.reason.is_empty(), "refusal {} without a reason", r.code);
+            return;
+        }
     }
 }

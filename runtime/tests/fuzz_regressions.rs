@@ -53,3 +53,9 @@ fn raw_pcm_inputs_are_refused_or_read() {
 fn manifest_inputs_are_refused_or_read() {
     replay("manifest", harness::manifest);
 }
+
+#[cfg(feature = "serve")]
+#[test]
+fn serve_protocol_inputs_are_refused_or_handled() {
+    replay("serve_protocol", harness::serve_protocol);
+}

@@ -1,6 +1,8 @@
-//! The wire protocol of SPEC section 12: query parameters, client messages, close codes.
+//! The wire protocol of SPEC section 12: query parameters, client messages, close codes, and
+//! [`SessionInput`], everything a session does with the bytes a client sends (no socket, no
+//! scheduler: the `serve_protocol` fuzz target drives it directly).
 
-use crate::audio::RawFormat;
+use crate::audio::{AudioSpan, RawFormat, RawPcmDecoder, Resampler16k};
 
 /// Close code: normal end after `{"type":"done"}`.
 pub const CLOSE_NORMAL: u16 = 1000;
@@ -174,6 +176,135 @@ pub fn parse_client_text(text: &str) -> Result<ClientText, (u16, String)> {
     }
 }
 
+/// A client message refused: the session closes with `code` and `reason`; `metric` is the
+/// refusal counter it increments (`None`: an internal error, not counted as a refusal).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Refusal {
+    pub code: u16,
+    pub metric: Option<&'static str>,
+    pub reason: String,
+}
+
+impl Refusal {
+    fn new(code: u16, metric: Option<&'static str>, reason: String) -> Self {
+        Self {
+            code,
+            metric,
+            reason,
+        }
+    }
+}
+
+/// A session's input side: decodes the client's binary PCM messages (samples and frames may straddle
+/// messages), resamples to 16 kHz and handles the text messages. Its 16 kHz output goes to the
+/// scheduler; a [`Refusal`] ends the session.
+#[derive(Debug)]
+pub struct SessionInput {
+    decoder: RawPcmDecoder,
+    resampler: Resampler16k,
+    rate: u32,
+    frame_bytes: u64,
+    in_bytes: u64,
+    ended: bool,
+}
+
+/// What the client's `{"type":"end"}` leaves: the last 16 kHz samples and the input received.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InputEnd {
+    /// The resampler's tail.
+    pub tail: Vec<f32>,
+    /// All input received, at the client's rate (it fixes the frame count, SPEC 8).
+    pub input: AudioSpan,
+}
+
+impl SessionInput {
+    /// The decoder and resampler for `params`; `origin` names the session in error messages. An
+    /// error here is internal (the parameters were validated by [`SessionParams::parse`]).
+    pub fn new(params: &SessionParams, origin: String) -> Result<Self, String> {
+        let decoder = RawPcmDecoder::new(params.format, params.channels, origin.clone())
+            .map_err(|e| e.to_string())?;
+        let resampler = Resampler16k::new(params.rate, origin).map_err(|e| e.to_string())?;
+        Ok(Self {
+            decoder,
+            resampler,
+            rate: params.rate,
+            frame_bytes: params.frame_bytes() as u64,
+            in_bytes: 0,
+            ended: false,
+        })
+    }
+
+    /// True after `{"type":"end"}` or [`SessionInput::drain`].
+    pub fn ended(&self) -> bool {
+        self.ended
+    }
+
+    /// The server is shutting down: no more input is taken (audio or `end` are refused with 1003).
+    pub fn drain(&mut self) {
+        self.ended = true;
+    }
+
+    /// A binary message: interleaved PCM. Returns the 16 kHz samples it completes (possibly none).
+    pub fn binary(&mut self, bytes: &[u8]) -> Result<Vec<f32>, Refusal> {
+        if self.ended {
+            return Err(Refusal::new(
+                CLOSE_UNSUPPORTED,
+                Some("unknown_message"),
+                "audio after {\"type\":\"end\"}".to_string(),
+            ));
+        }
+        self.in_bytes += bytes.len() as u64;
+        let mono = self.decoder.decode(bytes).map_err(|e| {
+            Refusal::new(
+                CLOSE_INVALID,
+                Some("malformed"),
+                format!("malformed audio: {e}"),
+            )
+        })?;
+        self.resampler
+            .push(&mono)
+            .map_err(|e| Refusal::new(CLOSE_INTERNAL, None, format!("{e}")))
+    }
+
+    /// A text message. `{"type":"end"}` ends the input: the decoder must hold no partial frame;
+    /// returns the resampler's tail and the input span. Anything else is refused.
+    pub fn text(&mut self, text: &str) -> Result<InputEnd, Refusal> {
+        match parse_client_text(text) {
+            Ok(ClientText::End) if !self.ended => {
+                self.decoder.finish().map_err(|e| {
+                    Refusal::new(
+                        CLOSE_INVALID,
+                        Some("malformed"),
+                        format!("malformed audio: {e}"),
+                    )
+                })?;
+                let tail = self
+                    .resampler
+                    .finish()
+                    .map_err(|e| Refusal::new(CLOSE_INTERNAL, None, format!("{e}")))?;
+                self.ended = true;
+                Ok(InputEnd {
+                    tail,
+                    input: AudioSpan::new(self.in_bytes / self.frame_bytes, self.rate),
+                })
+            }
+            Ok(ClientText::End) => Err(Refusal::new(
+                CLOSE_UNSUPPORTED,
+                Some("unknown_message"),
+                "a second {\"type\":\"end\"}".to_string(),
+            )),
+            Err((code, reason)) => {
+                let metric = if code == CLOSE_UNSUPPORTED {
+                    "unknown_message"
+                } else {
+                    "malformed"
+                };
+                Err(Refusal::new(code, Some(metric), reason))
+            }
+        }
+    }
+}
+
 /// `s` cut to at most `n` bytes on a character boundary.
 pub fn truncate(s: &str, n: usize) -> &str {
     if s.len() <= n {
@@ -245,5 +376,68 @@ mod tests {
             parse_client_text(r#"{"type":"pause"}"#).unwrap_err().0,
             CLOSE_UNSUPPORTED
         );
+    }
+
+    fn input(q_: &[(&str, &str)]) -> SessionInput {
+        SessionInput::new(&SessionParams::parse(&q(q_)).unwrap(), "test".into()).unwrap()
+    }
+
+    #[test]
+    fn session_input_split_samples_and_end() {
+        // 16 kHz s16le stereo: frames straddle messages; the mono mix passes through
+        let mut i = input(&[("channels", "2")]);
+        let pcm: Vec<u8> = [1000i16, 3000, -2000, 0, 16384, 16384]
+            .iter()
+            .flat_map(|s| s.to_le_bytes())
+            .collect();
+        let mut out = i.binary(&pcm[..3]).unwrap();
+        out.extend(i.binary(&pcm[3..9]).unwrap());
+        out.extend(i.binary(&pcm[9..]).unwrap());
+        assert_eq!(out, vec![2000.0 / 32768.0, -1000.0 / 32768.0, 0.5]);
+        let end = i.text(r#"{"type":"end"}"#).unwrap();
+        assert!(end.tail.is_empty());
+        assert_eq!(end.input, AudioSpan::new(3, 16000));
+        assert!(i.ended());
+        let r = i.binary(&[0, 0]).unwrap_err();
+        assert_eq!((r.code, r.metric), (CLOSE_UNSUPPORTED, Some("unknown_message")));
+        let r = i.text(r#"{"type":"end"}"#).unwrap_err();
+        assert_eq!((r.code, r.metric), (CLOSE_UNSUPPORTED, Some("unknown_message")));
+    }
+
+    #[test]
+    fn session_input_refusals() {
+        // a partial sample frame at the end
+        let mut i = input(&[]);
+        assert!(i.binary(&[1, 2, 3]).unwrap().len() == 1);
+        let r = i.text(r#"{"type":"end"}"#).unwrap_err();
+        assert_eq!((r.code, r.metric), (CLOSE_INVALID, Some("malformed")));
+        assert!(r.reason.contains("malformed audio"), "{}", r.reason);
+        // non-finite float samples
+        let mut i = input(&[("format", "f32le")]);
+        let r = i.binary(&f32::NAN.to_le_bytes()).unwrap_err();
+        assert_eq!((r.code, r.metric), (CLOSE_INVALID, Some("malformed")));
+        // unknown and malformed text
+        let mut i = input(&[]);
+        assert_eq!(i.text(r#"{"type":"pause"}"#).unwrap_err().code, CLOSE_UNSUPPORTED);
+        assert_eq!(i.text("{").unwrap_err().metric, Some("malformed"));
+        // draining: no more input
+        let mut i = input(&[("rate", "44100")]);
+        i.drain();
+        assert_eq!(i.binary(&[0, 0]).unwrap_err().code, CLOSE_UNSUPPORTED);
+    }
+
+    #[test]
+    fn session_input_resamples_to_the_promised_length() {
+        let mut i = input(&[("rate", "44100"), ("format", "f32le")]);
+        let pcm: Vec<u8> = (0..4410)
+            .flat_map(|k| ((k as f32 * 0.01).sin() * 0.5).to_le_bytes())
+            .collect();
+        let mut n = 0;
+        for c in pcm.chunks(1001) {
+            n += i.binary(c).unwrap().len();
+        }
+        let end = i.text(r#"{"type":"end"}"#).unwrap();
+        assert_eq!(end.input, AudioSpan::new(4410, 44100));
+        assert_eq!(n + end.tail.len(), 1600);
     }
 }

@@ -15,7 +15,6 @@ use futures_util::stream::{SplitSink, StreamExt};
 use futures_util::SinkExt;
 use tokio::sync::{mpsc, oneshot, Semaphore};
 
-use crate::audio::{AudioSpan, RawPcmDecoder, Resampler16k};
 use crate::model::livegesture::StreamOptions;
 
 use super::protocol::*;
@@ -333,30 +332,24 @@ async fn read_loop(
     credits: &Arc<Semaphore>,
     mut writer: tokio::task::JoinHandle<Ending>,
 ) -> Ending {
-    let origin = format!("session {sid}");
-    let mut decoder = match RawPcmDecoder::new(params.format, params.channels, origin.clone()) {
-        Ok(d) => d,
-        Err(e) => return cut(st, ctl, writer, CLOSE_INTERNAL, format!("{e}"), None).await,
-    };
-    let mut resampler = match Resampler16k::new(params.rate, origin) {
-        Ok(r) => r,
-        Err(e) => return cut(st, ctl, writer, CLOSE_INTERNAL, format!("{e}"), None).await,
+    let mut input = match SessionInput::new(params, format!("session {sid}")) {
+        Ok(i) => i,
+        Err(e) => return cut(st, ctl, writer, CLOSE_INTERNAL, e, None).await,
     };
     let fcfg = st.info.frontend.clone();
     let mut sent_16k: u64 = 0;
-    let mut in_bytes: u64 = 0;
     let mut shutdown = st.shutdown.clone();
     let idle = st.cfg.idle_timeout;
     let limit = st.cfg.max_message_bytes;
-    let mut ended = false;
     loop {
+        let ended = input.ended();
         let msg = tokio::select! {
             biased;
             w = &mut writer => return w.unwrap_or(Ending { code: 1011, reason: "writer failed".into() }),
             r = shutdown.changed(), if !ended => {
                 if r.is_err() || *shutdown.borrow_and_update() {
                     let _ = st.cmd.send(Cmd::Drain { sid }).await;
-                    ended = true;
+                    input.drain();
                 }
                 continue;
             }
@@ -394,85 +387,26 @@ async fn read_loop(
             let r = format!("message of {len} bytes over the size limit of {limit} bytes");
             return cut(st, ctl, writer, CLOSE_TOO_BIG, r, None).await;
         }
-        match msg {
-            Message::Binary(bytes) => {
-                if ended {
-                    st.metrics.refuse("unknown_message");
-                    let r = "audio after {\"type\":\"end\"}".to_string();
-                    return cut(st, ctl, writer, CLOSE_UNSUPPORTED, r, Some(sid)).await;
-                }
-                in_bytes += bytes.len() as u64;
-                let mono = match decoder.decode(&bytes) {
-                    Ok(m) => m,
-                    Err(e) => {
-                        st.metrics.refuse("malformed");
-                        return cut(
-                            st,
-                            ctl,
-                            writer,
-                            CLOSE_INVALID,
-                            format!("malformed audio: {e}"),
-                            Some(sid),
-                        )
-                        .await;
-                    }
-                };
-                let s16 = match resampler.push(&mono) {
-                    Ok(s) => s,
-                    Err(e) => {
-                        return cut(st, ctl, writer, CLOSE_INTERNAL, format!("{e}"), Some(sid))
-                            .await
-                    }
-                };
-                if !forward(st, sid, credits, &fcfg, &mut sent_16k, s16, at).await {
-                    return client_gone(st, ctl, writer).await;
-                }
-            }
-            Message::Text(text) => match parse_client_text(&text) {
-                Ok(ClientText::End) if !ended => {
-                    if let Err(e) = decoder.finish() {
-                        st.metrics.refuse("malformed");
-                        return cut(
-                            st,
-                            ctl,
-                            writer,
-                            CLOSE_INVALID,
-                            format!("malformed audio: {e}"),
-                            Some(sid),
-                        )
-                        .await;
-                    }
-                    let tail = match resampler.finish() {
-                        Ok(s) => s,
-                        Err(e) => {
-                            return cut(st, ctl, writer, CLOSE_INTERNAL, format!("{e}"), Some(sid))
-                                .await
-                        }
-                    };
-                    if !forward(st, sid, credits, &fcfg, &mut sent_16k, tail, at).await {
-                        return client_gone(st, ctl, writer).await;
-                    }
-                    let n_in = in_bytes / params.frame_bytes() as u64;
-                    let input = AudioSpan::new(n_in, params.rate);
-                    let _ = st.cmd.send(Cmd::End { sid, input }).await;
-                    ended = true;
-                }
-                Ok(ClientText::End) => {
-                    st.metrics.refuse("unknown_message");
-                    let r = "a second {\"type\":\"end\"}".to_string();
-                    return cut(st, ctl, writer, CLOSE_UNSUPPORTED, r, Some(sid)).await;
-                }
-                Err((code, r)) => {
-                    st.metrics.refuse(if code == CLOSE_UNSUPPORTED {
-                        "unknown_message"
-                    } else {
-                        "malformed"
-                    });
-                    return cut(st, ctl, writer, code, r, Some(sid)).await;
-                }
-            },
+        let handled = match msg {
+            Message::Binary(bytes) => input.binary(&bytes).map(|s16| (s16, None)),
+            Message::Text(text) => input.text(&text).map(|e| (e.tail, Some(e.input))),
             Message::Close(_) => return client_gone(st, ctl, writer).await,
-            Message::Ping(_) | Message::Pong(_) => {}
+            Message::Ping(_) | Message::Pong(_) => continue,
+        };
+        let (s16, end) = match handled {
+            Ok(h) => h,
+            Err(r) => {
+                if let Some(m) = r.metric {
+                    st.metrics.refuse(m);
+                }
+                return cut(st, ctl, writer, r.code, r.reason, Some(sid)).await;
+            }
+        };
+        if !forward(st, sid, credits, &fcfg, &mut sent_16k, s16, at).await {
+            return client_gone(st, ctl, writer).await;
+        }
+        if let Some(span) = end {
+            let _ = st.cmd.send(Cmd::End { sid, input: span }).await;
         }
     }
 }
