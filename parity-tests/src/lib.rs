@@ -9,6 +9,9 @@
 //!   the model's sources>` (under a file lock, so parallel test processes export it once; a change to
 //!   the exporter or the model re-exports); without either variable the tests fail saying so (they
 //!   never skip);
+//! - the tiny random-weight DiffSHEG bundle ([`diffsheg_tiny_bundle`]), the same way: the folder in
+//!   [`DIFFSHEG_TEST_BUNDLE_ENV`] (`LIVEGESTURE_DIFFSHEG_TINY_BUNDLE`), else exported with
+//!   [`DIFFSHEG_EXPORT_ARGS`] into `target/tmp/test-bundles/diffsheg-tiny-<hash>`;
 //! - copies of a bundle to corrupt ([`copy_bundle`]) or with one graph broken by
 //!   `tools/break_bundle.py` ([`break_bundle`]);
 //! - the bundle's reference rollout through the library's own reader
@@ -31,6 +34,19 @@ pub const TEST_BUNDLE_ENV: &str = "LIVEGESTURE_TEST_BUNDLE";
 
 /// `export/export.py` arguments of the tiny test bundle (as `scripts/test.sh` exports it).
 pub const EXPORT_ARGS: &[&str] = &["--config", "tiny", "--random-seed", "0"];
+
+/// Environment variable naming the tiny DiffSHEG test bundle exported by the test command.
+pub const DIFFSHEG_TEST_BUNDLE_ENV: &str = "LIVEGESTURE_DIFFSHEG_TINY_BUNDLE";
+
+/// `export/export.py` arguments of the tiny DiffSHEG test bundle (as `scripts/test.sh` exports it).
+pub const DIFFSHEG_EXPORT_ARGS: &[&str] = &[
+    "--family",
+    "diffsheg",
+    "--config",
+    "tiny",
+    "--random-seed",
+    "0",
+];
 
 /// The repository root.
 pub fn repo_root() -> PathBuf {
@@ -80,28 +96,30 @@ fn hash_sources(h: &mut impl Hasher, dir: &Path) {
     }
 }
 
-fn export_tiny() -> PathBuf {
+/// Exports a bundle with `export/export.py <args>` into `target/tmp/test-bundles/<name>-<hash of the
+/// arguments and of the exporter's and the model's sources>`, once (under a file lock).
+fn export_bundle(name: &str, args: &[&str]) -> PathBuf {
     let root = repo_root();
     let mut h = std::collections::hash_map::DefaultHasher::new();
-    EXPORT_ARGS.hash(&mut h);
+    args.hash(&mut h);
     hash_sources(&mut h, &root.join("export"));
     hash_sources(&mut h, &root.join("python").join("livegesture"));
     let base = root.join("target").join("tmp").join("test-bundles");
     std::fs::create_dir_all(&base)
         .unwrap_or_else(|e| panic!("cannot create {}: {e}", base.display()));
-    let dir = base.join(format!("tiny-{:016x}", h.finish()));
+    let dir = base.join(format!("{name}-{:016x}", h.finish()));
     let lock = File::create(base.join(".lock")).expect("create the export lock file");
     lock.lock().expect("lock the export lock file");
     if !dir.join("manifest.json").exists() {
         let py = python(&format!(
-            "exporting the tiny test bundle (or set {TEST_BUNDLE_ENV} to one exported with \
+            "exporting the {name} test bundle (or set the variable to one exported with \
              `$LIVEGESTURE_PY export/export.py {} --out DIR`)",
-            EXPORT_ARGS.join(" ")
+            args.join(" ")
         ));
-        eprintln!("exporting the tiny test bundle into {} ...", dir.display());
+        eprintln!("exporting the {name} test bundle into {} ...", dir.display());
         let out = Command::new(&py)
             .arg(root.join("export").join("export.py"))
-            .args(EXPORT_ARGS)
+            .args(args)
             .arg("--out")
             .arg(&dir)
             .current_dir(&root)
@@ -109,7 +127,7 @@ fn export_tiny() -> PathBuf {
             .unwrap_or_else(|e| panic!("cannot run {}: {e}", py.display()));
         assert!(
             out.status.success(),
-            "exporting the tiny test bundle failed ({}):\n{}\n{}",
+            "exporting the {name} test bundle failed ({}):\n{}\n{}",
             out.status,
             String::from_utf8_lossy(&out.stdout),
             String::from_utf8_lossy(&out.stderr)
@@ -119,25 +137,41 @@ fn export_tiny() -> PathBuf {
     dir
 }
 
+/// The bundle folder in `$<var>` (which must hold a manifest), else [`export_bundle`]'s.
+fn env_or_export(var: &str, name: &str, args: &[&str]) -> PathBuf {
+    match std::env::var_os(var).filter(|v| !v.is_empty()) {
+        Some(p) => {
+            let p = PathBuf::from(p);
+            assert!(
+                p.join("manifest.json").is_file(),
+                "{var}={} has no manifest.json (export one with \
+                 `$LIVEGESTURE_PY export/export.py {} --out DIR`)",
+                p.display(),
+                args.join(" ")
+            );
+            p
+        }
+        None => export_bundle(name, args),
+    }
+}
+
 /// The tiny test bundle of this run (see the crate docs).
 pub fn tiny_bundle() -> PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(
-        || match std::env::var_os(TEST_BUNDLE_ENV).filter(|v| !v.is_empty()) {
-            Some(p) => {
-                let p = PathBuf::from(p);
-                assert!(
-                    p.join("manifest.json").is_file(),
-                    "{TEST_BUNDLE_ENV}={} has no manifest.json (export one with \
-                     `$LIVEGESTURE_PY export/export.py {} --out DIR`)",
-                    p.display(),
-                    EXPORT_ARGS.join(" ")
-                );
-                p
-            }
-            None => export_tiny(),
-        },
-    )
+    DIR.get_or_init(|| env_or_export(TEST_BUNDLE_ENV, "tiny", EXPORT_ARGS))
+        .clone()
+}
+
+/// The tiny DiffSHEG test bundle of this run (see the crate docs).
+pub fn diffsheg_tiny_bundle() -> PathBuf {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        env_or_export(
+            DIFFSHEG_TEST_BUNDLE_ENV,
+            "diffsheg-tiny",
+            DIFFSHEG_EXPORT_ARGS,
+        )
+    })
     .clone()
 }
 

@@ -157,26 +157,10 @@ pub fn write_bvh(path: impl AsRef<Path>, motion: &Beat2Motion) -> Result<()> {
     let path = path.as_ref();
     let text = bvh_text(motion)
         .with_context(|| format!("output: refusing to write {}", path.display()))?;
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => std::path::PathBuf::from("."),
-    };
-    let mut tmp = tempfile::NamedTempFile::new_in(&dir).with_context(|| {
-        format!(
-            "output: cannot create a temporary file in {}",
-            dir.display()
-        )
-    })?;
-    tmp.write_all(text.as_bytes())
-        .and_then(|_| tmp.as_file().sync_all())
-        .with_context(|| format!("output: writing {}", path.display()))?;
-    tmp.persist(path).map_err(|e| e.error).with_context(|| {
-        format!(
-            "output: cannot move the finished file to {}",
-            path.display()
-        )
-    })?;
-    Ok(())
+    crate::output::write_atomically(path, |w| {
+        w.write_all(text.as_bytes())
+            .with_context(|| format!("output: writing {}", path.display()))
+    })
 }
 
 #[cfg(test)]

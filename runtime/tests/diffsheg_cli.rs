@@ -2,8 +2,8 @@
 //! covering the whole audio, bad sampler options are refused, and `parity` fails on a perturbed
 //! denoiser weight, naming the graph.
 //!
-//! The bundle is `$LIVEGESTURE_DIFFSHEG_TINY_BUNDLE` (set by `scripts/test.sh`), else
-//! `target/test-bundles/diffsheg-tiny`.
+//! The bundle is the fixture's tiny DiffSHEG bundle (`livegesture_parity_tests::diffsheg_tiny_bundle`:
+//! `$LIVEGESTURE_DIFFSHEG_TINY_BUNDLE`, set by `scripts/test.sh`, else exported once).
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -11,19 +11,7 @@ use std::process::{Command, Output};
 use livegesture::output::read_beat2_npz;
 
 fn bundle() -> PathBuf {
-    let p = std::env::var_os("LIVEGESTURE_DIFFSHEG_TINY_BUNDLE")
-        .filter(|v| !v.is_empty())
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/test-bundles/diffsheg-tiny")
-        });
-    assert!(
-        p.join("manifest.json").exists(),
-        "no DiffSHEG test bundle at {}: run `$LIVEGESTURE_PY export/export.py --family diffsheg --config tiny \
-         --random-seed 0 --out target/test-bundles/diffsheg-tiny` or set LIVEGESTURE_DIFFSHEG_TINY_BUNDLE",
-        p.display()
-    );
-    p
+    livegesture_parity_tests::diffsheg_tiny_bundle()
 }
 
 fn run(args: &[&str]) -> Output {

@@ -2,9 +2,8 @@
 //! window 1 is replayed through the Rust sampler (noise, DDIM, RePaint jumps, blending), which must
 //! reproduce every recorded input bit for bit, and the window's result from its last call.
 //!
-//! The bundle is `$LIVEGESTURE_DIFFSHEG_TINY_BUNDLE` (set by `scripts/test.sh`), else
-//! `target/test-bundles/diffsheg-tiny`; export it with
-//! `$LIVEGESTURE_PY export/export.py --family diffsheg --config tiny --random-seed 0 --out target/test-bundles/diffsheg-tiny`.
+//! The bundle is the fixture's tiny DiffSHEG bundle (`livegesture_parity_tests::diffsheg_tiny_bundle`:
+//! `$LIVEGESTURE_DIFFSHEG_TINY_BUNDLE`, set by `scripts/test.sh`, else exported once).
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -17,19 +16,7 @@ use livegesture::model::diffsheg::reference::RolloutReference;
 use livegesture::bundle::DiffshegManifest as DiffshegSections;
 
 fn bundle() -> PathBuf {
-    let p = std::env::var_os("LIVEGESTURE_DIFFSHEG_TINY_BUNDLE")
-        .filter(|v| !v.is_empty())
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/test-bundles/diffsheg-tiny")
-        });
-    assert!(
-        p.join("manifest.json").exists(),
-        "no DiffSHEG test bundle at {}: run `$LIVEGESTURE_PY export/export.py --family diffsheg --config tiny \
-         --random-seed 0 --out target/test-bundles/diffsheg-tiny` or set LIVEGESTURE_DIFFSHEG_TINY_BUNDLE",
-        p.display()
-    );
-    p
+    livegesture_parity_tests::diffsheg_tiny_bundle()
 }
 
 struct Fixture {

@@ -9,7 +9,7 @@ use anyhow::{Context, Result};
 use livegesture::bench::diffsheg::DiffshegBenchConfig;
 use livegesture::bench::{run_family, BenchConfig};
 
-use super::common::{InputError, ModelArgs};
+use super::common::{DiffshegArgs, InputError, ModelArgs};
 
 #[derive(Debug, clap::Args)]
 #[command(
@@ -54,18 +54,9 @@ pub struct Args {
     /// Batched stepping without churn (by default one stream leaves and a fresh one joins every step).
     #[arg(long)]
     pub no_churn: bool,
-    /// DiffSHEG: DDIM steps of the main figures (default: the bundle's).
-    #[arg(long, value_name = "S")]
-    pub ddim_steps: Option<usize>,
-    /// DiffSHEG: RePaint jumps of the main figures (default: the bundle's).
-    #[arg(long, value_name = "U")]
-    pub jumps: Option<usize>,
-    /// DiffSHEG: window length in frames (default: the bundle's).
-    #[arg(long, value_name = "N")]
-    pub window: Option<usize>,
-    /// DiffSHEG: overlap in frames (default: the bundle's).
-    #[arg(long, value_name = "L")]
-    pub overlap: Option<usize>,
+    /// DiffSHEG: the schedule and windows of the main figures.
+    #[command(flatten)]
+    pub diffsheg: DiffshegArgs,
     /// DiffSHEG: timed outpainting windows (after two untimed ones).
     #[arg(long, default_value_t = 5)]
     pub windows: usize,
@@ -102,10 +93,10 @@ fn positive_list(flag: &str, v: &str) -> Result<Vec<usize>> {
 pub fn run(a: Args) -> Result<()> {
     let streams = positive_list("--streams", &a.streams)?;
     let dcfg = DiffshegBenchConfig {
-        ddim_steps: a.ddim_steps,
-        jumps: a.jumps,
-        window: a.window,
-        overlap: a.overlap,
+        ddim_steps: a.diffsheg.ddim_steps,
+        jumps: a.diffsheg.jumps,
+        window: a.diffsheg.window,
+        overlap: a.diffsheg.overlap,
         windows: a.windows.max(1),
         table_steps: positive_list("--table-steps", &a.table_steps)?,
         table_jumps: positive_list("--table-jumps", &a.table_jumps)?,

@@ -65,6 +65,23 @@ pub struct ModelArgs {
     pub ort_lib: Option<PathBuf>,
 }
 
+/// DiffSHEG's sampling schedule and windows (`generate`, `stream`, `bench`).
+#[derive(Debug, Clone, clap::Args)]
+pub struct DiffshegArgs {
+    /// DiffSHEG: DDIM steps, must divide 1000 (default: the bundle's; the paper's 25).
+    #[arg(long, value_name = "S")]
+    pub ddim_steps: Option<usize>,
+    /// DiffSHEG: RePaint jumps per DDIM step, >= 1 (default: the bundle's, 2).
+    #[arg(long, value_name = "U")]
+    pub jumps: Option<usize>,
+    /// DiffSHEG: window length in frames, <= the bundle's max window (default: the bundle's; 88 at 30 fps).
+    #[arg(long, value_name = "N")]
+    pub window: Option<usize>,
+    /// DiffSHEG: overlap of consecutive windows in frames, < window (default: the bundle's; 10).
+    #[arg(long, value_name = "L")]
+    pub overlap: Option<usize>,
+}
+
 /// Generation settings.
 #[derive(Debug, Clone, clap::Args)]
 pub struct GenArgs {
@@ -80,18 +97,8 @@ pub struct GenArgs {
     /// Keep the K most likely tokens, 0 = all (default: the bundle's).
     #[arg(long, value_name = "K")]
     pub top_k: Option<usize>,
-    /// DiffSHEG: DDIM steps, must divide 1000 (default: the bundle's; the paper's 25).
-    #[arg(long, value_name = "S")]
-    pub ddim_steps: Option<usize>,
-    /// DiffSHEG: RePaint jumps per DDIM step, >= 1 (default: the bundle's, 2).
-    #[arg(long, value_name = "U")]
-    pub jumps: Option<usize>,
-    /// DiffSHEG: window length in frames, <= the bundle's max window (default: the bundle's; 88 at 30 fps).
-    #[arg(long, value_name = "N")]
-    pub window: Option<usize>,
-    /// DiffSHEG: overlap of consecutive windows in frames, < window (default: the bundle's; 10).
-    #[arg(long, value_name = "L")]
-    pub overlap: Option<usize>,
+    #[command(flatten)]
+    pub diffsheg: DiffshegArgs,
     /// DiffSHEG: last DDIM steps that blend the overlap linearly (default: the bundle's, 2).
     #[arg(long, value_name = "B")]
     pub blend_steps: Option<usize>,
@@ -121,10 +128,10 @@ impl GenArgs {
             temperature: self.temperature,
             top_k: self.top_k,
             record_logits: false,
-            ddim_steps: self.ddim_steps,
-            jumps: self.jumps,
-            window: self.window,
-            overlap: self.overlap,
+            ddim_steps: self.diffsheg.ddim_steps,
+            jumps: self.diffsheg.jumps,
+            window: self.diffsheg.window,
+            overlap: self.diffsheg.overlap,
             blend_steps: self.blend_steps,
             speaker: self.speaker,
         })

@@ -278,5 +278,54 @@ pub trait FrameSink {
     fn finish(&mut self) -> Result<()>;
 }
 
+/// Writes `path` atomically with `write`: a temporary file `.<name>.XXXX.tmp` in the same directory,
+/// synced, made world-readable (0644 on Unix), then renamed over `path`. On error the temporary file is
+/// removed and `path` is untouched. Every file output of the crate (npz, BVH) goes through it.
+pub(crate) fn write_atomically(
+    path: &std::path::Path,
+    write: impl FnOnce(&mut std::io::BufWriter<&std::fs::File>) -> Result<()>,
+) -> Result<()> {
+    use std::io::Write as _;
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => std::path::PathBuf::from("."),
+    };
+    let name = path
+        .file_name()
+        .with_context(|| format!("output: {} is not a file path", path.display()))?;
+    let tmp = tempfile::Builder::new()
+        .prefix(&format!(".{}.", name.to_string_lossy()))
+        .suffix(".tmp")
+        .tempfile_in(&dir)
+        .with_context(|| {
+            format!(
+                "output: cannot create a temporary file in {}",
+                dir.display()
+            )
+        })?;
+    {
+        let mut w = std::io::BufWriter::new(tmp.as_file());
+        write(&mut w)?;
+        w.flush()
+            .with_context(|| format!("output: writing {}", path.display()))?;
+    }
+    tmp.as_file()
+        .sync_all()
+        .with_context(|| format!("output: syncing {}", path.display()))?;
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(tmp.path(), std::fs::Permissions::from_mode(0o644))
+            .with_context(|| format!("output: setting permissions of {}", path.display()))?;
+    }
+    tmp.persist(path).map_err(|e| e.error).with_context(|| {
+        format!(
+            "output: cannot move the finished file to {}",
+            path.display()
+        )
+    })?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests;

@@ -1,7 +1,7 @@
 //! BEAT2-compatible `.npz` files, written atomically (see the [module docs](super)).
 
 use std::fs::File;
-use std::io::{BufWriter, Read, Seek, Write};
+use std::io::{Read, Seek, Write};
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, ensure, Context, Result};
@@ -92,53 +92,6 @@ impl<const N: usize> WritableElement for NpyUnicode<N> {
         }
         Ok(())
     }
-}
-
-/// Writes `bytes` to `path` atomically with `write`: a temporary file in the same directory, synced,
-/// then renamed. On error the temporary file is removed and `path` is untouched.
-fn write_atomically(
-    path: &Path,
-    write: impl FnOnce(&mut BufWriter<&File>) -> Result<()>,
-) -> Result<()> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let name = path
-        .file_name()
-        .with_context(|| format!("output: {} is not a file path", path.display()))?;
-    let tmp = tempfile::Builder::new()
-        .prefix(&format!(".{}.", name.to_string_lossy()))
-        .suffix(".tmp")
-        .tempfile_in(&dir)
-        .with_context(|| {
-            format!(
-                "output: cannot create a temporary file in {}",
-                dir.display()
-            )
-        })?;
-    {
-        let mut w = BufWriter::new(tmp.as_file());
-        write(&mut w)?;
-        w.flush()
-            .with_context(|| format!("output: writing {}", path.display()))?;
-    }
-    tmp.as_file()
-        .sync_all()
-        .with_context(|| format!("output: syncing {}", path.display()))?;
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(tmp.path(), std::fs::Permissions::from_mode(0o644))
-            .with_context(|| format!("output: setting permissions of {}", path.display()))?;
-    }
-    tmp.persist(path).map_err(|e| e.error).with_context(|| {
-        format!(
-            "output: cannot move the finished file to {}",
-            path.display()
-        )
-    })?;
-    Ok(())
 }
 
 /// Writes a BEAT2-compatible `.npz` atomically (see the module docs for keys, dtypes and shapes).

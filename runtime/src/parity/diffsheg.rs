@@ -168,17 +168,62 @@ fn frame_fields(f: &Frame) -> [(&'static str, &[f32]); 4] {
     ]
 }
 
-/// Frames vs arrays of (T, width) per field, one MaxAbs per field.
-fn frames_vs(frames: &[Frame], want: &[(&'static str, Vec<f32>)]) -> Vec<(&'static str, MaxAbs)> {
-    want.iter()
+/// The frames as one (T, width) array per field, in [`frame_fields`] order.
+fn field_arrays(frames: &[Frame]) -> Vec<(&'static str, Vec<f32>)> {
+    FIELD_NAMES
+        .iter()
         .enumerate()
-        .map(|(k, (name, w))| {
-            let width = w.len() / frames.len().max(1);
-            let got: Vec<f32> = frames
+        .map(|(k, &name)| {
+            let data = frames
                 .iter()
                 .flat_map(|f| frame_fields(f)[k].1.iter().copied())
                 .collect();
-            (*name, max_abs_f32(&got, w, width, 0))
+            (name, data)
+        })
+        .collect()
+}
+
+/// The frame fields compared, in [`frame_fields`] order.
+const FIELD_NAMES: [&str; 4] = ["poses", "trans", "expressions", "foot_contact"];
+
+/// The rollout rows of one run against a reference (Python's, or another backend's run): the
+/// normalised motion and each frame field.
+fn rollout_rows(
+    rows: &mut Vec<Row>,
+    cmp: &str,
+    run: &Run,
+    motion_ref: &[f32],
+    fields_ref: &[(&'static str, Vec<f32>)],
+) {
+    let m = max_abs_f32(&run.motion, motion_ref, MOTION_DIM, 0);
+    rows.push(Row::max_abs(
+        Check::Rollout,
+        "rollout",
+        cmp.to_string(),
+        "motion (normalised)",
+        &m,
+        ROLLOUT_MOTION,
+    ));
+    for (name, m) in frames_vs(&run.frames, fields_ref) {
+        rows.push(Row::max_abs(
+            Check::Rollout,
+            "rollout",
+            cmp.to_string(),
+            name,
+            &m,
+            ROLLOUT_FRAMES,
+        ));
+    }
+}
+
+/// Frames vs arrays of (T, width) per field (in [`FIELD_NAMES`] order), one MaxAbs per field.
+fn frames_vs(frames: &[Frame], want: &[(&'static str, Vec<f32>)]) -> Vec<(&'static str, MaxAbs)> {
+    let got = field_arrays(frames);
+    want.iter()
+        .zip(&got)
+        .map(|((name, w), (_, g))| {
+            let width = w.len() / frames.len().max(1);
+            (*name, max_abs_f32(g, w, width, 0))
         })
         .collect()
 }
@@ -217,7 +262,7 @@ pub(super) fn run(
     let windows = reference.windows().map_err(r)?;
     let motion_ref = reference.f32("motion").map_err(r)?.data;
     let mut fields_ref = Vec::new();
-    for k in ["poses", "trans", "expressions", "foot_contact"] {
+    for k in FIELD_NAMES {
         fields_ref.push((k, reference.f32(k).map_err(r)?.data));
     }
     let (so, speaker) = rollout_options(bundle, &path)?;
@@ -334,25 +379,7 @@ pub(super) fn run(
                     format!("{} frames, expected {t_frames}", run.frames.len()),
                 ));
             }
-            let m = max_abs_f32(&run.motion, &motion_ref, MOTION_DIM, 0);
-            rows.push(Row::max_abs(
-                Check::Rollout,
-                "rollout",
-                cmp.clone(),
-                "motion (normalised)",
-                &m,
-                ROLLOUT_MOTION,
-            ));
-            for (name, m) in frames_vs(&run.frames, &fields_ref) {
-                rows.push(Row::max_abs(
-                    Check::Rollout,
-                    "rollout",
-                    cmp.clone(),
-                    name,
-                    &m,
-                    ROLLOUT_FRAMES,
-                ));
-            }
+            rollout_rows(rows, &cmp, run, &motion_ref, &fields_ref);
             // window 1's trace
             if let Some(trace) = run.records.get(1).and_then(|w| w.trace.as_ref()) {
                 let calls = reference.scalar("window1.trace.calls").map_err(r)? as usize;
@@ -429,39 +456,7 @@ pub(super) fn run(
     if want(Check::Rollout) && runs.len() == 2 {
         let (a, b) = (&runs[1], &runs[0]);
         let cmp = format!("{} vs {}", a.kind, b.kind);
-        let m = max_abs_f32(&a.motion, &b.motion, MOTION_DIM, 0);
-        rows.push(Row::max_abs(
-            Check::Rollout,
-            "rollout",
-            cmp.clone(),
-            "motion (normalised)",
-            &m,
-            ROLLOUT_MOTION,
-        ));
-        let want_fields: Vec<(&'static str, Vec<f32>)> =
-            ["poses", "trans", "expressions", "foot_contact"]
-                .iter()
-                .enumerate()
-                .map(|(k, n)| {
-                    (
-                        *n,
-                        b.frames
-                            .iter()
-                            .flat_map(|f| frame_fields(f)[k].1.iter().copied())
-                            .collect(),
-                    )
-                })
-                .collect();
-        for (name, m) in frames_vs(&a.frames, &want_fields) {
-            rows.push(Row::max_abs(
-                Check::Rollout,
-                "rollout",
-                cmp.clone(),
-                name,
-                &m,
-                ROLLOUT_FRAMES,
-            ));
-        }
+        rollout_rows(rows, &cmp, a, &b.motion, &field_arrays(&b.frames));
     }
 
     if want(Check::Chunks) {
@@ -492,21 +487,7 @@ pub(super) fn run(
                                 Some(format!("{} frames vs {}", frames.len(), whole.len()));
                             mx.err = f64::INFINITY;
                         }
-                        let want_fields: Vec<(&'static str, Vec<f32>)> =
-                            ["poses", "trans", "expressions", "foot_contact"]
-                                .iter()
-                                .enumerate()
-                                .map(|(i, n)| {
-                                    (
-                                        *n,
-                                        whole
-                                            .iter()
-                                            .flat_map(|f| frame_fields(f)[i].1.iter().copied())
-                                            .collect(),
-                                    )
-                                })
-                                .collect();
-                        for (_, m) in frames_vs(&frames, &want_fields) {
+                        for (_, m) in frames_vs(&frames, &field_arrays(&whole)) {
                             fold(&mut mx, m);
                         }
                         rows.push(Row::max_abs(Check::Chunks, what, cmp, "frames", &mx, 0.0));
