@@ -9,6 +9,8 @@ use std::io::Write;
 use livegesture::audio::{RawFormat, RawPcmDecoder, RawPcmStream, WavStream};
 use livegesture::bundle::parse_manifest;
 #[cfg(feature = "serve")]
+use livegesture::audio::RESAMPLE_BLOCK;
+#[cfg(feature = "serve")]
 use livegesture::serve::protocol::{
     SessionInput, SessionParams, CLOSE_INTERNAL, CLOSE_INVALID, CLOSE_UNSUPPORTED,
 };
@@ -76,8 +78,10 @@ pub fn manifest(data: &[u8]) {
 /// each a header byte (`% 3`: 0 binary PCM, 1 text, 2 the server starting to drain, no payload)
 /// and, for binary and text, a 2-byte little-endian length and the payload, until a message is
 /// refused (the session closes). Beyond not panicking it checks that a refusal carries one of the
-/// protocol's close codes and that at `{"type":"end"}` the 16 kHz output has exactly
-/// `floor(frames * 16000 / rate)` samples (the resampler's promise, SPEC 8).
+/// protocol's close codes, that the 16 kHz output never exceeds twice the input frames plus one
+/// resampler block (no message multiplies the work: `fuzz/regressions/serve_protocol/rate_1_*`), and
+/// that at `{"type":"end"}` it has exactly `floor(frames * 16000 / rate)` samples (the resampler's
+/// promise, SPEC 8).
 #[cfg(feature = "serve")]
 pub fn serve_protocol(data: &[u8]) {
     use axum::extract::Query;
@@ -101,6 +105,7 @@ pub fn serve_protocol(data: &[u8]) {
     let mut input = SessionInput::new(&params, "fuzz".into())
         .unwrap_or_else(|e| panic!("validated parameters {params:?} make no session: {e}"));
     let mut out: u64 = 0;
+    let mut in_bytes: u64 = 0;
     while let [head, tail @ ..] = rest {
         if head % 3 == 2 {
             input.drain();
@@ -114,7 +119,15 @@ pub fn serve_protocol(data: &[u8]) {
         let (msg, next) = tail.split_at(n);
         rest = next;
         let handled = if head % 3 == 0 {
-            input.binary(msg).map(|s16| out += s16.len() as u64)
+            in_bytes += msg.len() as u64;
+            input.binary(msg).map(|s16| {
+                out += s16.len() as u64;
+                let frames = in_bytes / params.frame_bytes() as u64;
+                assert!(
+                    out <= 2 * (frames + RESAMPLE_BLOCK as u64),
+                    "{params:?}: {frames} input frames gave {out} samples at 16 kHz"
+                );
+            })
         } else {
             // a WebSocket text message is UTF-8 (tungstenite refuses others before the session)
             let Ok(text) = std::str::from_utf8(msg) else {

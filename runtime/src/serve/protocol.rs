@@ -57,6 +57,12 @@ pub struct SessionParams {
     pub output: OutputKind,
 }
 
+/// Lowest accepted input rate (Hz), telephone speech. Resampling to 16 kHz multiplies the samples by
+/// `16000 / rate`: a lower rate let one small message (or the resampler's buffers, sized by the ratio)
+/// take unbounded time and memory: at `rate=1` one 4 KiB message took over 30 s and a 1 MiB message
+/// would need 34 GB (found fuzzing, `fuzz/regressions/serve_protocol/`). At 8 kHz the output is at most
+/// twice the input.
+pub const MIN_RATE: u32 = 8_000;
 /// Highest accepted input rate (Hz).
 pub const MAX_RATE: u32 = 384_000;
 /// Most accepted input channels.
@@ -84,9 +90,9 @@ impl SessionParams {
                     p.rate = v
                         .parse::<u32>()
                         .ok()
-                        .filter(|r| (1..=MAX_RATE).contains(r))
+                        .filter(|r| (MIN_RATE..=MAX_RATE).contains(r))
                         .ok_or_else(|| {
-                            format!("rate={v:?}: expected an integer sample rate in Hz, 1 to {MAX_RATE}")
+                            format!("rate={v:?}: expected an integer sample rate in Hz, {MIN_RATE} to {MAX_RATE}")
                         })?
                 }
                 "channels" => {
@@ -349,6 +355,8 @@ mod tests {
         );
         for bad in [
             ("rate", "0"),
+            ("rate", "7999"),
+            ("rate", "384001"),
             ("rate", "x"),
             ("channels", "0"),
             ("format", "s32le"),
