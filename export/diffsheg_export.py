@@ -76,7 +76,6 @@ def random_inputs(model: DiffSHEG, graph: str, batch: int, n: int, g: torch.Gene
 
 def export_graph(model: DiffSHEG, graph: str, path: Path):
     import onnx
-    import livegesture
     ins, outs = data_io(model, graph)
     g = torch.Generator().manual_seed(0)
     inp = random_inputs(model, graph, 2, model.cfg.window, g)
@@ -93,13 +92,8 @@ def export_graph(model: DiffSHEG, graph: str, path: Path):
     got = [i.name for i in m.graph.input]
     if got != names_in:
         raise ExportCheckError(f"graph '{graph}': exported inputs {got} differ from {names_in}")
-    for k, v in {"livegesture.schema_version": "1", "livegesture.family": "diffsheg", "livegesture.graph": graph,
-                 "livegesture.component": type(model.components()[graph]).__name__,
-                 "livegesture.config": model.cfg.name, "livegesture.version": livegesture.__version__}.items():
-        p = m.metadata_props.add()
-        p.key, p.value = k, v
-    m.producer_name = "livegesture-export"
-    onnx.save(m, str(path))
+    from export import save_stamped
+    save_stamped(m, path, model, graph, family="diffsheg")
 
 
 def check_structure(path: Path, graph: str, model: DiffSHEG):

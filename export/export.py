@@ -81,6 +81,23 @@ def cache_entries(comp) -> list[dict]:
              "shape": ["batch", *s.shape], "init": s.init} for s in comp.cache_specs()]
 
 
+def save_stamped(m, path: Path, model, graph: str, family: str | None = None):
+    """Saves the exported ONNX model ``m`` to ``path`` with the project's metadata (``livegesture.*``:
+    schema version, the family when given, graph, component class, config, package version; in that order)
+    and producer name."""
+    import onnx
+    meta = {"livegesture.schema_version": str(SCHEMA_VERSION)}
+    if family is not None:
+        meta["livegesture.family"] = family
+    meta.update({"livegesture.graph": graph, "livegesture.component": type(model.components()[graph]).__name__,
+                 "livegesture.config": model.cfg.name, "livegesture.version": livegesture.__version__})
+    for k, v in meta.items():
+        p = m.metadata_props.add()
+        p.key, p.value = k, v
+    m.producer_name = "livegesture-export"
+    onnx.save(m, str(path))
+
+
 def export_graph(model, graph: str, path: Path):
     import onnx
     wrapper = StepGraph(model, graph).eval()
@@ -99,13 +116,7 @@ def export_graph(model, graph: str, path: Path):
     if got_in != names_in:
         raise ExportCheckError(f"graph '{graph}': exported inputs {got_in} differ from {names_in} "
                                "(an input the step does not use was dropped)")
-    for k, v in {"livegesture.schema_version": str(SCHEMA_VERSION), "livegesture.graph": graph,
-                 "livegesture.component": type(model.components()[graph]).__name__,
-                 "livegesture.config": model.cfg.name, "livegesture.version": livegesture.__version__}.items():
-        p = m.metadata_props.add()
-        p.key, p.value = k, v
-    m.producer_name = "livegesture-export"
-    onnx.save(m, str(path))
+    save_stamped(m, path, model, graph)
 
 
 @torch.no_grad()
