@@ -16,6 +16,10 @@ from its last periodic save):
    classifiers trained with uncertainty-guided token masking (ratio on a cosine ramp up to 0.5), random
    region masking (p_drop ramped up to 0.5), CFG dropout 0.1, loss 0.3 x local + 1.0 x fuse.
 
+Fine-tuning: ``--init-from CKPT`` starts from every weight and statistic of a trained checkpoint, keeps its
+motion tokenizer (svq1/svq2) and trains the experts and fuse stages further (give a lower ``--lr-ar``);
+``--extra-data DIR`` (repeatable) mixes the train split of more corpora into ``--data``'s.
+
 ``OUT/final.pt`` is the finished checkpoint (``livegesture.checkpoint.load``); ``OUT/train_log.jsonl`` holds
 every logged loss. Runs on CPU or one GPU (``--device``), and data-parallel over several processes with
 ``torchrun --nproc_per_node N -m livegesture.train ...`` (gradients and EMA statistics are all-reduced).
@@ -117,12 +121,32 @@ class TrainData:
     """Training clips in memory: normalised region features, log-mel frames, tokens (after svq2)."""
 
     def __init__(self, root, cfg, speakers, split="train", stats=None, augment=0, seed=0):
-        self.corpus = get_corpus(root, cfg.frontend)
-        ids = self.corpus.ids(split, speakers)
-        if not ids:
-            raise SystemExit(f"{root}: no clip in split {split!r} for speakers {speakers}")
-        self.clips = self.corpus.clips(ids, progress=dist_info()[0] == 0)
-        self.stats = stats or self.corpus.stats(split, speakers)
+        # ``root``: one corpus folder, or a list of them (a mix: the ``split`` clips of every corpus, windows
+        # drawn in proportion to clip length across all of them)
+        roots = [root] if isinstance(root, (str, os.PathLike)) else list(root)
+        if not roots:
+            raise SystemExit("no training corpus given")
+        self.clips, self.clip_corpus = [], []
+        for r in roots:
+            corpus = get_corpus(r, cfg.frontend)
+            ids = corpus.ids(split, speakers)
+            if not ids:
+                raise SystemExit(f"{r}: no clip in split {split!r} for speakers {speakers}")
+            clips = corpus.clips(ids, progress=dist_info()[0] == 0)
+            self.clips += clips
+            self.clip_corpus += [corpus] * len(clips)
+        self.corpus = self.clip_corpus[0]
+        if stats is None:
+            if len(roots) == 1:
+                stats = self.corpus.stats(split, speakers)
+            else:
+                from .data.features import RunningStats
+                rs = RunningStats()
+                for c in self.clips:
+                    rs.update(c.features)
+                stats = rs.finish()
+                stats.source = f"{', '.join(Path(r).name for r in roots)}: split={split!r} clips={len(self.clips)}"
+        self.stats = stats
         self.feats = [self.stats.normalize(c.features) for c in self.clips]
         self.mel = [c.mel for c in self.clips]
         self.n_tok = np.array([c.n_tokens for c in self.clips])
@@ -138,7 +162,7 @@ class TrainData:
             from .regions import frame_start_sample
             fcfg = cfg.frontend
             for ci, c in enumerate(tqdm(self.clips, desc=f"augmenting x{augment}", disable=dist_info()[0] != 0)):
-                x = self.corpus.audio(c.id)[:frame_start_sample(c.n_frames, fcfg.sample_rate, fcfg.fps)]
+                x = self.clip_corpus[ci].audio(c.id)[:frame_start_sample(c.n_frames, fcfg.sample_rate, fcfg.fps)]
                 for v in range(augment):
                     y = augment_wave(x, fcfg.sample_rate, np.random.default_rng([seed, ci, v]))
                     self.mel_variants[ci].append(logmel(y, fcfg))
@@ -382,7 +406,15 @@ def stage_fuse(model, data, tcfg, device):
 # ----------------------------------------------------------------------------- driver
 
 def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cpu", tcfg: TrainConfig | None = None,
-          overrides: dict | None = None, svq_from: str | None = None) -> Path:
+          overrides: dict | None = None, svq_from: str | None = None, init_from: str | None = None,
+          extra_data: tuple | list = ()) -> Path:
+    """Run the stages; returns ``OUT/final.pt``. ``svq_from``: reuse another checkpoint's motion tokenizer and
+    train the audio-side stages from scratch. ``init_from``: FINE-TUNE another checkpoint: every weight and
+    every normalisation statistic (motion and mel) is taken from it; svq1/svq2 are kept as they are and the
+    experts and fuse stages continue from its weights (usually with a lower ``lr_ar``). ``extra_data``: more
+    corpus folders whose train split is mixed with ``data_dir``'s."""
+    if svq_from and init_from:
+        raise SystemExit("--svq-from and --init-from exclude each other (--init-from keeps the tokenizer too)")
     cfg = get_config(config)
     tcfg = tcfg or TrainConfig.for_model(cfg.name)
     if overrides:
@@ -393,7 +425,17 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
     logger = Logger(out)
     torch.manual_seed(tcfg.seed)
     model = LiveGesture(cfg).to(device)
-    data = TrainData(data_dir, cfg, tcfg.speakers, augment=tcfg.augment, seed=tcfg.seed)
+    roots = [data_dir, *extra_data]
+    data = TrainData(roots if extra_data else data_dir, cfg, tcfg.speakers, augment=tcfg.augment, seed=tcfg.seed)
+    src_model = None
+    if init_from:
+        src_model = ckpt.load(init_from)
+        if getattr(src_model, "family", "livegesture") != "livegesture":
+            raise SystemExit(f"--init-from {init_from}: not a LiveGesture checkpoint")
+        if src_model.cfg.to_dict() != cfg.to_dict():
+            diff = sorted(k for k, v in cfg.to_dict().items() if src_model.cfg.to_dict().get(k) != v)
+            raise SystemExit(f"--init-from {init_from}: its model config differs from --config {config} ({diff})")
+        svq_from = init_from
     if svq_from:
         # reuse a trained motion tokenizer (svq1 + svq2 of another checkpoint, with its motion statistics):
         # the SVQ never sees audio, so only the stages that do (experts, fuse) are trained here
@@ -405,9 +447,14 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
         data.feats = [data.stats.normalize(c.features) for c in data.clips]
         for r in REGION_NAMES:
             model.svq[r].load_state_dict(src.svq[r].state_dict())
-    stats = data.stats.to_dict()["regions"]
-    stats["mel"] = {"mean": data.mel_mean.tolist(), "std": data.mel_std.tolist()}
-    model.set_normalisation(stats)
+    if src_model is not None:
+        # every weight, and the source's mel statistics: its audio encoder was trained on mels normalised
+        # with them, so they stay (this run's data would shift them)
+        model.load_state_dict(src_model.state_dict())
+    else:
+        stats = data.stats.to_dict()["regions"]
+        stats["mel"] = {"mean": data.mel_mean.tolist(), "std": data.mel_std.tolist()}
+        model.set_normalisation(stats)
     if svq_from and rank == 0:
         for name in ("svq1", "svq2"):
             if not (out / f"{name}.pt").exists():
@@ -416,7 +463,9 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
     info = {"config": cfg.name, "train_config": asdict(tcfg), "data": str(Path(data_dir).resolve()),
             "train_clips": len(data.clips), "train_tokens": int(data.n_tok.sum()),
             "train_minutes": round(float(data.n_tok.sum()) * 4 / 30 / 60, 2), "world_size": world,
-            "augment": tcfg.augment, **({"svq_from": str(svq_from)} if svq_from else {})}
+            "augment": tcfg.augment,
+            **({"extra_data": [str(Path(d).resolve()) for d in extra_data]} if extra_data else {}),
+            **({"init_from": str(init_from)} if init_from else {"svq_from": str(svq_from)} if svq_from else {})}
     prev = None
     builders = {"svq1": stage_svq1, "svq2": stage_svq2, "experts": stage_experts, "fuse": stage_fuse}
     steps = {"svq1": tcfg.steps_svq1, "svq2": tcfg.steps_svq2, "experts": tcfg.steps_experts, "fuse": tcfg.steps_fuse}
@@ -454,7 +503,8 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
             tokenize_clips(model, data, device)
         usage = {r: int(len(np.unique(np.concatenate([t[:, i] for t in data.tokens])))) for i, r in enumerate(REGION_NAMES)}
         prov = {**info, "stages_done": list(STAGES), "final_losses": summary, "codebook_usage_train": usage,
-                "training_data": f"{info['train_minutes']} minutes, {len(data.clips)} clips of {Path(data_dir).name}"}
+                "training_data": f"{info['train_minutes']} minutes, {len(data.clips)} clips of "
+                                 f"{' + '.join(Path(d).name for d in roots)}"}
         ckpt.save(model, out / "final.pt", provenance=prov)
         print(f"done: {out / 'final.pt'}")
     return out / "final.pt"
@@ -479,6 +529,11 @@ def main(argv=None):
         ap.add_argument("--" + f.replace("_", "-"), type=float, default=None)
     ap.add_argument("--svq-from", help="take svq1/svq2 (the motion tokenizer and its motion statistics) from this "
                                        "checkpoint instead of training them; experts and fuse are trained")
+    ap.add_argument("--init-from", help="fine-tune this checkpoint: all its weights and statistics are loaded, "
+                                        "svq1/svq2 kept, experts and fuse continue from its weights "
+                                        "(use a lower --lr-ar)")
+    ap.add_argument("--extra-data", action="append", default=[],
+                    help="another corpus folder whose train split is mixed in (repeatable)")
     ap.add_argument("--steps", type=int, default=None, help="diffsheg: training steps")
     ap.add_argument("--batch", type=int, default=None, help="diffsheg: batch size (windows)")
     ap.add_argument("--lr", type=float, default=None, help="diffsheg: learning rate")
@@ -503,7 +558,8 @@ def main(argv=None):
                                           "batch_ar", "seed", "lr_svq", "lr_ar", "augment") if getattr(args, k) is not None}
     ov["speakers"] = None if args.speakers == "all" else tuple(int(s) for s in args.speakers.split(","))
     stages = STAGES if args.stage == "all" else STAGES[:STAGES.index(args.stage) + 1]
-    train(args.config, args.data, args.out, stages=stages, device=args.device, overrides=ov, svq_from=args.svq_from)
+    train(args.config, args.data, args.out, stages=stages, device=args.device, overrides=ov, svq_from=args.svq_from,
+          init_from=args.init_from, extra_data=args.extra_data)
     if dist.is_initialized():
         dist.destroy_process_group()
 
