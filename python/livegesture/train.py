@@ -538,15 +538,19 @@ def main(argv=None):
     ap.add_argument("--batch", type=int, default=None, help="diffsheg: batch size (windows)")
     ap.add_argument("--lr", type=float, default=None, help="diffsheg: learning rate")
     ap.add_argument("--max-minutes", type=float, default=None, help="diffsheg: stop after this training time")
+    ap.add_argument("--init-from", help="diffsheg: fine-tune this trained DiffSHEG checkpoint (keeps its weights, "
+                                        "normalisation and style ids; fresh optimiser)")
     args = ap.parse_args(argv)
     if args.family == "diffsheg":
         from .diffsheg.train import train as train_diffsheg
         if args.threads:
             torch.set_num_threads(args.threads)
         ov = {"steps": args.steps, "batch": args.batch, "lr": args.lr, "seed": args.seed, "max_minutes": args.max_minutes,
+              "augment": args.augment,
               "speakers": None if args.speakers == "all" else tuple(int(s) for s in args.speakers.split(","))}
         train_diffsheg(args.config, args.data, args.out, device=args.device,
-                       overrides={k: v for k, v in ov.items() if v is not None or k == "speakers"})
+                       overrides={k: v for k, v in ov.items() if v is not None or k == "speakers"},
+                       init_from=args.init_from)
         return 0
     if "WORLD_SIZE" in os.environ and int(os.environ["WORLD_SIZE"]) > 1:
         dist.init_process_group("nccl" if args.device.startswith("cuda") else "gloo")

@@ -222,6 +222,51 @@ def test_training_smoke_and_checkpoint_roundtrip(tiny_corpus, tmp_path):
     assert np.isfinite(g["poses"]).all() and len(g["poses"]) == 30
 
 
+def test_fine_tuning_with_augmented_audio(tiny_corpus, tmp_path):
+    """--init-from: the source's weights, normalisation and style ids are the start (and the
+    normalisation and style ids stay); --augment N: windows read the clean mel or one of N copies."""
+    from livegesture.diffsheg.train import WindowData, train
+    from livegesture.train import TrainData
+    src = train("tiny", str(tiny_corpus), str(tmp_path / "a"), overrides={"steps": 4, "batch": 2})
+    # the source is trained with other motion statistics than the corpus gives: fine-tuning keeps them
+    a = ckpt.load(src)
+    with torch.no_grad():
+        a.motion_std.mul_(1.5)
+        a.speech_encoder.mel_mean.add_(0.25)
+    src2 = tmp_path / "src2.pt"
+    ckpt.save(a, src2, provenance=a.provenance)
+    final = train("tiny", str(tiny_corpus), str(tmp_path / "b"), overrides={"steps": 3, "batch": 2, "augment": 1},
+                  init_from=str(src2))
+    b = ckpt.load(final)
+    assert torch.equal(a.motion_std, b.motion_std) and torch.equal(a.motion_mean, b.motion_mean)
+    assert torch.equal(a.speech_encoder.mel_mean, b.speech_encoder.mel_mean)
+    assert torch.equal(a.speaker_numbers, b.speaker_numbers)
+    changed = [k for k, v in a.state_dict().items() if not torch.equal(v, b.state_dict()[k])]
+    assert changed, "3 steps of fine-tuning changed no weight"
+    assert b.provenance["init_from"] == str(src2) and b.provenance["augment"] == 1
+    # an unrelated initial model would differ far more than 3 EMA-averaged steps from the source
+    w = "denoiser.gesture_out.weight" if "denoiser.gesture_out.weight" in b.state_dict() else changed[0]
+    fresh = ckpt.load(train("tiny", str(tiny_corpus), str(tmp_path / "c"), overrides={"steps": 3, "batch": 2,
+                                                                                          "seed": 5}))
+    assert (b.state_dict()[w] - a.state_dict()[w]).abs().max() < (fresh.state_dict()[w] - a.state_dict()[w]).abs().max()
+    # windows draw the clean mel and the augmented copy
+    cfg = a.cfg
+    td = TrainData(str(tiny_corpus), cfg, None, augment=1, seed=0)
+    wd = WindowData(td, {s: i for i, s in enumerate(sorted({c.speaker for c in td.clips}))})
+    rng = np.random.default_rng(0)
+    seen = set()
+    for _ in range(8):
+        x0, mel, spk = wd.batch(rng, 8, 4)
+        for m in mel.numpy():
+            for vs in td.mel_variants:
+                for k, v in enumerate(vs):
+                    if any(np.array_equal(v[i:i + 16], m) for i in range(0, len(v) - 15, 2)):
+                        seen.add(k)
+    assert seen == {0, 1}
+    with pytest.raises(SystemExit, match="config"):
+        train("default", str(tiny_corpus), str(tmp_path / "d"), overrides={"steps": 1}, init_from=str(src2))
+
+
 # ----------------------------------------------------------------------------- export
 
 @pytest.fixture(scope="module")

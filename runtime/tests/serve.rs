@@ -40,6 +40,7 @@ fn start(cfg: ServeConfig) -> Server {
         let (bundle, p) = make_pipeline();
         let info = ModelInfo {
             model: "test".into(),
+            family: bundle.family(),
             bundle_sha256: "0".repeat(64),
             backend: p.backend_name().into(),
             fps: bundle.frontend().fps,
@@ -259,6 +260,9 @@ fn frames_equal_generate_whatever_the_split() {
         assert_eq!(ready["fps"], 30);
         assert_eq!(ready["frames_per_token"], 4);
         assert_eq!(ready["seed"], 3);
+        assert_eq!(ready["family"], "livegesture");
+        assert_eq!(ready["frames_per_unit"], 4);
+        assert_eq!(ready["lookahead_frames"], 0);
         assert_equal(&got.frames, &want, &format!("split {cuts:?}"));
         assert_eq!(got.done, Some(want.len() as u64));
         assert_eq!(got.close.as_ref().map(|c| c.0), Some(1000));

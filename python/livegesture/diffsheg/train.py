@@ -52,6 +52,7 @@ class DiffSHEGTrainConfig:
     seed: int = 0
     max_minutes: float = 0.0          # > 0: stop after this much training time (over resumes) and finish
     speakers: tuple[int, ...] | None = None
+    augment: int = 0                  # augmented copies of every clip's audio (livegesture.data.augment)
 
     @staticmethod
     def for_model(name: str) -> "DiffSHEGTrainConfig":
@@ -64,11 +65,14 @@ class DiffSHEGTrainConfig:
 
 
 class WindowData:
-    """Normalised motion (F, D) and log-mel (2F, n_mels) per training clip, with speaker ids."""
+    """Normalised motion (F, D) and log-mel (2F, n_mels) per training clip, with speaker ids. With audio
+    augmentation (``TrainData(augment=N)``) every window reads the clean mel or one of the clip's N degraded
+    copies, at random (the motion target is the same: every effect keeps the length and timing)."""
 
     def __init__(self, train_data, speaker_index):
         self.x = [np.concatenate([f[r] for r in MOTION_ORDER], axis=1).astype(np.float32) for f in train_data.feats]
         self.mel = train_data.mel
+        self.mel_variants = getattr(train_data, "mel_variants", [[m] for m in self.mel])
         self.spk = np.array([speaker_index[c.speaker] for c in train_data.clips], dtype=np.int64)
         self.frames = np.array([len(x) for x in self.x])
 
@@ -80,7 +84,11 @@ class WindowData:
         ci = rng.choice(ok, size=B, p=w / w.sum())
         st = [int(rng.integers(0, self.frames[c] - n + 1)) for c in ci]
         x0 = np.stack([self.x[c][s:s + n] for c, s in zip(ci, st)])
-        mel = np.stack([self.mel[c][2 * s:2 * (s + n)] for c, s in zip(ci, st)])
+        if len(self.mel_variants[0]) > 1:
+            v = rng.integers(0, len(self.mel_variants[0]), size=B)
+            mel = np.stack([self.mel_variants[c][k][2 * s:2 * (s + n)] for c, s, k in zip(ci, st, v)])
+        else:
+            mel = np.stack([self.mel[c][2 * s:2 * (s + n)] for c, s in zip(ci, st)])
         return torch.from_numpy(x0), torch.from_numpy(mel), torch.from_numpy(self.spk[ci])
 
 
@@ -102,9 +110,19 @@ def losses(model: DiffSHEG, x0, mel, spk, t, eps, cond, tc: DiffSHEGTrainConfig,
     return tc.lambda_t * l_t + tc.lambda_v * l_v + tc.lambda_huber * l_h, {"l_eps": l_t, "l_vel": l_v, "l_huber": l_h}
 
 
-def train(config: str, data_dir: str, out: str, device: str = "cpu", overrides: dict | None = None) -> Path:
+def train(config: str, data_dir: str, out: str, device: str = "cpu", overrides: dict | None = None,
+          init_from: str | None = None) -> Path:
+    """``init_from``: fine-tune a trained DiffSHEG checkpoint (its config, weights, motion and mel
+    normalisation and style ids are kept; ``config`` must name the same config). Fresh Adam state and warm-up."""
     from ..train import Logger, TrainData   # the LiveGesture trainer's data loading and logging
     cfg = get_config(config)
+    src = None
+    if init_from:
+        src = ckpt.load(init_from)
+        if getattr(src, "family", "livegesture") != "diffsheg":
+            raise SystemExit(f"--init-from {init_from}: not a DiffSHEG checkpoint")
+        if src.cfg.to_dict() != cfg.to_dict():
+            raise SystemExit(f"--init-from {init_from}: its config ({src.cfg.name}) differs from --config {config}")
     tc = DiffSHEGTrainConfig.for_model(cfg.name)
     if overrides:
         tc = replace(tc, **{k: v for k, v in overrides.items() if k in DiffSHEGTrainConfig.__dataclass_fields__})
@@ -116,13 +134,26 @@ def train(config: str, data_dir: str, out: str, device: str = "cpu", overrides: 
         return final
     torch.manual_seed(tc.seed)
     model = DiffSHEG(cfg).to(device)
-    data = TrainData(data_dir, cfg, tc.speakers)
-    stats = data.stats.to_dict()["regions"]
-    stats["mel"] = {"mean": data.mel_mean.tolist(), "std": data.mel_std.tolist()}
-    model.set_normalisation(stats)
+    data = TrainData(data_dir, cfg, tc.speakers, augment=tc.augment, seed=tc.seed)
     numbers = sorted({c.speaker for c in data.clips})
-    model.set_speakers(numbers)
-    wd = WindowData(data, {s: i for i, s in enumerate(numbers)})
+    if src is not None:
+        # keep the source model's input/output normalisation and style ids: its weights were trained on them
+        from ..data.features import NormStats
+        from ..regions import REGION_NAMES
+        model.load_state_dict(src.state_dict())
+        norm = src.normalisation()
+        data.stats = NormStats(mean={r: np.asarray(norm[r]["mean"], np.float32) for r in REGION_NAMES},
+                               std={r: np.asarray(norm[r]["std"], np.float32) for r in REGION_NAMES},
+                               source=f"normalisation of {init_from}")
+        data.feats = [data.stats.normalize(c.features) for c in data.clips]
+        spk_index = {s: model.speaker_index(s) for s in numbers}
+    else:
+        stats = data.stats.to_dict()["regions"]
+        stats["mel"] = {"mean": data.mel_mean.tolist(), "std": data.mel_std.tolist()}
+        model.set_normalisation(stats)
+        model.set_speakers(numbers)
+        spk_index = {s: i for i, s in enumerate(numbers)}
+    wd = WindowData(data, spk_index)
     ema = copy.deepcopy(model).eval()
     for p in ema.parameters():
         p.requires_grad_(False)
@@ -132,7 +163,8 @@ def train(config: str, data_dir: str, out: str, device: str = "cpu", overrides: 
     s1mab = torch.from_numpy((1 - ab) ** 0.5).float().to(device)
     info = {"family": "diffsheg", "config": cfg.name, "train_config": asdict(tc), "data": str(Path(data_dir).resolve()),
             "train_clips": len(data.clips), "train_frames": int(wd.frames.sum()),
-            "train_minutes": round(float(wd.frames.sum()) / 30 / 60, 2), "speakers": numbers}
+            "train_minutes": round(float(wd.frames.sum()) / 30 / 60, 2), "speakers": numbers,
+            "augment": tc.augment, **({"init_from": str(init_from)} if init_from else {})}
     resume = out / "diffsheg.resume.pt"
     start, spent = 0, 0.0
     if resume.exists():

@@ -9,7 +9,7 @@ use sha2::{Digest, Sha256};
 use livegesture::backend;
 use livegesture::bundle::Family;
 use livegesture::model::livegesture::Pipeline;
-use livegesture::serve::{ModelInfo, ServeConfig, Server};
+use livegesture::serve::{ModelInfo, ServeConfig, ServeModel, Server};
 
 use super::common::{InputError, ModelArgs};
 
@@ -78,28 +78,33 @@ pub fn run(a: Args) -> Result<()> {
         drain_timeout: secs("drain-timeout", a.drain_timeout)?,
     };
     let bundle = a.model.bundle()?;
-    // the scheduler steps sessions together with LiveGesture's batched token steps
-    if bundle.family() != Family::LiveGesture {
-        return Err(InputError(format!(
-            "{}: family {}: serve runs {} bundles only (batched token steps)",
-            bundle.manifest_path().display(),
-            bundle.family(),
-            Family::LiveGesture
-        ))
-        .into());
-    }
     let backend_opts = a.model.backend_options()?;
     let manifest = std::fs::read(bundle.manifest_path())
         .with_context(|| format!("reading {}", bundle.manifest_path().display()))?;
     let server = Server::start(a.addr, cfg, move || {
         let be = backend::create(&backend_opts)?;
-        let pipeline = Pipeline::new(&bundle, be.as_ref()).with_context(|| {
+        let family = bundle.family();
+        let loading = || {
             format!(
                 "loading the bundle {} with {}",
                 bundle.dir().display(),
                 be.describe()
             )
-        })?;
+        };
+        // LiveGesture: sessions stepped together (batched token steps); any other family (DiffSHEG):
+        // one stream per session through the family-independent model API
+        let (model, backend_name) = match family {
+            Family::LiveGesture => {
+                let p = Pipeline::new(&bundle, be.as_ref()).with_context(loading)?;
+                let name = p.backend_name().to_string();
+                (ServeModel::Batched(p), name)
+            }
+            _ => {
+                let m = livegesture::model::load(&bundle, be.as_ref()).with_context(loading)?;
+                let name = m.backend_name().to_string();
+                (ServeModel::PerSession(m), name)
+            }
+        };
         let m = bundle.manifest();
         let info = ModelInfo {
             model: m
@@ -108,13 +113,14 @@ pub fn run(a: Args) -> Result<()> {
                 .clone()
                 .or_else(|| m.model.config_name.clone())
                 .unwrap_or_else(|| bundle.dir().display().to_string()),
+            family,
             bundle_sha256: hex::encode(Sha256::digest(&manifest)),
-            backend: pipeline.backend_name().to_string(),
+            backend: backend_name,
             fps: bundle.frontend().fps,
             frames_per_token: bundle.frontend().frames_per_token,
             frontend: bundle.frontend().clone(),
         };
-        Ok((pipeline, info))
+        Ok((model, info))
     })?;
     eprintln!(
         "livegesture serve: listening on http://{} (WebSocket /v1/stream, page /, /healthz, /metrics)",
@@ -132,7 +138,7 @@ pub fn run(a: Args) -> Result<()> {
         }
     })?;
     if let Some(sig) = signalled {
-        eprintln!("livegesture serve: {sig}: draining (no new sessions; finishing arrived tokens; closing 1001)");
+        eprintln!("livegesture serve: {sig}: draining (no new sessions; finishing arrived tokens or windows; closing 1001)");
         server.shutdown();
     }
     server.join()?;

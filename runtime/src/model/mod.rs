@@ -143,6 +143,9 @@ pub trait MotionStream: Send {
     /// frames are emitted. 0 for LiveGesture (a token leaves as soon as its own audio is complete);
     /// a windowed family reports the audio it waits for beyond the unit it emits.
     fn lookahead_frames(&self) -> u64;
+
+    /// The classifier-free guidance scale gamma in use (the option, or the bundle's default).
+    fn guidance(&self) -> f64;
 }
 
 /// What `info` shows of a bundle's family-specific part, read from the manifest alone (no graph is

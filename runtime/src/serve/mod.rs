@@ -1,8 +1,16 @@
-//! `livegesture serve`: many live sessions over WebSocket, stepped together (SPEC section 12).
+//! `livegesture serve`: many live sessions over WebSocket (SPEC section 12), for any model family.
+//!
+//! What steps the sessions depends on the bundle's family ([`ServeModel`]):
+//!
+//! - LiveGesture: [`scheduler`], the thread that owns the [`Pipeline`] and steps all sessions with a
+//!   complete token in one batched run per graph per token tick;
+//! - any other family (DiffSHEG): [`streams`], the thread that owns the [`MotionModel`] and one
+//!   [`crate::model::MotionStream`] per session, stepped one session at a time as its audio arrives
+//!   (FOPPAS windows: no cross-stream batching).
+//!
+//! The protocol, the limits, the refusals and the drain are the same for both.
 //!
 //! - [`protocol`]: query parameters, client messages and close codes;
-//! - [`scheduler`]: the thread that owns the [`Pipeline`] and steps all sessions with a complete
-//!   token in one batched run per graph per token tick;
 //! - [`session`]: one WebSocket session (decoding, resampling, back-pressure, limits);
 //! - [`metrics`]: counters and histograms, Prometheus text format;
 //! - [`web`]: the browser page, embedded in the binary.
@@ -15,6 +23,7 @@ pub mod metrics;
 pub mod protocol;
 pub mod scheduler;
 pub mod session;
+pub mod streams;
 pub mod web;
 
 use std::net::SocketAddr;
@@ -30,10 +39,33 @@ use axum::routing::get;
 use axum::Router;
 use tokio::sync::{mpsc, watch, Notify};
 
+use crate::bundle::Family;
 use crate::model::livegesture::Pipeline;
+use crate::model::MotionModel;
 
 use metrics::Metrics;
 use scheduler::{Cmd, SchedConfig, Scheduler};
+use streams::StreamScheduler;
+
+/// The loaded model a server steps its sessions with.
+pub enum ServeModel {
+    /// A LiveGesture pipeline: sessions stepped together, one batched run per graph per token tick.
+    Batched(Pipeline),
+    /// Any family's [`MotionModel`]: one stream per session, stepped on its own (no batching).
+    PerSession(Box<dyn MotionModel>),
+}
+
+impl From<Pipeline> for ServeModel {
+    fn from(p: Pipeline) -> Self {
+        ServeModel::Batched(p)
+    }
+}
+
+impl From<Box<dyn MotionModel>> for ServeModel {
+    fn from(m: Box<dyn MotionModel>) -> Self {
+        ServeModel::PerSession(m)
+    }
+}
 
 /// Limits and settings of a server.
 #[derive(Debug, Clone)]
@@ -74,6 +106,8 @@ impl Default for ServeConfig {
 pub struct ModelInfo {
     /// Model name from the manifest.
     pub model: String,
+    /// The bundle's model family.
+    pub family: Family,
     /// sha256 of the bundle's `manifest.json` (which holds the sha256 of every graph).
     pub bundle_sha256: String,
     pub backend: String,
@@ -108,11 +142,13 @@ pub struct Server {
 }
 
 impl Server {
-    /// Binds `addr`, builds the pipeline with `make_pipeline` on the scheduler thread, and serves in
+    /// Binds `addr`, builds the model with `make_model` on the scheduler thread (a [`Pipeline`]: the
+    /// batched LiveGesture scheduler; a `Box<dyn MotionModel>`: one stream per session), and serves in
     /// background threads. Returns once the model is loaded and the socket is listening.
-    pub fn start<F>(addr: SocketAddr, cfg: ServeConfig, make_pipeline: F) -> Result<Server>
+    pub fn start<F, M>(addr: SocketAddr, cfg: ServeConfig, make_model: F) -> Result<Server>
     where
-        F: FnOnce() -> Result<(Pipeline, ModelInfo)> + Send + 'static,
+        F: FnOnce() -> Result<(M, ModelInfo)> + Send + 'static,
+        M: Into<ServeModel>,
     {
         let metrics = Arc::new(Metrics::new());
         let (cmd_tx, cmd_rx) = mpsc::channel::<Cmd>(1024);
@@ -123,10 +159,16 @@ impl Server {
         let m2 = metrics.clone();
         let sched = std::thread::Builder::new()
             .name("livegesture-scheduler".into())
-            .spawn(move || match make_pipeline() {
-                Ok((p, info)) => {
+            .spawn(move || match make_model() {
+                Ok((m, info)) => {
+                    let frontend = info.frontend.clone();
                     let _ = info_tx.send(Ok(info));
-                    Scheduler::new(p, m2, sched_cfg).run(cmd_rx);
+                    match m.into() {
+                        ServeModel::Batched(p) => Scheduler::new(p, m2, sched_cfg).run(cmd_rx),
+                        ServeModel::PerSession(m) => {
+                            StreamScheduler::new(m, frontend, m2).run(cmd_rx)
+                        }
+                    }
                 }
                 Err(e) => {
                     let _ = info_tx.send(Err(e));
@@ -277,8 +319,9 @@ async fn healthz(State(st): State<Arc<AppState>>) -> Response {
         (
             StatusCode::OK,
             format!(
-                "ok: model {} ({}), {} sessions\n",
+                "ok: model {} (family {}, {}), {} sessions\n",
                 st.info.model,
+                st.info.family,
                 st.info.backend,
                 st.metrics.sessions_active.load(Ordering::Relaxed)
             ),

@@ -1,5 +1,6 @@
-//! The token scheduler: one thread owns the [`Pipeline`] and a [`StreamBatch`], and steps every
-//! session that has a complete token in one batched run per graph per token tick.
+//! The token scheduler of LiveGesture bundles: one thread owns the [`Pipeline`] and a [`StreamBatch`],
+//! and steps every session that has a complete token in one batched run per graph per token tick.
+//! (Other families: [`super::streams::StreamScheduler`], one stream per session, no batching.)
 //!
 //! Sessions send 16 kHz mono audio ([`Cmd::Audio`]); the scheduler runs each session's log-mel
 //! frontend and queues the mel block of every completed token. A tick starts when the oldest queued
@@ -79,6 +80,13 @@ pub struct SessionStats {
 #[derive(Debug, Clone)]
 pub struct Joined {
     pub guidance: f64,
+    /// Frames emitted together (LiveGesture: a token, 4; DiffSHEG: a window step, N - L).
+    pub frames_per_unit: u64,
+    /// Audio, in frames, a unit waits for past its own end (LiveGesture 0; DiffSHEG the overlap L).
+    pub lookahead_frames: u64,
+    /// 16 kHz samples the first frame waits for (LiveGesture: the first token's audio span; DiffSHEG:
+    /// the first window's N frames).
+    pub first_frame_samples_16k: u64,
 }
 
 /// Commands from sessions to the scheduler.
@@ -222,6 +230,8 @@ impl Scheduler {
                 credits,
                 reply,
             } => {
+                let frames_per_unit = self.pipeline.frontend().frames_per_token;
+                let first_frame_samples_16k = self.pipeline.frontend().token_end(0);
                 let r = self.pipeline.new_stream(&opts).map(|st| {
                     let guidance = st.guidance();
                     self.sessions.insert(
@@ -239,7 +249,12 @@ impl Scheduler {
                             dead: false,
                         },
                     );
-                    Joined { guidance }
+                    Joined {
+                        guidance,
+                        frames_per_unit,
+                        lookahead_frames: 0,
+                        first_frame_samples_16k,
+                    }
                 });
                 let _ = reply.send(r.map_err(|e| format!("{e:#}")));
             }

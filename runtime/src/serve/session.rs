@@ -157,6 +157,7 @@ async fn run_session(
     st.metrics.sessions_active.fetch_add(1, Ordering::Relaxed);
     st.metrics.sessions_total.fetch_add(1, Ordering::Relaxed);
     let guidance = joined.guidance;
+    let fps = st.info.fps.max(1) as f64;
     eprintln!(
         "livegesture serve: session {sid} start: peer {peer}, rate {} Hz, {} ch, {}, output {}, seed {}, guidance {guidance}",
         params.rate,
@@ -170,12 +171,20 @@ async fn run_session(
         "type": "ready",
         "session": sid,
         "model": info.model,
+        "family": info.family.name(),
         "bundle_sha256": info.bundle_sha256,
         "backend": info.backend,
         "fps": info.fps,
         "frames_per_token": info.frames_per_token,
         "token_duration_s": info.frames_per_token as f64 / info.fps as f64,
         "first_token_samples_16k": info.frontend.token_end(0),
+        // frames leave in units (a token; a DiffSHEG window step), each once the audio reaches
+        // `lookahead_frames` past its end
+        "frames_per_unit": joined.frames_per_unit,
+        "lookahead_frames": joined.lookahead_frames,
+        "lookahead_s": joined.lookahead_frames as f64 / fps,
+        "first_frame_samples_16k": joined.first_frame_samples_16k,
+        "first_frame_after_s": joined.first_frame_samples_16k as f64 / 16000.0,
         "rate": params.rate,
         "channels": params.channels,
         "format": params.format.name(),

@@ -312,6 +312,10 @@ impl MotionStream for DiffshegStream {
     fn lookahead_frames(&self) -> u64 {
         self.inner.options().overlap as u64
     }
+
+    fn guidance(&self) -> f64 {
+        self.inner.options().guidance
+    }
 }
 
 /// What `info` shows of a DiffSHEG bundle (manifest only).

@@ -124,4 +124,8 @@ impl MotionStream for LiveGestureStream {
     fn lookahead_frames(&self) -> u64 {
         0
     }
+
+    fn guidance(&self) -> f64 {
+        self.stream.guidance()
+    }
 }
