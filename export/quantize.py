@@ -63,13 +63,61 @@ def sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def quantize_graph(src: Path, dst: Path, precision: str, per_channel: bool) -> dict:
+def weight_only_int8(m):
+    """Every MatMul/Gemm initializer weight -> int8 (symmetric, one scale per output channel) +
+    DequantizeLinear to f32 in the graph; the product itself stays f32 (row-independent: no activation
+    quantization, so a batch row never depends on the other rows)."""
+    import onnx
+    from onnx import helper, numpy_helper
+    inits = {i.name: i for i in m.graph.initializer}
+    new_nodes, n = [], 0
+    for node in m.graph.node:
+        if node.op_type in ("MatMul", "Gemm") and len(node.input) > 1 and node.input[1] in inits:
+            w = numpy_helper.to_array(inits[node.input[1]]).astype(np.float32)
+            trans_b = node.op_type == "Gemm" and any(a.name == "transB" and a.i == 1 for a in node.attribute)
+            axis = 0 if trans_b else w.ndim - 1   # the output-channel axis of the weight
+            red = tuple(i for i in range(w.ndim) if i != axis)
+            scale = np.abs(w).max(axis=red) / 127.0
+            scale = np.where(scale > 0, scale, 1.0).astype(np.float32)
+            shp = [1] * w.ndim
+            shp[axis] = -1
+            q = np.clip(np.round(w / scale.reshape(shp)), -127, 127).astype(np.int8)
+            base = node.input[1]
+            m.graph.initializer.remove(inits[base])
+            m.graph.initializer.extend([numpy_helper.from_array(q, base + "_int8"),
+                                        numpy_helper.from_array(scale, base + "_scale"),
+                                        numpy_helper.from_array(np.zeros_like(scale, dtype=np.int8), base + "_zp")])
+            new_nodes.append(helper.make_node("DequantizeLinear", [base + "_int8", base + "_scale", base + "_zp"],
+                                              [base], name=base + "_dq", axis=axis))
+            n += 1
+        new_nodes.append(node)
+    del m.graph.node[:]
+    m.graph.node.extend(new_nodes)
+    return m
+
+
+def quantize_graph(src: Path, dst: Path, precision: str, per_channel: bool, activations: str = "dynamic") -> dict:
     """Writes the reduced graph; returns what was quantized."""
     import onnx
     from onnxruntime.quantization import QuantType, quantize_dynamic
     if precision != "int8":
         raise ValueError(f"--precision {precision}: supported are {', '.join(PRECISIONS)}")
     m = onnx.load(str(src))
+    if activations not in ("dynamic", "f32"):
+        raise ValueError(f"--activations {activations}: expected dynamic or f32")
+    if activations == "f32":
+        inits = {i.name for i in m.graph.initializer}
+        n_weights = sum(1 for n in m.graph.node if n.op_type in ("MatMul", "Gemm") and any(x in inits for x in n.input[1:2]))
+        q = weight_only_int8(onnx.load(str(src)))
+        p = q.metadata_props.add()
+        p.key, p.value = "livegesture.precision", precision
+        q.producer_name = "livegesture-quantize"
+        onnx.checker.check_model(q)
+        onnx.save(q, str(dst))
+        bytes_f32 = sum(int(np.prod(i.dims)) * 4 for i in m.graph.initializer if i.data_type == onnx.TensorProto.FLOAT)
+        return {"quantized_products": n_weights, "nodes_f32": len(m.graph.node), "nodes": len(q.graph.node),
+                "file_bytes_f32": src.stat().st_size, "file_bytes": dst.stat().st_size,
+                "f32_initializer_bytes": bytes_f32}
     inits = {i.name for i in m.graph.initializer}
     n_weights = sum(1 for n in m.graph.node if n.op_type in ("MatMul", "Gemm") and any(x in inits for x in n.input[1:2]))
     with tempfile.TemporaryDirectory() as td:
@@ -165,7 +213,7 @@ class LoggingChain(Chain):
         return out
 
 
-def build(src: Path, out: Path, precision: str, per_channel: bool, log=print) -> dict:
+def build(src: Path, out: Path, precision: str, per_channel: bool, log=print, activations: str = "dynamic") -> dict:
     import onnxruntime as ort
     manifest = json.loads((src / "manifest.json").read_text())
     if manifest.get("family", "livegesture") != "livegesture":
@@ -183,7 +231,7 @@ def build(src: Path, out: Path, precision: str, per_channel: bool, log=print) ->
         per_graph, graph_info = {}, {}
         for spec in manifest["graphs"]:
             t0 = time.time()
-            info = quantize_graph(src / spec["file"], tmp / spec["file"], precision, per_channel)
+            info = quantize_graph(src / spec["file"], tmp / spec["file"], precision, per_channel, activations)
             sess = ort.InferenceSession(str(tmp / spec["file"]), opts, providers=["CPUExecutionProvider"])
             rel = spec.get("reference", f"reference/{spec['name']}.npz")
             ref = dict(np.load(src / rel))
@@ -231,10 +279,15 @@ def build(src: Path, out: Path, precision: str, per_channel: bool, log=print) ->
         m = json.loads(json.dumps(manifest))
         m["precision"] = {
             "weights": precision,
-            "method": ("onnxruntime.quantization.quantize_dynamic: every MatMul/Gemm with an initializer weight as "
-                       "DynamicQuantizeLinear (uint8 activations, per-step scale) + MatMulInteger (int8 weights, "
-                       f"symmetric, {'per output channel' if per_channel else 'per tensor'}) + f32 scale and bias"),
+            "method": (("onnxruntime.quantization.quantize_dynamic: every MatMul/Gemm with an initializer weight as "
+                        "DynamicQuantizeLinear (uint8 activations, one scale per tensor per step, i.e. shared by all "
+                        "batch rows) + MatMulInteger (int8 weights, "
+                        f"symmetric, {'per output channel' if per_channel else 'per tensor'}) + f32 scale and bias")
+                       if activations == "dynamic" else
+                       "weight-only: every MatMul/Gemm initializer weight as int8 (symmetric, per output channel) + "
+                       "DequantizeLinear to f32 in the graph; f32 products (row-independent)"),
             "per_channel": per_channel,
+            "activations": activations,
             "source": {"bundle": str(src), "manifest_sha256": sha256(src / "manifest.json"),
                        "config": manifest["model"].get("config_name"),
                        "training": manifest.get("provenance", {}).get("training", "trained checkpoint")},
@@ -281,7 +334,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--bundle", required=True, help="the f32 bundle")
     ap.add_argument("--precision", default="int8", choices=PRECISIONS)
-    ap.add_argument("--per-channel", action="store_true", help="one weight scale per output channel")
+    ap.add_argument("--per-channel", action="store_true", help="one weight scale per output channel (dynamic)")
+    ap.add_argument("--activations", choices=("dynamic", "f32"), default="dynamic",
+                    help="dynamic: uint8 activations quantized per tensor each step (MatMulInteger; fast on ort, but "
+                         "batch rows share the scale); f32: weight-only int8, DequantizeLinear + f32 products")
     ap.add_argument("--out", required=True, help="reduced bundle folder to write (replaced atomically)")
     args = ap.parse_args(argv)
     src, out = Path(args.bundle).resolve(), Path(args.out).resolve()
@@ -294,7 +350,7 @@ def main(argv=None) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     print(f"quantizing {src} -> {out} ({args.precision})")
     try:
-        build(src, out, args.precision, args.per_channel)
+        build(src, out, args.precision, args.per_channel, activations=args.activations)
     except (ValueError, RuntimeError, KeyError) as e:
         print(f"quantize failed: {e}", file=sys.stderr)
         return 1

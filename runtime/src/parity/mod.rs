@@ -444,7 +444,10 @@ fn summarise_precision_error(e: &serde_json::Value) -> String {
                     .flatten()
                     .filter_map(move |(o, v)| v.as_f64().map(|x| (x, format!("{name}.{o}"))))
             })
-            .fold((0.0f64, String::new()), |a, b| if b.0 > a.0 { b } else { a })
+            .fold(
+                (0.0f64, String::new()),
+                |a, b| if b.0 > a.0 { b } else { a },
+            )
     });
     let mut parts = Vec::new();
     if let Some((x, what)) = worst {
