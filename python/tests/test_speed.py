@@ -107,3 +107,26 @@ def test_quantize_refuses_bad_requests(tiny, tiny_int8, tmp_path):
     assert quantize.main(["--bundle", str(tmp_path / "nothing"), "--out", str(tmp_path / "x")]) == 2
     assert quantize.main(["--bundle", str(tiny_int8), "--out", str(tmp_path / "again")]) == 1
     assert not (tmp_path / "again").exists()
+
+
+def test_int8_forms_and_batch_row_independence(tiny, tmp_path):
+    """The weight-only form (f32 activations) keeps every batch row independent of the others; the dynamic form's
+    per-tensor activation scale couples them (why it fails `livegesture parity`'s batch check, BENCHMARKS.md)."""
+    import onnxruntime as ort
+    spec = next(g for g in json.loads((tiny / "manifest.json").read_text())["graphs"] if g["name"] == "expert_upper")
+    ref = dict(np.load(tiny / spec["reference"]))
+    feed = {i["name"]: ref[f"step3.input.{i['name']}"] for i in spec["inputs"]}
+    feed["audio"] = feed["audio"] * np.array([[1.0], [8.0]], np.float32)     # row 1 with a much larger range
+    caches = {c["input"]: np.zeros([2, *c["shape"][1:]], np.dtype(c["dtype"])) for c in spec["caches"]}
+    rows = {}
+    for act in ("f32", "dynamic"):
+        path = tmp_path / f"{act}.onnx"
+        info = quantize.quantize_graph(tiny / spec["file"], path, "int8", True, act)
+        ops = [n.op_type for n in onnx.load(path).graph.node]
+        assert ops.count("DequantizeLinear" if act == "f32" else "MatMulInteger") == info["quantized_products"] > 0
+        sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+        both = sess.run(["hidden"], {**feed, **caches})[0]
+        alone = sess.run(["hidden"], {**{k: v[:1] for k, v in feed.items()}, **{k: v[:1] for k, v in caches.items()}})[0]
+        rows[act] = float(np.abs(both[:1] - alone).max())
+    assert rows["f32"] <= 1e-6
+    assert rows["dynamic"] > 1e-4
