@@ -6,6 +6,7 @@
 Reads from --results:
   rust_<config>_<backend>.json   `livegesture bench --json` (one bundle on one backend)
   torch_<config>.json            `python -m livegesture.bench torch --json`
+  ort_python_<config>.json       `bench/ort_python_peer.py --json` (the second peer)
   flops_<config>.json            `python export/flops.py --json`
   roofline.json                  `python -m livegesture.bench roofline --json`
   env.json                       machine, load average, commands (written by bench.sh)
@@ -195,6 +196,41 @@ def table_md(summ: dict) -> str:
     return "\n".join(L) + "\n"
 
 
+def peers_md(res: Path, summ: dict) -> str:
+    """The two peers of the Rust runtime on the same model, one core: the PyTorch eager loop and the exported
+    graphs chained from Python with onnxruntime (bench/ort_python_peer.py, which first reproduces the bundle's
+    reference rollout token for token)."""
+    L = []
+    for cfg in CONFIGS:
+        p = _load(res / f"ort_python_{cfg}.json")
+        if not p or "single" not in p:
+            continue
+        if not L:
+            L += ["| config | PyTorch eager (ms) | ort from Python: step / its graph runs (ms) | Rust ort / tract (ms) | "
+                  "Rust ort vs ort-Python | Rust ort vs PyTorch | N=32 batched step: ort-Python / Rust ort / Rust tract (ms) | "
+                  "reference tokens reproduced |",
+                  "|---|---|---|---|---|---|---|---|"]
+        t = _load(res / f"torch_{cfg}.json")
+        tm = t["step_ms_median"] if t else float("nan")
+        rust = {be: summ["runs"].get(f"{cfg}/{be}") for be in BACKENDS}
+        ro = rust["ort"]["chain_ms"]["median"] if rust.get("ort") else float("nan")
+        rt = rust["tract"]["chain_ms"]["median"] if rust.get("tract") else float("nan")
+        pm = p["single"]["step_ms"]["median"]
+
+        def n32(x):
+            return next((b for b in x if b.get("streams", b.get("n")) == 32), None)
+
+        pb = n32(p.get("batched", []))
+        rb = {be: n32(rust[be]["batched"]) if rust.get(be) else None for be in BACKENDS}
+        cell = " / ".join(f"{b['step_ms']['median'] if isinstance(b['step_ms'], dict) else b['step_ms']:.1f}"
+                          if b else "-" for b in (pb, rb.get("ort"), rb.get("tract")))
+        chk = p.get("check", {})
+        L.append(f"| {cfg} | {tm:.2f} | {pm:.2f} / {p['single']['graphs_sum_ms']:.2f} | {ro:.2f} / {rt:.2f} | "
+                 f"{pm / ro:.1f}x faster | {tm / ro:.1f}x faster | {cell} | "
+                 f"{chk.get('tokens_checked', 0)} of {chk.get('reference_tokens', '?')} |")
+    return "\n".join(L) + "\n" if L else ""
+
+
 def targets_md(summ: dict) -> str:
     """Issue 7's targets on one core: measured value, verdict and the factor by which a target is missed."""
     runs = summ["runs"]
@@ -250,6 +286,10 @@ def plot(res: Path, plots: Path, summ: dict):
         if t and t.get("samples_ms"):
             data.append(t["samples_ms"])
             labels.append("pytorch eager")
+        p = _load(res / f"ort_python_{cfg}.json")
+        if p and p.get("single", {}).get("samples_ms"):
+            data.append(p["single"]["samples_ms"])
+            labels.append("onnxruntime from Python")
         if not data:
             ax.set_visible(False)
             continue
@@ -296,7 +336,12 @@ def main(argv=None):
     res = Path(args.results)
     summ = summarise(res)
     (res / "summary.json").write_text(json.dumps(summ, indent=1))
-    md = table_md(summ) + "\nTargets (issue 7), one core:\n\n" + targets_md(summ)
+    peers = peers_md(res, summ)
+    md = table_md(summ)
+    if peers:
+        md += ("\nThe peers on the same model, one core (the second peer: `bench/ort_python_peer.py`, the bundle's "
+               "graphs chained from Python with onnxruntime, one InferenceSession per graph):\n\n" + peers)
+    md += "\nTargets (issue 7), one core:\n\n" + targets_md(summ)
     (res / "summary.md").write_text(md)
     plot(res, Path(args.plots), summ)
     if args.doc:

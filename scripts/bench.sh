@@ -70,6 +70,13 @@ echo "[bench] PyTorch eager streaming loop" >&2
 "${PIN[@]}" "$LIVEGESTURE_PY" -m livegesture.bench torch --config paper \
   --tokens "$TORCH_TOKENS" --json "$RES/torch_paper.json" >/dev/null
 
+echo "[bench] onnxruntime from Python (the second peer; reproduces the reference rollout's tokens first)" >&2
+for cfg in default paper; do
+  "${PIN[@]}" "$LIVEGESTURE_PY" bench/ort_python_peer.py --bundle "${BUNDLE[$cfg]}" --audio "$AUDIO" \
+    --tokens "$TORCH_TOKENS" --warmup 20 --streams 1,32 --batch-steps 100 --batch-warmup 3 --batch-min-steps 5 \
+    --batch-seconds "$BATCH_SECONDS" --json "$RES/ort_python_$cfg.json"
+done
+
 echo "[bench] roofline again (the tables use the best of both measurements)" >&2
 "${PIN[@]}" "$LIVEGESTURE_PY" -m livegesture.bench roofline --json "$RES/roofline_end.json" >/dev/null
 

@@ -229,6 +229,26 @@ pub struct ReferenceInfo {
     pub rollout_audio: Option<String>,
 }
 
+/// The weight precisions a bundle may declare in `precision.weights` (SPEC 14).
+pub const PRECISIONS: [&str; 4] = ["float32", "float16", "bfloat16", "int8"];
+
+/// `precision` of a reduced-precision bundle (SPEC 14, written by `export/quantize.py`).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+pub struct Precision {
+    /// `float32`, `float16`, `bfloat16` or `int8` ([`PRECISIONS`]).
+    pub weights: String,
+    /// How the quantized graphs were made.
+    #[serde(default)]
+    pub method: Option<String>,
+    /// What produced the reference vectors and rollout of this bundle (a reduced bundle has no torch
+    /// model in its precision: onnxruntime on the reduced graphs).
+    #[serde(default)]
+    pub reference: Option<String>,
+    /// The measured error against the f32 model (per graph max abs, rollout token agreement).
+    #[serde(default)]
+    pub error_vs_f32: Value,
+}
+
 /// A file entry of the manifest.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 pub struct FileEntry {
@@ -259,6 +279,10 @@ pub struct Manifest {
     pub files: BTreeMap<String, FileEntry>,
     #[serde(default)]
     pub provenance: Value,
+    /// Reduced-precision bundles (SPEC 14): the weights' precision, how the reference vectors were made and
+    /// the measured error against the f32 model. Absent: an f32 bundle.
+    #[serde(default)]
+    pub precision: Option<Precision>,
     /// The LiveGesture sections: `Some` exactly when `family` is `livegesture`.
     #[serde(skip)]
     pub livegesture: Option<LiveGestureManifest>,
@@ -371,6 +395,30 @@ impl Bundle {
         self.dir.join("manifest.json")
     }
 
+    /// The weights' precision (`precision.weights`; `float32` when the manifest has no `precision`).
+    pub fn precision(&self) -> &str {
+        self.manifest
+            .precision
+            .as_ref()
+            .map_or("float32", |p| p.weights.as_str())
+    }
+
+    /// True for a reduced-precision bundle (SPEC 14): its reference vectors are not torch's.
+    pub fn is_reduced_precision(&self) -> bool {
+        self.precision() != "float32"
+    }
+
+    /// The producer of the bundle's reference vectors, as the parity rows name it: `torch` for an f32
+    /// bundle, `reference` for a reduced-precision one (onnxruntime on the reduced graphs, see
+    /// `precision.reference` in the manifest).
+    pub fn reference_name(&self) -> &'static str {
+        if self.is_reduced_precision() {
+            "reference"
+        } else {
+            "torch"
+        }
+    }
+
     /// Provenance (training data, steps, export details) as written by the exporter.
     pub fn provenance(&self) -> &Value {
         &self.manifest.provenance
@@ -454,6 +502,15 @@ impl Manifest {
     /// Checks the manifest against itself, without reading any file: the family-common part, then the
     /// sections of its family (see the module docs). The error says what is wrong.
     pub fn check(&self) -> Result<(), String> {
+        if let Some(p) = &self.precision {
+            if !PRECISIONS.contains(&p.weights.as_str()) {
+                return Err(format!(
+                    "precision.weights is '{}'; expected one of {}",
+                    p.weights,
+                    PRECISIONS.join(", ")
+                ));
+            }
+        }
         self.frontend
             .validate()
             .map_err(|e| format!("frontend: {e:#}"))?;

@@ -86,7 +86,7 @@ pub fn run(a: Args) -> Result<()> {
         let mut v = serde_json::json!({
             "bundle": b.dir(), "family": m.family, "config": m.model.config_name,
             "parameters": total_params, "graphs": graphs, "frontend": m.frontend,
-            "provenance": m.provenance, "checks": m.checks,
+            "provenance": m.provenance, "checks": m.checks, "precision": b.precision(),
         });
         if let Value::Object(o) = &mut v {
             o.extend(family.json);
@@ -106,6 +106,14 @@ pub fn run(a: Args) -> Result<()> {
         m.model.config_name.as_deref().unwrap_or("?"),
         fmt_count(total_params)
     );
+    match &m.precision {
+        Some(p) if b.is_reduced_precision() => println!(
+            "precision     {} weights (reduced-precision bundle, SPEC 14); reference vectors: {}",
+            p.weights,
+            p.reference.as_deref().unwrap_or("producer not stated")
+        ),
+        _ => println!("precision     float32"),
+    }
     if let Some(t) = m.provenance.get("training") {
         match t {
             Value::String(s) => println!("training      {s}"),

@@ -249,6 +249,19 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
     let mut notes = Vec::new();
     let mut divergences = Vec::new();
     let want = |c: Check| opts.checks.contains(&c);
+    if let Some(p) = &bundle.manifest().precision {
+        if bundle.is_reduced_precision() {
+            // SPEC 14: a reduced-precision bundle is checked against its own reference vectors (no torch
+            // model exists in its precision); its error against the f32 model is measured by the tool
+            // that derived it and recorded in the manifest
+            notes.push(format!(
+                "precision {}: rows 'vs reference' compare with the bundle's own reference vectors ({}); tract vs ort keeps its 1e-4 bound; error against the f32 model (manifest precision.error_vs_f32): {}",
+                p.weights,
+                p.reference.as_deref().unwrap_or("producer not stated"),
+                summarise_precision_error(&p.error_vs_f32)
+            ));
+        }
+    }
 
     // the checks below are the LiveGesture family's; DiffSHEG's are in `diffsheg`
     match bundle.family() {
@@ -418,6 +431,40 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
         divergences,
         seconds: t0.elapsed().as_secs_f64(),
     })
+}
+
+/// One line of a reduced bundle's recorded error against the f32 model: the worst graph output and the
+/// rollout's token agreement.
+fn summarise_precision_error(e: &serde_json::Value) -> String {
+    let worst = e["graphs_max_abs"].as_object().map(|g| {
+        g.iter()
+            .flat_map(|(name, outs)| {
+                outs.as_object()
+                    .into_iter()
+                    .flatten()
+                    .filter_map(move |(o, v)| v.as_f64().map(|x| (x, format!("{name}.{o}"))))
+            })
+            .fold(
+                (0.0f64, String::new()),
+                |a, b| if b.0 > a.0 { b } else { a },
+            )
+    });
+    let mut parts = Vec::new();
+    if let Some((x, what)) = worst {
+        parts.push(format!("graphs max abs {x:.3e} ({what})"));
+    }
+    let r = &e["rollout"];
+    if let Some(t) = r["teacher_forced_identical_tokens"].as_f64() {
+        parts.push(format!("teacher-forced identical tokens {:.2}%", 100.0 * t));
+    }
+    if let Some(t) = r["free_running_identical_tokens"].as_f64() {
+        parts.push(format!("free-running identical tokens {:.2}%", 100.0 * t));
+    }
+    if parts.is_empty() {
+        "not recorded".into()
+    } else {
+        parts.join(", ")
+    }
 }
 
 #[cfg(test)]

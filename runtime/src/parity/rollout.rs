@@ -183,7 +183,7 @@ pub(super) fn rollout_rows(
         ..Default::default()
     };
     let torch_trace = RolloutTrace {
-        name: "torch".into(),
+        name: bundle.reference_name().into(),
         tokens: reference.tokens.clone(),
         logits: None,
     };
@@ -202,7 +202,7 @@ pub(super) fn rollout_rows(
             Err(e) => rows.push(Row::failed(
                 Check::Rollout,
                 "rollout",
-                format!("{kind} vs torch"),
+                format!("{kind} vs {}", bundle.reference_name()),
                 "tokens",
                 0.0,
                 format!("{kind} failed: {e:#}"),
@@ -211,7 +211,7 @@ pub(super) fn rollout_rows(
     }
     // each backend vs torch
     for run in &runs {
-        let comparison = format!("{} vs torch", run.kind);
+        let comparison = format!("{} vs {}", run.kind, bundle.reference_name());
         let trace = run.trace();
         let other: Vec<RolloutTrace> = runs
             .iter()

@@ -1,0 +1,362 @@
+#!/usr/bin/env python
+"""Derive a reduced-precision bundle from an f32 LiveGesture bundle (issue 15 deliverable 3, SPEC 14).
+
+    python export/quantize.py --bundle models/default --precision int8 --out /tmp/default-int8
+    python export/quantize.py --bundle /tmp/paper-bundle --precision int8 --out /tmp/paper-int8
+
+`int8`: dynamic quantization of every MatMul/Gemm whose weight is an initializer
+(``onnxruntime.quantization.quantize_dynamic``, int8 weights, symmetric, per output channel with
+``--per-channel``): each such product becomes ``DynamicQuantizeLinear`` (the activation to uint8 with a scale
+and zero point computed from the activation itself, every step) + ``MatMulInteger`` (int8 weights, int32
+accumulation) + the scale multiply and the bias add in f32. Standard ONNX ops (opset 17), run by onnxruntime
+and tract. The RoPE rotation matrices are ``Constant`` nodes, not initializers, and stay f32, as do the
+codebook embeddings (Gather), layer norms and attention arithmetic.
+
+The reduced bundle is a separate bundle (SPEC 14), never a change of the f32 one:
+
+- its graphs are the quantized ones, its manifest the f32 manifest with ``precision`` added and the files
+  table rewritten; ``model``, ``regions``, ``normalisation``, ``sampling`` and the reference clip are the f32
+  bundle's;
+- its reference vectors are onnxruntime's on the reduced graphs (torch has no int8 form of the model): every
+  graph chained over the f32 bundle's reference inputs (``reference/<graph>.npz``, same keys), and the
+  reference rollout (same clip, repeats and seed) stepped with the reduced graphs by the Python chain of
+  ``bench/ort_python_peer.py``. ``livegesture parity`` checks the runtime's ort against these and tract against
+  ort (1e-4, SPEC 14);
+- ``precision.error_vs_f32`` is the measured error against the f32 model: per graph, the max abs difference
+  of every output (``logits`` for the fusion) from the f32 bundle's torch reference over its chained steps
+  on the same inputs; over the reference rollout, token agreement free-running (the first step where the
+  reduced rollout draws another token, and the fraction of identical tokens) and teacher-forced (at every
+  step the reduced chain is fed the f32 rollout's previous tokens and draws with the same uniforms: the
+  fraction of steps and of region tokens it draws as the f32 model did, and the max abs error of its guided
+  logits against the f32 graphs' (onnxruntime, same inputs)).
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(ROOT / "python"))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from livegesture.sampling import guide  # noqa: E402
+from ort_python_peer import Chain, Streams, reference, token_mels  # noqa: E402
+
+PRECISIONS = ("int8",)
+
+
+def sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def weight_only_int8(m):
+    """Every MatMul/Gemm initializer weight -> int8 (symmetric, one scale per output channel) +
+    DequantizeLinear to f32 in the graph; the product itself stays f32 (row-independent: no activation
+    quantization, so a batch row never depends on the other rows)."""
+    import onnx
+    from onnx import helper, numpy_helper
+    inits = {i.name: i for i in m.graph.initializer}
+    new_nodes, n = [], 0
+    for node in m.graph.node:
+        if node.op_type in ("MatMul", "Gemm") and len(node.input) > 1 and node.input[1] in inits:
+            w = numpy_helper.to_array(inits[node.input[1]]).astype(np.float32)
+            trans_b = node.op_type == "Gemm" and any(a.name == "transB" and a.i == 1 for a in node.attribute)
+            axis = 0 if trans_b else w.ndim - 1   # the output-channel axis of the weight
+            red = tuple(i for i in range(w.ndim) if i != axis)
+            scale = np.abs(w).max(axis=red) / 127.0
+            scale = np.where(scale > 0, scale, 1.0).astype(np.float32)
+            shp = [1] * w.ndim
+            shp[axis] = -1
+            q = np.clip(np.round(w / scale.reshape(shp)), -127, 127).astype(np.int8)
+            base = node.input[1]
+            m.graph.initializer.remove(inits[base])
+            m.graph.initializer.extend([numpy_helper.from_array(q, base + "_int8"),
+                                        numpy_helper.from_array(scale, base + "_scale"),
+                                        numpy_helper.from_array(np.zeros_like(scale, dtype=np.int8), base + "_zp")])
+            new_nodes.append(helper.make_node("DequantizeLinear", [base + "_int8", base + "_scale", base + "_zp"],
+                                              [base], name=base + "_dq", axis=axis))
+            n += 1
+        new_nodes.append(node)
+    del m.graph.node[:]
+    m.graph.node.extend(new_nodes)
+    return m
+
+
+def quantize_graph(src: Path, dst: Path, precision: str, per_channel: bool, activations: str = "dynamic") -> dict:
+    """Writes the reduced graph; returns what was quantized."""
+    import onnx
+    from onnxruntime.quantization import QuantType, quantize_dynamic
+    if precision != "int8":
+        raise ValueError(f"--precision {precision}: supported are {', '.join(PRECISIONS)}")
+    m = onnx.load(str(src))
+    if activations not in ("dynamic", "f32"):
+        raise ValueError(f"--activations {activations}: expected dynamic or f32")
+    if activations == "f32":
+        inits = {i.name for i in m.graph.initializer}
+        n_weights = sum(1 for n in m.graph.node if n.op_type in ("MatMul", "Gemm") and any(x in inits for x in n.input[1:2]))
+        q = weight_only_int8(onnx.load(str(src)))
+        p = q.metadata_props.add()
+        p.key, p.value = "livegesture.precision", precision
+        q.producer_name = "livegesture-quantize"
+        onnx.checker.check_model(q)
+        onnx.save(q, str(dst))
+        bytes_f32 = sum(int(np.prod(i.dims)) * 4 for i in m.graph.initializer if i.data_type == onnx.TensorProto.FLOAT)
+        return {"quantized_products": n_weights, "nodes_f32": len(m.graph.node), "nodes": len(q.graph.node),
+                "file_bytes_f32": src.stat().st_size, "file_bytes": dst.stat().st_size,
+                "f32_initializer_bytes": bytes_f32}
+    inits = {i.name for i in m.graph.initializer}
+    n_weights = sum(1 for n in m.graph.node if n.op_type in ("MatMul", "Gemm") and any(x in inits for x in n.input[1:2]))
+    with tempfile.TemporaryDirectory() as td:
+        quantize_dynamic(str(src), str(Path(td) / "q.onnx"), op_types_to_quantize=["MatMul", "Gemm"],
+                         weight_type=QuantType.QInt8, per_channel=per_channel,
+                         extra_options={"MatMulConstBOnly": True})
+        q = onnx.load(str(Path(td) / "q.onnx"))
+    # keep the f32 graph's metadata (livegesture.graph, ...) and say what this graph is
+    del q.metadata_props[:]
+    for p in m.metadata_props:
+        q.metadata_props.add().CopyFrom(p)
+    p = q.metadata_props.add()
+    p.key, p.value = "livegesture.precision", precision
+    q.producer_name = "livegesture-quantize"
+    onnx.checker.check_model(q)
+    onnx.save(q, str(dst))
+    ops = [n.op_type for n in q.graph.node]
+    if ops.count("MatMulInteger") != n_weights:
+        raise RuntimeError(f"{src.name}: {n_weights} weight products, but {ops.count('MatMulInteger')} were quantized")
+    bytes_f32 = sum(int(np.prod(i.dims)) * 4 for i in m.graph.initializer if i.data_type == onnx.TensorProto.FLOAT)
+    return {"quantized_products": n_weights, "nodes_f32": len(m.graph.node), "nodes": len(ops),
+            "file_bytes_f32": src.stat().st_size, "file_bytes": dst.stat().st_size, "f32_initializer_bytes": bytes_f32}
+
+
+def graph_reference(sess, spec: dict, ref: dict) -> tuple[dict, dict]:
+    """Chains the reduced graph over the f32 reference's inputs; returns the new reference (same keys) and
+    the max abs error of each output (and last caches) against the f32 (torch) reference."""
+    n_steps, batch = int(ref["n_steps"]), int(ref["batch"])
+    out_names = [o.name for o in sess.get_outputs()]
+    caches = {c["input"]: np.zeros([batch, *c["shape"][1:]], dtype=np.dtype(c["dtype"])) for c in spec["caches"]}
+    new = {"n_steps": ref["n_steps"], "batch": ref["batch"]}
+    err: dict[str, float] = {}
+    for s in range(n_steps):
+        feed = {i["name"]: ref[f"step{s}.input.{i['name']}"] for i in spec["inputs"]}
+        for k, v in feed.items():
+            new[f"step{s}.input.{k}"] = v
+        res = dict(zip(out_names, sess.run(None, {**feed, **caches})))
+        for o in spec["outputs"]:
+            got = res[o["name"]]
+            new[f"step{s}.output.{o['name']}"] = got
+            e = float(np.abs(got.astype(np.float64) - ref[f"step{s}.output.{o['name']}"].astype(np.float64)).max())
+            err[o["name"]] = max(err.get(o["name"], 0.0), e)
+        caches = {c["input"]: res[c["output"]] for c in spec["caches"]}
+        if s == n_steps - 1:
+            for c in spec["caches"]:
+                got = res[c["output"]]
+                new[f"step{s}.new_cache.{c['name']}"] = got
+                if got.dtype.kind == "f":
+                    e = float(np.abs(got.astype(np.float64) - ref[f"step{s}.new_cache.{c['name']}"].astype(np.float64)).max())
+                    err["caches (last step)"] = max(err.get("caches (last step)", 0.0), e)
+    return new, err
+
+
+def rollout(chain: Chain, mels: np.ndarray, seed: int, n: int, forced: np.ndarray | None = None,
+            f32: Chain | None = None) -> dict:
+    """The rollout with the reduced graphs. ``forced``: the f32 rollout's tokens; each step then starts from
+    the f32 rollout's previous tokens (teacher forcing), and with ``f32`` the f32 graphs run beside it on the
+    same inputs, so the guided logits can be compared."""
+    s = Streams(chain, 1, [seed], [0])
+    sf = Streams(f32, 1, [seed], [0]) if f32 is not None else None
+    tokens, frames, logit_err = [], [], 0.0
+    for t in range(n):
+        if forced is not None and t > 0:
+            s.prev = forced[t - 1][None].copy()
+            if sf is not None:
+                sf.prev = forced[t - 1][None].copy()
+        if sf is not None:
+            sf.rngs[0].state = s.rngs[0].state   # the same uniform for both
+        tok, fr = s.step(mels[t][None])
+        if sf is not None:
+            sf.step(mels[t][None])
+            lq = chain.last_logits
+            lf = f32.last_logits
+            gq = guide(lq[0], lq[1], chain.guidance) if chain.guided else lq[0].astype(np.float64)
+            gf = guide(lf[0], lf[1], f32.guidance) if f32.guided else lf[0].astype(np.float64)
+            logit_err = max(logit_err, float(np.abs(gq - gf).max()))
+        tokens.append(tok[0])
+        frames.append(fr[0])
+    out = {"tokens": np.stack(tokens).astype(np.int64)}
+    for k in ("poses", "trans", "expressions", "foot_contact"):
+        out[k] = np.concatenate([f[k] for f in frames]).astype(np.float32)
+    out["guided_logits_max_abs"] = logit_err
+    return out
+
+
+class LoggingChain(Chain):
+    """Chain that keeps the last fusion logits (for the teacher-forced comparison)."""
+
+    def run(self, name, feed, caches):
+        out = super().run(name, feed, caches)
+        if name == "fusion":
+            self.last_logits = out["logits"][:, :, :]
+        return out
+
+
+def build(src: Path, out: Path, precision: str, per_channel: bool, log=print, activations: str = "dynamic") -> dict:
+    import onnxruntime as ort
+    manifest = json.loads((src / "manifest.json").read_text())
+    if manifest.get("family", "livegesture") != "livegesture":
+        raise ValueError(f"{src}/manifest.json: family {manifest['family']}: only LiveGesture bundles are supported")
+    if manifest.get("precision", {}).get("weights", "float32") != "float32":
+        raise ValueError(f"{src}/manifest.json: precision.weights is {manifest['precision']['weights']}; "
+                         "derive a reduced bundle from an f32 one")
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    os.chmod(tmp, 0o755)
+    try:
+        (tmp / "reference").mkdir()
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = 1
+        opts.inter_op_num_threads = 1
+        per_graph, graph_info = {}, {}
+        for spec in manifest["graphs"]:
+            t0 = time.time()
+            info = quantize_graph(src / spec["file"], tmp / spec["file"], precision, per_channel, activations)
+            sess = ort.InferenceSession(str(tmp / spec["file"]), opts, providers=["CPUExecutionProvider"])
+            rel = spec.get("reference", f"reference/{spec['name']}.npz")
+            ref = dict(np.load(src / rel))
+            new, err = graph_reference(sess, spec, ref)
+            np.savez_compressed(tmp / rel, **new)
+            per_graph[spec["name"]] = {k: err[k] for k in sorted(err)}
+            graph_info[spec["name"]] = info
+            log(f"  {spec['name']:<16} {info['quantized_products']} products int8, nodes {info['nodes_f32']} -> "
+                f"{info['nodes']}, file {info['file_bytes_f32'] / 1e6:.2f} -> {info['file_bytes'] / 1e6:.2f} MB, "
+                f"max abs vs f32 {max(err.values()):.3g} ({time.time() - t0:.1f}s)")
+        for rel in ("reference/clip.wav", manifest["reference"].get("logmel", "reference/logmel.npy")):
+            shutil.copy2(src / rel, tmp / rel)
+
+        # the reference rollout with the reduced graphs (same clip, repeats, seed), and the token agreement
+        t0 = time.time()
+        f32 = LoggingChain(src)
+        # the reduced chain reads the reduced graphs with the f32 manifest's graph table (same names/files)
+        q = LoggingChain.__new__(LoggingChain)
+        _init_chain_from(q, tmp, manifest)
+        audio, seed, ref_tokens = reference(f32)
+        mels = token_mels(f32, audio)
+        n = min(len(ref_tokens), len(mels))
+        ro = rollout(q, mels, seed, n)
+        tf = rollout(q, mels, seed, n, forced=ref_tokens[:n], f32=f32)
+        src_ro = np.load(src / manifest["reference"]["rollout"])
+        np.savez_compressed(tmp / manifest["reference"]["rollout"], tokens=ro["tokens"], poses=ro["poses"],
+                            trans=ro["trans"], expressions=ro["expressions"], foot_contact=ro["foot_contact"],
+                            seed=src_ro["seed"], clip_repeats=src_ro["clip_repeats"])
+        same = ro["tokens"] == ref_tokens[:n]
+        diff_steps = np.nonzero(~same.all(1))[0]
+        tf_same = tf["tokens"] == ref_tokens[:n]
+        rollout_err = {
+            "tokens": int(n),
+            "free_running_identical_tokens": float(same.mean()),
+            "free_running_first_differing_step": int(diff_steps[0]) if len(diff_steps) else None,
+            "teacher_forced_identical_steps": float(tf_same.all(1).mean()),
+            "teacher_forced_identical_tokens": float(tf_same.mean()),
+            "teacher_forced_guided_logits_max_abs": tf["guided_logits_max_abs"],
+        }
+        log(f"  rollout          {n} tokens: free-running identical {rollout_err['free_running_identical_tokens']:.3f} "
+            f"(first difference at step {rollout_err['free_running_first_differing_step']}), teacher-forced identical "
+            f"tokens {rollout_err['teacher_forced_identical_tokens']:.4f}, guided logits max abs "
+            f"{tf['guided_logits_max_abs']:.3g} ({time.time() - t0:.1f}s)")
+
+        m = json.loads(json.dumps(manifest))
+        m["precision"] = {
+            "weights": precision,
+            "method": (("onnxruntime.quantization.quantize_dynamic: every MatMul/Gemm with an initializer weight as "
+                        "DynamicQuantizeLinear (uint8 activations, one scale per tensor per step, i.e. shared by all "
+                        "batch rows) + MatMulInteger (int8 weights, "
+                        f"symmetric, {'per output channel' if per_channel else 'per tensor'}) + f32 scale and bias")
+                       if activations == "dynamic" else
+                       "weight-only: every MatMul/Gemm initializer weight as int8 (symmetric, per output channel) + "
+                       "DequantizeLinear to f32 in the graph; f32 products (row-independent)"),
+            "per_channel": per_channel,
+            "activations": activations,
+            "source": {"bundle": str(src), "manifest_sha256": sha256(src / "manifest.json"),
+                       "config": manifest["model"].get("config_name"),
+                       "training": manifest.get("provenance", {}).get("training", "trained checkpoint")},
+            "reference": (f"onnxruntime {ort.__version__} (Python, CPU) on the reduced graphs: graph reference vectors "
+                          "on the f32 bundle's reference inputs, the reference rollout with the same clip and seed"),
+            "graphs": graph_info,
+            "error_vs_f32": {"graphs_max_abs": per_graph, "rollout": rollout_err,
+                             "definition": ("graphs: max abs of every output (logits for the fusion) over the f32 "
+                                            "bundle's chained reference steps, same inputs, against its torch outputs; "
+                                            "rollout: see export/quantize.py")},
+            "metrics": None,
+        }
+        m["reference"]["rollout_producer"] = "onnxruntime (Python), reduced graphs"
+        for g, e in per_graph.items():
+            m["checks"].setdefault(g, {})["reduced_vs_f32_max_abs"] = max(e.values())
+            m["checks"][g]["ort_vs_torch_max_abs_f32_bundle"] = m["checks"][g].pop("ort_vs_torch_max_abs", None)
+        m["files"] = {str(p.relative_to(tmp)): {"sha256": sha256(p), "bytes": p.stat().st_size}
+                      for p in sorted(tmp.rglob("*")) if p.is_file()}
+        from export import export_provenance
+        m["provenance"] = {**manifest.get("provenance", {}),
+                           "reduced_precision": {**export_provenance(), "command": " ".join(sys.argv)}}
+        with open(tmp / "manifest.json", "w") as f:
+            json.dump(m, f, indent=1)
+            f.write("\n")
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+        return m
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _init_chain_from(chain: Chain, folder: Path, manifest: dict):
+    """A Chain over the graphs in ``folder`` described by ``manifest`` (the folder has no manifest yet)."""
+    folder.joinpath("manifest.json").write_text(json.dumps(manifest))
+    try:
+        Chain.__init__(chain, folder)
+    finally:
+        folder.joinpath("manifest.json").unlink()
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--bundle", required=True, help="the f32 bundle")
+    ap.add_argument("--precision", default="int8", choices=PRECISIONS)
+    ap.add_argument("--per-channel", action="store_true", help="one weight scale per output channel (dynamic)")
+    ap.add_argument("--activations", choices=("dynamic", "f32"), default="dynamic",
+                    help="dynamic: uint8 activations quantized per tensor each step (MatMulInteger; fast on ort, but "
+                         "batch rows share the scale); f32: weight-only int8, DequantizeLinear + f32 products")
+    ap.add_argument("--out", required=True, help="reduced bundle folder to write (replaced atomically)")
+    args = ap.parse_args(argv)
+    src, out = Path(args.bundle).resolve(), Path(args.out).resolve()
+    if src == out:
+        print("quantize: --out must differ from --bundle (a reduced bundle never replaces the f32 one)", file=sys.stderr)
+        return 2
+    if not (src / "manifest.json").is_file():
+        print(f"quantize: {src}/manifest.json: no such file", file=sys.stderr)
+        return 2
+    out.parent.mkdir(parents=True, exist_ok=True)
+    print(f"quantizing {src} -> {out} ({args.precision})")
+    try:
+        build(src, out, args.precision, args.per_channel, activations=args.activations)
+    except (ValueError, RuntimeError, KeyError) as e:
+        print(f"quantize failed: {e}", file=sys.stderr)
+        return 1
+    print(f"ok: {out}/manifest.json")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
