@@ -29,7 +29,7 @@ Beat Constancy (BC), paper eq. 3
     like EMAGE's file); when none is given the clip's own per-joint mean speed is used.
 
     *Audio beats* are onsets from :func:`detect_onsets` (spectral flux on a log-mel STFT with
-    librosa-style peak picking, implemented here; no librosa).
+    librosa-style peak picking: the project's one onset detector, ``livegesture.onsets``; no librosa).
 
     The first and last ``trim_s`` = 2 s of a clip are excluded (EMAGE's ``align_mask`` of 60 frames):
     motion beats are searched in frames ``[2 s * fps, T - 2 s * fps)`` and only onsets inside the same time
