@@ -1,7 +1,10 @@
+#!/usr/bin/env bash
+# models/README.md, DiffSHEG "sampler's jumps": the shipped bundle on the real-speech validation split per
+# steps x jumps through the Rust CLI (ort), 3 seeds. O=OUT_DIR; needs source scripts/env.sh, PYTHONPATH=python.
 set -e
-cd /work/wt-dsheg
-O=/tmp/dsheg/rj
-$LIVEGESTURE_PY -m livegesture.eval.generalise --no-real --synth /tmp/dsheg/corpus_default --write-audio $O/audio >/dev/null 2>&1 || true
+cd "$(dirname "$0")/../../.."
+O=${O:-/tmp/dsheg/rj}
+$LIVEGESTURE_PY -m livegesture.eval.generalise --no-real --synth ${CORPUS:-/tmp/dsheg/corpus_default} --write-audio $O/audio >/dev/null 2>&1 || true
 $LIVEGESTURE_PY -m livegesture.eval.generalise --write-audio $O/audio > /dev/null 2>&1 || true
 ls $O/audio
 for sj in 25x2 25x1 10x1; do
