@@ -683,6 +683,20 @@ mod tests {
     }
 
     #[test]
+    fn precision_is_read_checked_and_defaults_to_float32() {
+        let m = edited(|_| {}).unwrap();
+        assert!(m.precision.is_none());
+        let m = edited(|v| {
+            v["precision"] = serde_json::json!({"weights": "int8", "reference": "onnxruntime",
+                                                "error_vs_f32": {"graphs_max_abs": {}, "rollout": {}}});
+        })
+        .unwrap();
+        assert_eq!(m.precision.as_ref().unwrap().weights, "int8");
+        let e = edited(|v| v["precision"] = serde_json::json!({"weights": "int3"})).unwrap_err();
+        assert!(e.contains("precision.weights") && e.contains("int3"), "{e}");
+    }
+
+    #[test]
     fn family_is_read_and_defaults_to_livegesture() {
         let m = edited(|_| {}).unwrap();
         assert_eq!(m.family, Family::LiveGesture);
