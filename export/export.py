@@ -14,6 +14,7 @@ export/BUNDLE.md and described by export/manifest.schema.json.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as _dt
 import hashlib
 import json
@@ -56,6 +57,22 @@ def sha256(path: Path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+@contextlib.contextmanager
+def staged_folder(out: Path):
+    """A temporary folder beside ``out`` to write a bundle into; when the block ends without an error it replaces
+    ``out`` (``os.replace``, atomic), and it is removed whatever happens, so no half-written bundle remains."""
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    os.chmod(tmp, 0o755)
+    try:
+        yield tmp
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 def manifest_head(family: str, name: str, cfg, model, rates: dict) -> dict:
@@ -205,18 +222,9 @@ def build_bundle(model, out: Path, *, provenance: dict, reference_wav: str | Non
     """Write the bundle into a temporary folder beside ``out``, then move it into place (atomic).
     ``builder(model, tmp, ...)`` writes the folder's contents: ``_build`` (LiveGesture) by default,
     ``diffsheg_export.build`` for the diffsheg family."""
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    os.chmod(tmp, 0o755)
-    try:
-        manifest = (builder or _build)(model, tmp, provenance=provenance, reference_wav=reference_wav,
-                                       ref_seconds=ref_seconds, rollout_tokens=rollout_tokens, log=log, **kw)
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
-        return manifest
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
+    with staged_folder(out) as tmp:
+        return (builder or _build)(model, tmp, provenance=provenance, reference_wav=reference_wav,
+                                   ref_seconds=ref_seconds, rollout_tokens=rollout_tokens, log=log, **kw)
 
 
 def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_tokens, log) -> dict:

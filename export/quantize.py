@@ -33,9 +33,7 @@ The reduced bundle is a separate bundle (SPEC 14), never a change of the f32 one
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
-import os
 import shutil
 import sys
 import tempfile
@@ -53,14 +51,6 @@ from livegesture.sampling import guide  # noqa: E402
 from ort_python_peer import Chain, Streams, reference, token_mels  # noqa: E402
 
 PRECISIONS = ("int8",)
-
-
-def sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def weight_only_int8(m):
@@ -215,15 +205,14 @@ class LoggingChain(Chain):
 
 def build(src: Path, out: Path, precision: str, per_channel: bool, log=print, activations: str = "dynamic") -> dict:
     import onnxruntime as ort
+    from export import export_provenance, file_table, sha256, staged_folder
     manifest = json.loads((src / "manifest.json").read_text())
     if manifest.get("family", "livegesture") != "livegesture":
         raise ValueError(f"{src}/manifest.json: family {manifest['family']}: only LiveGesture bundles are supported")
     if manifest.get("precision", {}).get("weights", "float32") != "float32":
         raise ValueError(f"{src}/manifest.json: precision.weights is {manifest['precision']['weights']}; "
                          "derive a reduced bundle from an f32 one")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    os.chmod(tmp, 0o755)
-    try:
+    with staged_folder(out) as tmp:
         (tmp / "reference").mkdir()
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = 1
@@ -304,21 +293,13 @@ def build(src: Path, out: Path, precision: str, per_channel: bool, log=print, ac
         for g, e in per_graph.items():
             m["checks"].setdefault(g, {})["reduced_vs_f32_max_abs"] = max(e.values())
             m["checks"][g]["ort_vs_torch_max_abs_f32_bundle"] = m["checks"][g].pop("ort_vs_torch_max_abs", None)
-        m["files"] = {str(p.relative_to(tmp)): {"sha256": sha256(p), "bytes": p.stat().st_size}
-                      for p in sorted(tmp.rglob("*")) if p.is_file()}
-        from export import export_provenance
+        m["files"] = file_table(tmp)
         m["provenance"] = {**manifest.get("provenance", {}),
                            "reduced_precision": {**export_provenance(), "command": " ".join(sys.argv)}}
         with open(tmp / "manifest.json", "w") as f:
             json.dump(m, f, indent=1)
             f.write("\n")
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
         return m
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _init_chain_from(chain: Chain, folder: Path, manifest: dict):
