@@ -219,85 +219,51 @@ impl Scheduler {
             }
         }
     }
+}
 
-    fn handle(&mut self, cmd: Cmd) {
-        match cmd {
-            Cmd::Join {
+impl SessionTable for Scheduler {
+    fn metrics(&self) -> &Metrics {
+        &self.metrics
+    }
+
+    fn out(&self, sid: u64) -> Option<&mpsc::Sender<Out>> {
+        self.sessions.get(&sid).map(|s| &s.out)
+    }
+
+    fn join(
+        &mut self,
+        sid: u64,
+        opts: &StreamOptions,
+        out: mpsc::Sender<Out>,
+        ctl: Arc<SessionCtl>,
+        credits: Arc<Semaphore>,
+    ) -> Result<Joined> {
+        let frames_per_unit = self.pipeline.frontend().frames_per_token;
+        let first_frame_samples_16k = self.pipeline.frontend().token_end(0);
+        self.pipeline.new_stream(opts).map(|st| {
+            let guidance = st.guidance();
+            self.sessions.insert(
                 sid,
-                opts,
-                out,
-                ctl,
-                credits,
-                reply,
-            } => {
-                let frames_per_unit = self.pipeline.frontend().frames_per_token;
-                let first_frame_samples_16k = self.pipeline.frontend().token_end(0);
-                let r = self.pipeline.new_stream(&opts).map(|st| {
-                    let guidance = st.guidance();
-                    self.sessions.insert(
-                        sid,
-                        Sess {
-                            id: None,
-                            parked: Some(Box::new(st)),
-                            out,
-                            ctl,
-                            credits,
-                            pending: VecDeque::new(),
-                            stats: SessionStats::default(),
-                            end_frames: None,
-                            draining: false,
-                            dead: false,
-                        },
-                    );
-                    Joined {
-                        guidance,
-                        frames_per_unit,
-                        lookahead_frames: 0,
-                        first_frame_samples_16k,
-                    }
-                });
-                let _ = reply.send(r.map_err(|e| format!("{e:#}")));
+                Sess {
+                    id: None,
+                    parked: Some(Box::new(st)),
+                    out,
+                    ctl,
+                    credits,
+                    pending: VecDeque::new(),
+                    stats: SessionStats::default(),
+                    end_frames: None,
+                    draining: false,
+                    dead: false,
+                },
+            );
+            Joined {
+                guidance,
+                frames_per_unit,
+                lookahead_frames: 0,
+                first_frame_samples_16k,
             }
-            Cmd::Audio { sid, samples, at } => self.push(sid, &samples, at),
-            Cmd::End { sid, input } => {
-                let Some(s) = self.sessions.get_mut(&sid) else {
-                    return;
-                };
-                if s.dead || s.end_frames.is_some() {
-                    return;
-                }
-                // SPEC 8, the streams' own rule: the last partial token completed with silence,
-                // the frame count from the input's own samples and rate
-                let r = match (s.id, s.parked.as_mut()) {
-                    (Some(id), _) => self.batch.finish_audio(id, input),
-                    (None, Some(st)) => st.finish_audio(input),
-                    (None, None) => return,
-                };
-                match r {
-                    Ok((mels, total)) => {
-                        s.end_frames = Some(total);
-                        let at = Instant::now();
-                        s.pending.extend(mels.into_iter().map(|m| (m, at)));
-                        self.finish_if_complete(sid);
-                    }
-                    Err(e) => {
-                        let msg = format!("internal error at the end of the audio: {e:#}");
-                        self.kill(sid, CLOSE_INTERNAL, msg);
-                    }
-                }
-            }
-            Cmd::Drain { sid } => {
-                if let Some(s) = self.sessions.get_mut(&sid) {
-                    s.draining = true;
-                }
-                self.finish_if_complete(sid);
-            }
-            Cmd::Leave { sid, stats } => {
-                if let Some(s) = self.remove(sid) {
-                    let _ = stats.send(s.stats);
-                }
-            }
-        }
+        })
     }
 
     /// Feeds a session's frontend with the client's audio.
@@ -326,30 +292,44 @@ impl Scheduler {
         }
     }
 
-    /// Sends done (or, draining, close 1001) when the session has nothing left to step.
-    fn finish_if_complete(&mut self, sid: u64) {
-        let Some(s) = self.sessions.get(&sid) else {
+    fn end(&mut self, sid: u64, input: AudioSpan) {
+        let Some(s) = self.sessions.get_mut(&sid) else {
             return;
         };
-        if s.dead || !s.pending.is_empty() {
+        if s.dead || s.end_frames.is_some() {
             return;
         }
-        let msg = if let Some(frames) = s.end_frames {
-            Out::Done {
-                frames: s.stats.frames.min(frames),
+        // SPEC 8, the streams' own rule: the last partial token completed with silence,
+        // the frame count from the input's own samples and rate
+        let r = match (s.id, s.parked.as_mut()) {
+            (Some(id), _) => self.batch.finish_audio(id, input),
+            (None, Some(st)) => st.finish_audio(input),
+            (None, None) => return,
+        };
+        match r {
+            Ok((mels, total)) => {
+                s.end_frames = Some(total);
+                let at = Instant::now();
+                s.pending.extend(mels.into_iter().map(|m| (m, at)));
+                self.finish_if_complete(sid);
             }
-        } else if s.draining {
-            Out::Close(CLOSE_GOING_AWAY, "server shutting down".into())
-        } else {
-            return;
-        };
-        let sent = s.out.try_send(msg).is_ok();
-        if sent {
-            self.retire(sid);
-        } else {
-            self.metrics.refuse("slow_client");
-            self.kill(sid, CLOSE_POLICY, slow_reason());
+            Err(e) => {
+                let msg = format!("internal error at the end of the audio: {e:#}");
+                self.kill(sid, CLOSE_INTERNAL, msg);
+            }
         }
+    }
+
+    fn drain(&mut self, sid: u64) {
+        if let Some(s) = self.sessions.get_mut(&sid) {
+            s.draining = true;
+        }
+        self.finish_if_complete(sid);
+    }
+
+    fn leave(&mut self, sid: u64) -> Option<SessionStats> {
+        self.retire(sid);
+        self.sessions.remove(&sid).map(|s| s.stats)
     }
 
     /// Takes the session's stream out of the batch; nothing more is stepped or sent for it.
@@ -368,17 +348,34 @@ impl Scheduler {
         }
     }
 
-    fn remove(&mut self, sid: u64) -> Option<Sess> {
-        self.retire(sid);
-        self.sessions.remove(&sid)
-    }
-
     /// Cuts a session short: its writer closes with `code` and `reason`.
     fn kill(&mut self, sid: u64, code: u16, reason: String) {
         self.retire(sid);
         if let Some(s) = self.sessions.get(&sid) {
             s.ctl.kill(code, reason);
         }
+    }
+}
+
+impl Scheduler {
+    /// Sends done (or, draining, close 1001) when the session has nothing left to step.
+    fn finish_if_complete(&mut self, sid: u64) {
+        let Some(s) = self.sessions.get(&sid) else {
+            return;
+        };
+        if s.dead || !s.pending.is_empty() {
+            return;
+        }
+        let msg = if let Some(frames) = s.end_frames {
+            Out::Done {
+                frames: s.stats.frames.min(frames),
+            }
+        } else if s.draining {
+            Out::Close(CLOSE_GOING_AWAY, "server shutting down".into())
+        } else {
+            return;
+        };
+        self.send_last(sid, msg);
     }
 
     /// One batched step of every session with a queued token.
@@ -463,8 +460,7 @@ impl Scheduler {
                         self.metrics.frames_total.fetch_add(1, Ordering::Relaxed);
                     }
                     if slow {
-                        self.metrics.refuse("slow_client");
-                        self.kill(sid, CLOSE_POLICY, slow_reason());
+                        self.cut_slow(sid);
                     } else {
                         self.finish_if_complete(sid);
                     }
@@ -478,6 +474,77 @@ impl Scheduler {
                 }
             }
         }
+    }
+}
+
+/// The session commands as both schedulers handle them: [`Scheduler`] (LiveGesture, batched steps)
+/// and [`super::streams::StreamScheduler`] (one stream per session) implement the per-session parts;
+/// the dispatch, a session's last message and the cut-off of a slow client are shared.
+pub(super) trait SessionTable {
+    fn metrics(&self) -> &Metrics;
+    /// The session's outbound queue (None: no such session).
+    fn out(&self, sid: u64) -> Option<&mpsc::Sender<Out>>;
+    /// Opens the session's stream and registers it.
+    fn join(
+        &mut self,
+        sid: u64,
+        opts: &StreamOptions,
+        out: mpsc::Sender<Out>,
+        ctl: Arc<SessionCtl>,
+        credits: Arc<Semaphore>,
+    ) -> Result<Joined>;
+    /// The client's audio (16 kHz mono), arrived at `at`.
+    fn push(&mut self, sid: u64, samples: &[f32], at: Instant);
+    /// The end of the audio (SPEC 8): the stream's own end rule, then done.
+    fn end(&mut self, sid: u64, input: AudioSpan);
+    /// Shutdown: what has arrived is stepped, then close 1001.
+    fn drain(&mut self, sid: u64);
+    /// Drops the session; its figures.
+    fn leave(&mut self, sid: u64) -> Option<SessionStats>;
+    /// Nothing more is stepped or sent for the session; it waits for its Leave.
+    fn retire(&mut self, sid: u64);
+    /// Cuts a session short: its writer closes with `code` and `reason`.
+    fn kill(&mut self, sid: u64, code: u16, reason: String);
+
+    fn handle(&mut self, cmd: Cmd) {
+        match cmd {
+            Cmd::Join {
+                sid,
+                opts,
+                out,
+                ctl,
+                credits,
+                reply,
+            } => {
+                let r = self.join(sid, &opts, out, ctl, credits);
+                let _ = reply.send(r.map_err(|e| format!("{e:#}")));
+            }
+            Cmd::Audio { sid, samples, at } => self.push(sid, &samples, at),
+            Cmd::End { sid, input } => self.end(sid, input),
+            Cmd::Drain { sid } => self.drain(sid),
+            Cmd::Leave { sid, stats } => {
+                if let Some(s) = self.leave(sid) {
+                    let _ = stats.send(s);
+                }
+            }
+        }
+    }
+
+    /// Queues the session's last message (done, or close 1001 on shutdown) and retires it; a full
+    /// queue is a slow client, cut off.
+    fn send_last(&mut self, sid: u64, msg: Out) {
+        let sent = self.out(sid).is_some_and(|o| o.try_send(msg).is_ok());
+        if sent {
+            self.retire(sid);
+        } else {
+            self.cut_slow(sid);
+        }
+    }
+
+    /// A client whose outbound queue is full: counted (`livegesture_refusals_total{reason="slow_client"}`), closed 1008.
+    fn cut_slow(&mut self, sid: u64) {
+        self.metrics().refuse("slow_client");
+        self.kill(sid, CLOSE_POLICY, slow_reason());
     }
 }
 

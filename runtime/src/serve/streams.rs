@@ -27,21 +27,23 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Instant;
 
-use tokio::sync::mpsc;
+use anyhow::Result;
+use tokio::sync::{mpsc, Semaphore};
 
+use crate::audio::AudioSpan;
 use crate::frontend::FrontendConfig;
-use crate::model::{MotionModel, MotionStream};
+use crate::model::{MotionModel, MotionStream, StreamOptions};
 use crate::output::Frame;
 
 use super::metrics::Metrics;
-use super::protocol::{CLOSE_GOING_AWAY, CLOSE_INTERNAL, CLOSE_POLICY};
-use super::scheduler::{Cmd, Joined, Out, SessionCtl, SessionStats};
+use super::protocol::{CLOSE_GOING_AWAY, CLOSE_INTERNAL};
+use super::scheduler::{Cmd, Joined, Out, SessionCtl, SessionStats, SessionTable};
 
 struct Sess {
     stream: Box<dyn MotionStream>,
     out: mpsc::Sender<Out>,
     ctl: Arc<SessionCtl>,
-    credits: Arc<tokio::sync::Semaphore>,
+    credits: Arc<Semaphore>,
     stats: SessionStats,
     /// 16 kHz samples forwarded by the session's reader (also those not pushed: after an end or a cut).
     samples_in: u64,
@@ -82,92 +84,95 @@ impl StreamScheduler {
         }
     }
 
-    fn handle(&mut self, cmd: Cmd) {
-        match cmd {
-            Cmd::Join {
-                sid,
-                opts,
-                out,
-                ctl,
-                credits,
-                reply,
-            } => {
-                let f = &self.frontend;
-                let r = self.model.new_stream(&opts).map(|st| {
-                    // the first unit leaves once the audio reaches `lookahead_frames` past its end
-                    let first = st.frames_per_unit() + st.lookahead_frames();
-                    let joined = Joined {
-                        guidance: st.guidance(),
-                        frames_per_unit: st.frames_per_unit(),
-                        lookahead_frames: st.lookahead_frames(),
-                        first_frame_samples_16k: first * f.sample_rate / f.fps.max(1),
-                    };
-                    self.sessions.insert(
-                        sid,
-                        Sess {
-                            stream: st,
-                            out,
-                            ctl,
-                            credits,
-                            stats: SessionStats::default(),
-                            samples_in: 0,
-                            tokens_in: 0,
-                            ended: false,
-                            dead: false,
-                        },
-                    );
-                    joined
-                });
-                let _ = reply.send(r.map_err(|e| format!("{e:#}")));
-            }
-            Cmd::Audio { sid, samples, at } => self.push(sid, &samples, at),
-            Cmd::End { sid, input } => {
-                let Some(s) = self.sessions.get_mut(&sid) else {
-                    return;
-                };
-                if s.dead || s.ended {
-                    return;
-                }
-                s.ended = true;
-                let t0 = Instant::now();
-                let r = s.stream.finish(input);
-                match r {
-                    Ok(frames) => {
-                        self.emit(sid, frames, t0, t0);
-                        self.finish(sid);
-                    }
-                    Err(e) => {
-                        let msg = format!("internal error at the end of the audio: {e:#}");
-                        self.kill(sid, CLOSE_INTERNAL, msg);
-                    }
-                }
-            }
-            Cmd::Drain { sid } => {
-                // every window whose audio arrived has run (Audio commands come first); the
-                // partial one is not run
-                let Some(s) = self.sessions.get(&sid) else {
-                    return;
-                };
-                if s.dead || s.ended {
-                    return;
-                }
-                let sent = s
-                    .out
-                    .try_send(Out::Close(CLOSE_GOING_AWAY, "server shutting down".into()))
-                    .is_ok();
-                if sent {
-                    self.retire(sid);
-                } else {
-                    self.metrics.refuse("slow_client");
-                    self.kill(sid, CLOSE_POLICY, slow_reason());
-                }
-            }
-            Cmd::Leave { sid, stats } => {
-                if let Some(s) = self.sessions.remove(&sid) {
-                    let _ = stats.send(s.stats);
-                }
-            }
+    /// Queues `frames` (from a push or finish that started at `t0`, on audio that arrived at `at`).
+    fn emit(&mut self, sid: u64, frames: Vec<Frame>, t0: Instant, at: Instant) {
+        if frames.is_empty() {
+            return;
         }
+        let done = Instant::now();
+        let Some(s) = self.sessions.get_mut(&sid) else {
+            return;
+        };
+        self.metrics.step_seconds.observe((done - t0).as_secs_f64());
+        self.metrics.steps_total.fetch_add(1, Ordering::Relaxed);
+        self.metrics.batch_size.observe(1.0);
+        self.metrics.tokens_total.fetch_add(1, Ordering::Relaxed);
+        s.stats.tokens += 1;
+        let lat = (done - at).as_secs_f64();
+        s.stats.latencies.push(lat);
+        self.metrics.token_latency_seconds.observe(lat);
+        let mut slow = false;
+        for f in frames {
+            if s.out.try_send(Out::Frame(Box::new(f))).is_err() {
+                slow = true;
+                break;
+            }
+            s.stats.frames += 1;
+            self.metrics.frames_total.fetch_add(1, Ordering::Relaxed);
+        }
+        if slow {
+            self.cut_slow(sid);
+        }
+    }
+
+    /// After `finish`: `{"type":"done"}`, then close 1000.
+    fn finish(&mut self, sid: u64) {
+        let Some(s) = self.sessions.get(&sid) else {
+            return;
+        };
+        if s.dead {
+            return;
+        }
+        let msg = Out::Done {
+            frames: s.stats.frames,
+        };
+        self.send_last(sid, msg);
+    }
+}
+
+impl SessionTable for StreamScheduler {
+    fn metrics(&self) -> &Metrics {
+        &self.metrics
+    }
+
+    fn out(&self, sid: u64) -> Option<&mpsc::Sender<Out>> {
+        self.sessions.get(&sid).map(|s| &s.out)
+    }
+
+    fn join(
+        &mut self,
+        sid: u64,
+        opts: &StreamOptions,
+        out: mpsc::Sender<Out>,
+        ctl: Arc<SessionCtl>,
+        credits: Arc<Semaphore>,
+    ) -> Result<Joined> {
+        let f = &self.frontend;
+        self.model.new_stream(opts).map(|st| {
+            // the first unit leaves once the audio reaches `lookahead_frames` past its end
+            let first = st.frames_per_unit() + st.lookahead_frames();
+            let joined = Joined {
+                guidance: st.guidance(),
+                frames_per_unit: st.frames_per_unit(),
+                lookahead_frames: st.lookahead_frames(),
+                first_frame_samples_16k: first * f.sample_rate / f.fps.max(1),
+            };
+            self.sessions.insert(
+                sid,
+                Sess {
+                    stream: st,
+                    out,
+                    ctl,
+                    credits,
+                    stats: SessionStats::default(),
+                    samples_in: 0,
+                    tokens_in: 0,
+                    ended: false,
+                    dead: false,
+                },
+            );
+            joined
+        })
     }
 
     /// Pushes a session's audio into its stream and sends the frames of the windows it completes.
@@ -201,58 +206,42 @@ impl StreamScheduler {
         }
     }
 
-    /// Queues `frames` (from a push or finish that started at `t0`, on audio that arrived at `at`).
-    fn emit(&mut self, sid: u64, frames: Vec<Frame>, t0: Instant, at: Instant) {
-        if frames.is_empty() {
-            return;
-        }
-        let done = Instant::now();
+    fn end(&mut self, sid: u64, input: AudioSpan) {
         let Some(s) = self.sessions.get_mut(&sid) else {
             return;
         };
-        self.metrics.step_seconds.observe((done - t0).as_secs_f64());
-        self.metrics.steps_total.fetch_add(1, Ordering::Relaxed);
-        self.metrics.batch_size.observe(1.0);
-        self.metrics.tokens_total.fetch_add(1, Ordering::Relaxed);
-        s.stats.tokens += 1;
-        let lat = (done - at).as_secs_f64();
-        s.stats.latencies.push(lat);
-        self.metrics.token_latency_seconds.observe(lat);
-        let mut slow = false;
-        for f in frames {
-            if s.out.try_send(Out::Frame(Box::new(f))).is_err() {
-                slow = true;
-                break;
-            }
-            s.stats.frames += 1;
-            self.metrics.frames_total.fetch_add(1, Ordering::Relaxed);
+        if s.dead || s.ended {
+            return;
         }
-        if slow {
-            self.metrics.refuse("slow_client");
-            self.kill(sid, CLOSE_POLICY, slow_reason());
+        s.ended = true;
+        let t0 = Instant::now();
+        let r = s.stream.finish(input);
+        match r {
+            Ok(frames) => {
+                self.emit(sid, frames, t0, t0);
+                self.finish(sid);
+            }
+            Err(e) => {
+                let msg = format!("internal error at the end of the audio: {e:#}");
+                self.kill(sid, CLOSE_INTERNAL, msg);
+            }
         }
     }
 
-    /// After `finish`: `{"type":"done"}`, then close 1000.
-    fn finish(&mut self, sid: u64) {
+    fn drain(&mut self, sid: u64) {
+        // every window whose audio arrived has run (Audio commands come first); the
+        // partial one is not run
         let Some(s) = self.sessions.get(&sid) else {
             return;
         };
-        if s.dead {
+        if s.dead || s.ended {
             return;
         }
-        let sent = s
-            .out
-            .try_send(Out::Done {
-                frames: s.stats.frames,
-            })
-            .is_ok();
-        if sent {
-            self.retire(sid);
-        } else {
-            self.metrics.refuse("slow_client");
-            self.kill(sid, CLOSE_POLICY, slow_reason());
-        }
+        self.send_last(sid, Out::Close(CLOSE_GOING_AWAY, "server shutting down".into()));
+    }
+
+    fn leave(&mut self, sid: u64) -> Option<SessionStats> {
+        self.sessions.remove(&sid).map(|s| s.stats)
     }
 
     fn retire(&mut self, sid: u64) {
@@ -268,8 +257,4 @@ impl StreamScheduler {
             s.ctl.kill(code, reason);
         }
     }
-}
-
-fn slow_reason() -> String {
-    "client too slow: its outbound frame queue is full".into()
 }
