@@ -9,28 +9,26 @@
 
 use livegesture_parity_tests as common;
 
+mod serve_common;
+
 use std::net::SocketAddr;
-use std::path::Path;
 use std::time::Duration;
 
 use futures_util::{SinkExt, StreamExt};
-use livegesture::audio::{read_wav_16k_mono, AudioSpan};
-use livegesture::backend::{self, BackendKind, BackendOptions};
+use livegesture::audio::AudioSpan;
 use livegesture::bundle::Bundle;
 use livegesture::model::livegesture::{Pipeline, StreamOptions};
 use livegesture::output::{Frame, FPS};
-use livegesture::serve::{ModelInfo, ServeConfig, Server};
+use livegesture::serve::{ServeConfig, Server};
+use serve_common::{
+    assert_equal, collect, connect, generate_input, model_info, pcm_bytes, session, speech_of,
+    tract_backend, url, within, write_wav, Outcome, Ws,
+};
 use tokio_tungstenite::tungstenite::Message;
 
 fn make_pipeline() -> (Bundle, Pipeline) {
     let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
-    let be = backend::create(&BackendOptions {
-        kind: BackendKind::Tract,
-        execution_provider: "cpu".into(),
-        intra_threads: 1,
-        ort_library: None,
-    })
-    .expect("backend");
+    let be = tract_backend();
     let p = Pipeline::new(&bundle, be.as_ref()).expect("pipeline");
     (bundle, p)
 }
@@ -38,15 +36,7 @@ fn make_pipeline() -> (Bundle, Pipeline) {
 fn start(cfg: ServeConfig) -> Server {
     Server::start("127.0.0.1:0".parse().unwrap(), cfg, || {
         let (bundle, p) = make_pipeline();
-        let info = ModelInfo {
-            model: "test".into(),
-            family: bundle.family(),
-            bundle_sha256: "0".repeat(64),
-            backend: p.backend_name().into(),
-            fps: bundle.frontend().fps,
-            frames_per_token: bundle.frontend().frames_per_token,
-            frontend: bundle.frontend().clone(),
-        };
+        let info = model_info("test", &bundle, p.backend_name());
         Ok((p, info))
     })
     .expect("server starts")
@@ -54,9 +44,7 @@ fn start(cfg: ServeConfig) -> Server {
 
 /// `seconds` of the bundle's reference speech clip at 16 kHz (repeated if shorter).
 fn speech(seconds: f64) -> Vec<f32> {
-    let clip = read_wav_16k_mono(common::tiny_bundle().join("reference/clip.wav")).unwrap();
-    let n = (seconds * 16000.0) as usize;
-    clip.iter().copied().cycle().take(n).collect()
+    speech_of(&common::tiny_bundle(), seconds)
 }
 
 /// A deterministic stereo signal at `rate` (a voiced-like buzz with an envelope, the channels differ).
@@ -75,52 +63,10 @@ fn stereo(rate: u32, seconds: f64) -> Vec<[f32; 2]> {
         .collect()
 }
 
-fn write_wav(path: &Path, rate: u32, channels: u16, float: bool, samples: &[f32]) {
-    let spec = hound::WavSpec {
-        channels,
-        sample_rate: rate,
-        bits_per_sample: if float { 32 } else { 16 },
-        sample_format: if float {
-            hound::SampleFormat::Float
-        } else {
-            hound::SampleFormat::Int
-        },
-    };
-    let mut w = hound::WavWriter::create(path, spec).unwrap();
-    for &s in samples {
-        if float {
-            w.write_sample(s).unwrap();
-        } else {
-            w.write_sample(s16(s)).unwrap();
-        }
-    }
-    w.finalize().unwrap();
-}
-
-fn s16(x: f32) -> i16 {
-    (x * 32768.0).round().clamp(-32768.0, 32767.0) as i16
-}
-
-fn pcm_bytes(samples: &[f32], float: bool) -> Vec<u8> {
-    let mut b = Vec::with_capacity(samples.len() * 4);
-    for &s in samples {
-        if float {
-            b.extend_from_slice(&s.to_le_bytes());
-        } else {
-            b.extend_from_slice(&s16(s).to_le_bytes());
-        }
-    }
-    b
-}
-
 /// What `generate` computes for these interleaved samples (see the module docs).
 fn reference(samples: &[f32], rate: u32, channels: u16, float: bool, seed: u64) -> Vec<Frame> {
-    let dir = tempfile::tempdir().unwrap();
-    let wav = dir.path().join("in.wav");
-    write_wav(&wav, rate, channels, float, samples);
-    let a16 = read_wav_16k_mono(&wav).unwrap();
+    let (a16, input) = generate_input(samples, rate, channels, float);
     let (_bundle, mut p) = make_pipeline();
-    let input = AudioSpan::new((samples.len() / channels as usize) as u64, rate);
     let mut s = p
         .new_stream(&StreamOptions {
             seed,
@@ -131,114 +77,6 @@ fn reference(samples: &[f32], rate: u32, channels: u16, float: bool, seed: u64) 
     out.extend(p.finish(&mut s, input).unwrap());
     assert_eq!(out.len() as u64, input.frames(FPS as u64));
     out
-}
-
-#[derive(Debug, Default)]
-struct Outcome {
-    ready: Option<serde_json::Value>,
-    frames: Vec<Frame>,
-    done: Option<u64>,
-    close: Option<(u16, String)>,
-}
-
-fn url(addr: SocketAddr, q: &str) -> String {
-    format!("ws://{addr}/v1/stream{q}")
-}
-
-type Ws =
-    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
-
-async fn connect(addr: SocketAddr, q: &str) -> Ws {
-    let (ws, resp) = tokio_tungstenite::connect_async(url(addr, q))
-        .await
-        .expect("upgrade");
-    assert_eq!(resp.status(), 101);
-    ws
-}
-
-async fn collect(ws: &mut Ws, out: &mut Outcome) {
-    while let Some(m) = ws.next().await {
-        match m {
-            Ok(Message::Text(t)) => {
-                let v: serde_json::Value = serde_json::from_str(&t).expect("server text is JSON");
-                match v.get("type").and_then(|t| t.as_str()) {
-                    Some("ready") => out.ready = Some(v),
-                    Some("done") => out.done = v["frames"].as_u64(),
-                    Some(other) => panic!("unexpected control message {other}"),
-                    None => out
-                        .frames
-                        .push(Frame::from_json_line(&t).expect("frame JSON")),
-                }
-            }
-            Ok(Message::Binary(b)) => out
-                .frames
-                .push(Frame::decode_binary(&b).expect("frame record")),
-            Ok(Message::Close(c)) => {
-                out.close = c.map(|c| (u16::from(c.code), c.reason.to_string()));
-            }
-            Ok(_) => {}
-            Err(_) => break,
-        }
-    }
-}
-
-/// Sends `bytes` cut at `cuts` (message lengths, cycled), then `{"type":"end"}`, and collects.
-async fn session(addr: SocketAddr, q: &str, bytes: &[u8], cuts: &[usize]) -> Outcome {
-    let mut ws = connect(addr, q).await;
-    let mut i = 0;
-    let mut k = 0;
-    while i < bytes.len() {
-        let n = cuts[k % cuts.len()].min(bytes.len() - i);
-        ws.send(Message::Binary(bytes[i..i + n].to_vec().into()))
-            .await
-            .unwrap();
-        i += n;
-        k += 1;
-    }
-    ws.send(Message::Text(r#"{"type":"end"}"#.into()))
-        .await
-        .unwrap();
-    let mut out = Outcome::default();
-    collect(&mut ws, &mut out).await;
-    out
-}
-
-fn assert_equal(got: &[Frame], want: &[Frame], what: &str) {
-    assert_eq!(got.len(), want.len(), "{what}: frame count");
-    let mut worst = 0f32;
-    for (g, w) in got.iter().zip(want) {
-        assert_eq!(g.index, w.index, "{what}: index");
-        assert!((g.time_s - w.time_s).abs() < 1e-12, "{what}: time_s");
-        for (a, b) in g
-            .poses
-            .iter()
-            .chain(&g.trans)
-            .chain(&g.expressions)
-            .zip(w.poses.iter().chain(&w.trans).chain(&w.expressions))
-        {
-            worst = worst.max((a - b).abs());
-        }
-    }
-    assert!(
-        worst <= 1e-4,
-        "{what}: frames differ from generate by {worst} (bound 1e-4)"
-    );
-}
-
-fn rt() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap()
-}
-
-fn within<F: std::future::Future>(secs: u64, f: F) -> F::Output {
-    rt().block_on(async {
-        tokio::time::timeout(Duration::from_secs(secs), f)
-            .await
-            .expect("test timed out")
-    })
 }
 
 #[test]

@@ -1,0 +1,218 @@
+//! What the `serve` tests of both families share (`tests/serve.rs`, `tests/serve_diffsheg.rs`):
+//! the tract backend and the server's [`ModelInfo`], test audio as WAV files and PCM messages, the
+//! WebSocket client (connect, send a session, collect what the server sends) and the frame comparison.
+//! Included by each of them with `mod serve_common;`; not every test file uses every helper.
+#![allow(dead_code)]
+
+use std::net::SocketAddr;
+use std::path::Path;
+use std::time::Duration;
+
+use futures_util::{SinkExt, StreamExt};
+use livegesture::audio::{read_wav_16k_mono, AudioSpan};
+use livegesture::backend::{self, Backend, BackendKind, BackendOptions};
+use livegesture::bundle::Bundle;
+use livegesture::output::Frame;
+use livegesture::serve::ModelInfo;
+use tokio_tungstenite::tungstenite::Message;
+
+/// The backend the tests run on: tract, CPU, one thread.
+pub fn tract_backend() -> Box<dyn Backend> {
+    backend::create(&BackendOptions {
+        kind: BackendKind::Tract,
+        execution_provider: "cpu".into(),
+        intra_threads: 1,
+        ort_library: None,
+    })
+    .expect("backend")
+}
+
+/// The `ModelInfo` a test server announces for `bundle` under the name `model`.
+pub fn model_info(model: &str, bundle: &Bundle, backend: &str) -> ModelInfo {
+    ModelInfo {
+        model: model.into(),
+        family: bundle.family(),
+        bundle_sha256: "0".repeat(64),
+        backend: backend.into(),
+        fps: bundle.frontend().fps,
+        frames_per_token: bundle.frontend().frames_per_token,
+        frontend: bundle.frontend().clone(),
+    }
+}
+
+/// `seconds` of the bundle at `dir`'s reference speech clip at 16 kHz (repeated if shorter).
+pub fn speech_of(dir: &Path, seconds: f64) -> Vec<f32> {
+    let clip = read_wav_16k_mono(dir.join("reference/clip.wav")).unwrap();
+    let n = (seconds * 16000.0) as usize;
+    clip.iter().copied().cycle().take(n).collect()
+}
+
+pub fn write_wav(path: &Path, rate: u32, channels: u16, float: bool, samples: &[f32]) {
+    let spec = hound::WavSpec {
+        channels,
+        sample_rate: rate,
+        bits_per_sample: if float { 32 } else { 16 },
+        sample_format: if float {
+            hound::SampleFormat::Float
+        } else {
+            hound::SampleFormat::Int
+        },
+    };
+    let mut w = hound::WavWriter::create(path, spec).unwrap();
+    for &s in samples {
+        if float {
+            w.write_sample(s).unwrap();
+        } else {
+            w.write_sample(s16(s)).unwrap();
+        }
+    }
+    w.finalize().unwrap();
+}
+
+pub fn s16(x: f32) -> i16 {
+    (x * 32768.0).round().clamp(-32768.0, 32767.0) as i16
+}
+
+pub fn pcm_bytes(samples: &[f32], float: bool) -> Vec<u8> {
+    let mut b = Vec::with_capacity(samples.len() * 4);
+    for &s in samples {
+        if float {
+            b.extend_from_slice(&s.to_le_bytes());
+        } else {
+            b.extend_from_slice(&s16(s).to_le_bytes());
+        }
+    }
+    b
+}
+
+/// What `generate` reads for these interleaved samples: written as a WAV file and read back by
+/// `read_wav_16k_mono`; with the input's own sample count and rate (for the stream's `finish`).
+pub fn generate_input(
+    samples: &[f32],
+    rate: u32,
+    channels: u16,
+    float: bool,
+) -> (Vec<f32>, AudioSpan) {
+    let dir = tempfile::tempdir().unwrap();
+    let wav = dir.path().join("in.wav");
+    write_wav(&wav, rate, channels, float, samples);
+    let a16 = read_wav_16k_mono(&wav).unwrap();
+    (
+        a16,
+        AudioSpan::new((samples.len() / channels as usize) as u64, rate),
+    )
+}
+
+#[derive(Debug, Default)]
+pub struct Outcome {
+    pub ready: Option<serde_json::Value>,
+    pub frames: Vec<Frame>,
+    pub done: Option<u64>,
+    pub close: Option<(u16, String)>,
+}
+
+pub fn url(addr: SocketAddr, q: &str) -> String {
+    format!("ws://{addr}/v1/stream{q}")
+}
+
+pub type Ws =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+pub async fn connect(addr: SocketAddr, q: &str) -> Ws {
+    let (ws, resp) = tokio_tungstenite::connect_async(url(addr, q))
+        .await
+        .expect("upgrade");
+    assert_eq!(resp.status(), 101);
+    ws
+}
+
+pub async fn collect(ws: &mut Ws, out: &mut Outcome) {
+    while let Some(m) = ws.next().await {
+        match m {
+            Ok(Message::Text(t)) => {
+                let v: serde_json::Value = serde_json::from_str(&t).expect("server text is JSON");
+                match v.get("type").and_then(|t| t.as_str()) {
+                    Some("ready") => out.ready = Some(v),
+                    Some("done") => out.done = v["frames"].as_u64(),
+                    Some(other) => panic!("unexpected control message {other}"),
+                    None => out
+                        .frames
+                        .push(Frame::from_json_line(&t).expect("frame JSON")),
+                }
+            }
+            Ok(Message::Binary(b)) => out
+                .frames
+                .push(Frame::decode_binary(&b).expect("frame record")),
+            Ok(Message::Close(c)) => {
+                out.close = c.map(|c| (u16::from(c.code), c.reason.to_string()));
+            }
+            Ok(_) => {}
+            Err(_) => break,
+        }
+    }
+}
+
+/// Sends `bytes` cut at `cuts` (message lengths, cycled), then `{"type":"end"}`, and collects.
+pub async fn session(addr: SocketAddr, q: &str, bytes: &[u8], cuts: &[usize]) -> Outcome {
+    let mut ws = connect(addr, q).await;
+    let mut i = 0;
+    let mut k = 0;
+    while i < bytes.len() {
+        let n = cuts[k % cuts.len()].min(bytes.len() - i);
+        ws.send(Message::Binary(bytes[i..i + n].to_vec().into()))
+            .await
+            .unwrap();
+        i += n;
+        k += 1;
+    }
+    ws.send(Message::Text(r#"{"type":"end"}"#.into()))
+        .await
+        .unwrap();
+    let mut out = Outcome::default();
+    collect(&mut ws, &mut out).await;
+    out
+}
+
+/// Largest |difference| of poses, translation and expressions; panics on a count or index mismatch.
+pub fn max_diff(got: &[Frame], want: &[Frame], what: &str) -> f32 {
+    assert_eq!(got.len(), want.len(), "{what}: frame count");
+    let mut worst = 0f32;
+    for (g, w) in got.iter().zip(want) {
+        assert_eq!(g.index, w.index, "{what}: index");
+        assert!((g.time_s - w.time_s).abs() < 1e-12, "{what}: time_s");
+        for (a, b) in g
+            .poses
+            .iter()
+            .chain(&g.trans)
+            .chain(&g.expressions)
+            .zip(w.poses.iter().chain(&w.trans).chain(&w.expressions))
+        {
+            worst = worst.max((a - b).abs());
+        }
+    }
+    worst
+}
+
+pub fn assert_equal(got: &[Frame], want: &[Frame], what: &str) {
+    let worst = max_diff(got, want, what);
+    assert!(
+        worst <= 1e-4,
+        "{what}: frames differ from generate by {worst} (bound 1e-4)"
+    );
+}
+
+pub fn rt() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+pub fn within<F: std::future::Future>(secs: u64, f: F) -> F::Output {
+    rt().block_on(async {
+        tokio::time::timeout(Duration::from_secs(secs), f)
+            .await
+            .expect("test timed out")
+    })
+}
