@@ -14,15 +14,15 @@ mod serve_common;
 use std::net::SocketAddr;
 use std::time::Duration;
 
-use futures_util::{SinkExt, StreamExt};
+use futures_util::SinkExt;
 use livegesture::audio::AudioSpan;
 use livegesture::bundle::Bundle;
 use livegesture::model::livegesture::{Pipeline, StreamOptions};
 use livegesture::output::{Frame, FPS};
 use livegesture::serve::{ServeConfig, Server};
 use serve_common::{
-    assert_equal, collect, connect, generate_input, model_info, pcm_bytes, session, speech_of,
-    tract_backend, url, within, write_wav, Outcome, Ws,
+    assert_equal, collect, connect, exited_ok, generate_input, model_info, pcm_bytes, read_frames,
+    session, spawn_serve, speech_of, tract_backend, url, within, write_wav, Outcome, Ws,
 };
 use tokio_tungstenite::tungstenite::Message;
 
@@ -489,42 +489,7 @@ fn a_slow_client_is_disconnected_and_memory_stays_bounded() {
 
 #[test]
 fn sigterm_drains_arrived_tokens_closes_1001_and_exits_0() {
-    use std::io::{BufRead, BufReader};
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_livegesture"))
-        .args([
-            "serve",
-            "--addr",
-            "127.0.0.1:0",
-            "--backend",
-            "tract",
-            "--max-pending-tokens",
-            "256",
-            "--bundle",
-        ])
-        .arg(common::tiny_bundle())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut err = BufReader::new(child.stderr.take().unwrap());
-    let mut line = String::new();
-    let addr: SocketAddr = loop {
-        line.clear();
-        assert!(
-            err.read_line(&mut line).unwrap() > 0,
-            "serve ended before listening"
-        );
-        if let Some(rest) = line.split("listening on http://").nth(1) {
-            break rest.split_whitespace().next().unwrap().parse().unwrap();
-        }
-    };
-    let log = std::thread::spawn(move || {
-        let mut all = String::new();
-        for l in err.lines() {
-            all.push_str(&l.unwrap());
-            all.push('\n');
-        }
-        all
-    });
+    let (child, addr, log) = spawn_serve(&common::tiny_bundle());
     let audio = speech(3.1); // 23 whole tokens and a partial one
     let pid = child.id() as i32;
     let got = within(60, async move {
@@ -534,21 +499,12 @@ fn sigterm_drains_arrived_tokens_closes_1001_and_exits_0() {
             .unwrap();
         let mut out = Outcome::default();
         // the first frame proves the whole message was read (it is forwarded before the next read)
-        while out.frames.is_empty() {
-            match ws.next().await.unwrap().unwrap() {
-                Message::Text(t) if t.contains("\"index\"") => {
-                    out.frames.push(Frame::from_json_line(&t).unwrap())
-                }
-                _ => {}
-            }
-        }
+        read_frames(&mut ws, &mut out, 1).await;
         unsafe { libc::kill(pid, libc::SIGTERM) };
         collect(&mut ws, &mut out).await;
         out
     });
-    let status = child.wait().unwrap();
-    let log = log.join().unwrap();
-    assert!(status.success(), "serve exited with {status}\n{log}");
+    let log = exited_ok(child, log);
     assert_eq!(got.close.as_ref().map(|c| c.0), Some(1001), "{got:?}");
     let want = reference(&speech(3.1), 16000, 1, false, 2);
     let f = Bundle::load(common::tiny_bundle())

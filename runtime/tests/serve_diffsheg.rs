@@ -24,8 +24,8 @@ use livegesture::model::{self, MotionModel, StreamOptions};
 use livegesture::output::{Frame, FPS};
 use livegesture::serve::{ServeConfig, Server};
 use serve_common::{
-    assert_equal, collect, connect, generate_input, max_diff, model_info, pcm_bytes, session,
-    speech_of, tract_backend, within, write_wav, Outcome, Ws,
+    assert_equal, collect, connect, exited_ok, generate_input, max_diff, model_info, pcm_bytes,
+    read_frames, session, spawn_serve, speech_of, tract_backend, within, write_wav, Outcome, Ws,
 };
 use tokio_tungstenite::tungstenite::Message;
 
@@ -348,43 +348,7 @@ fn refusals_and_limits_as_for_livegesture() {
 
 #[test]
 fn sigterm_drains_complete_windows_closes_1001_and_exits_0() {
-    use std::io::{BufRead, BufReader};
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_livegesture"))
-        .env_remove("LIVEGESTURE_BUNDLE")
-        .args([
-            "serve",
-            "--addr",
-            "127.0.0.1:0",
-            "--backend",
-            "tract",
-            "--max-pending-tokens",
-            "256",
-            "--bundle",
-        ])
-        .arg(bundle_dir())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut err = BufReader::new(child.stderr.take().unwrap());
-    let mut line = String::new();
-    let addr: SocketAddr = loop {
-        line.clear();
-        assert!(
-            err.read_line(&mut line).unwrap() > 0,
-            "serve ended before listening"
-        );
-        if let Some(rest) = line.split("listening on http://").nth(1) {
-            break rest.split_whitespace().next().unwrap().parse().unwrap();
-        }
-    };
-    let log = std::thread::spawn(move || {
-        let mut all = String::new();
-        for l in err.lines() {
-            all.push_str(&l.unwrap());
-            all.push('\n');
-        }
-        all
-    });
+    let (child, addr, log) = spawn_serve(&bundle_dir());
     // 3.1 s = 93 frames of audio: windows at frames 0, 20, 40, 60 run (the one at 80 needs 104
     // frames of audio), so 80 frames are emitted before the end that never comes
     let audio = speech(3.1);
@@ -405,21 +369,12 @@ fn sigterm_drains_complete_windows_closes_1001_and_exits_0() {
             .unwrap();
         let mut out = Outcome::default();
         // the last complete window's frames prove the whole message was pushed
-        while out.frames.len() < 80 {
-            match ws.next().await.unwrap().unwrap() {
-                Message::Text(t) if t.contains("\"index\"") => {
-                    out.frames.push(Frame::from_json_line(&t).unwrap())
-                }
-                _ => {}
-            }
-        }
+        read_frames(&mut ws, &mut out, 80).await;
         unsafe { libc::kill(pid, libc::SIGTERM) };
         collect(&mut ws, &mut out).await;
         out
     });
-    let status = child.wait().unwrap();
-    let log = log.join().unwrap();
-    assert!(status.success(), "serve exited with {status}\n{log}");
+    let log = exited_ok(child, log);
     assert_eq!(got.close.as_ref().map(|c| c.0), Some(1001), "{got:?}");
     let want = reference(&speech(3.1), 16000, 1, false, 2);
     assert_equal(&got.frames, &want[..80], "drained frames");

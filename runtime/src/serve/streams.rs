@@ -237,7 +237,10 @@ impl SessionTable for StreamScheduler {
         if s.dead || s.ended {
             return;
         }
-        self.send_last(sid, Out::Close(CLOSE_GOING_AWAY, "server shutting down".into()));
+        self.send_last(
+            sid,
+            Out::Close(CLOSE_GOING_AWAY, "server shutting down".into()),
+        );
     }
 
     fn leave(&mut self, sid: u64) -> Option<SessionStats> {

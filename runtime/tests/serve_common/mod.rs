@@ -4,8 +4,11 @@
 //! Included by each of them with `mod serve_common;`; not every test file uses every helper.
 #![allow(dead_code)]
 
+use std::io::{BufRead, BufReader};
 use std::net::SocketAddr;
 use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::thread::JoinHandle;
 use std::time::Duration;
 
 use futures_util::{SinkExt, StreamExt};
@@ -215,4 +218,66 @@ pub fn within<F: std::future::Future>(secs: u64, f: F) -> F::Output {
             .await
             .expect("test timed out")
     })
+}
+
+/// `livegesture serve` on `bundle` as a child process (tract, any free port, 256 pending tokens):
+/// the child, the address it listens on, and a thread collecting the rest of its log.
+pub fn spawn_serve(bundle: &Path) -> (Child, SocketAddr, JoinHandle<String>) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_livegesture"))
+        .env_remove("LIVEGESTURE_BUNDLE")
+        .args([
+            "serve",
+            "--addr",
+            "127.0.0.1:0",
+            "--backend",
+            "tract",
+            "--max-pending-tokens",
+            "256",
+            "--bundle",
+        ])
+        .arg(bundle)
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut line = String::new();
+    let addr: SocketAddr = loop {
+        line.clear();
+        assert!(
+            err.read_line(&mut line).unwrap() > 0,
+            "serve ended before listening"
+        );
+        if let Some(rest) = line.split("listening on http://").nth(1) {
+            break rest.split_whitespace().next().unwrap().parse().unwrap();
+        }
+    };
+    let log = std::thread::spawn(move || {
+        let mut all = String::new();
+        for l in err.lines() {
+            all.push_str(&l.unwrap());
+            all.push('\n');
+        }
+        all
+    });
+    (child, addr, log)
+}
+
+/// Reads until `out` holds `n` frames (JSON lines; the other messages are skipped).
+pub async fn read_frames(ws: &mut Ws, out: &mut Outcome, n: usize) {
+    while out.frames.len() < n {
+        match ws.next().await.unwrap().unwrap() {
+            Message::Text(t) if t.contains("\"index\"") => {
+                out.frames.push(Frame::from_json_line(&t).unwrap())
+            }
+            _ => {}
+        }
+    }
+}
+
+/// Waits for the child and its log; asserts it exited with 0.
+pub fn exited_ok(mut child: Child, log: JoinHandle<String>) -> String {
+    let status = child.wait().unwrap();
+    let log = log.join().unwrap();
+    assert!(status.success(), "serve exited with {status}\n{log}");
+    log
 }
