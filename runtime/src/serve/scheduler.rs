@@ -230,14 +230,8 @@ impl SessionTable for Scheduler {
         self.sessions.get(&sid).map(|s| &s.out)
     }
 
-    fn join(
-        &mut self,
-        sid: u64,
-        opts: &StreamOptions,
-        out: mpsc::Sender<Out>,
-        ctl: Arc<SessionCtl>,
-        credits: Arc<Semaphore>,
-    ) -> Result<Joined> {
+    fn join(&mut self, sid: u64, opts: &StreamOptions, link: SessionLink) -> Result<Joined> {
+        let SessionLink { out, ctl, credits } = link;
         let frames_per_unit = self.pipeline.frontend().frames_per_token;
         let first_frame_samples_16k = self.pipeline.frontend().token_end(0);
         self.pipeline.new_stream(opts).map(|st| {
@@ -477,6 +471,13 @@ impl Scheduler {
     }
 }
 
+/// A joining session's outbound queue, kill switch and credits (from [`Cmd::Join`]).
+pub(super) struct SessionLink {
+    pub out: mpsc::Sender<Out>,
+    pub ctl: Arc<SessionCtl>,
+    pub credits: Arc<Semaphore>,
+}
+
 /// The session commands as both schedulers handle them: [`Scheduler`] (LiveGesture, batched steps)
 /// and [`super::streams::StreamScheduler`] (one stream per session) implement the per-session parts;
 /// the dispatch, a session's last message and the cut-off of a slow client are shared.
@@ -485,14 +486,7 @@ pub(super) trait SessionTable {
     /// The session's outbound queue (None: no such session).
     fn out(&self, sid: u64) -> Option<&mpsc::Sender<Out>>;
     /// Opens the session's stream and registers it.
-    fn join(
-        &mut self,
-        sid: u64,
-        opts: &StreamOptions,
-        out: mpsc::Sender<Out>,
-        ctl: Arc<SessionCtl>,
-        credits: Arc<Semaphore>,
-    ) -> Result<Joined>;
+    fn join(&mut self, sid: u64, opts: &StreamOptions, link: SessionLink) -> Result<Joined>;
     /// The client's audio (16 kHz mono), arrived at `at`.
     fn push(&mut self, sid: u64, samples: &[f32], at: Instant);
     /// The end of the audio (SPEC 8): the stream's own end rule, then done.
@@ -516,7 +510,7 @@ pub(super) trait SessionTable {
                 credits,
                 reply,
             } => {
-                let r = self.join(sid, &opts, out, ctl, credits);
+                let r = self.join(sid, &opts, SessionLink { out, ctl, credits });
                 let _ = reply.send(r.map_err(|e| format!("{e:#}")));
             }
             Cmd::Audio { sid, samples, at } => self.push(sid, &samples, at),

@@ -37,7 +37,7 @@ use crate::output::Frame;
 
 use super::metrics::Metrics;
 use super::protocol::{CLOSE_GOING_AWAY, CLOSE_INTERNAL};
-use super::scheduler::{Cmd, Joined, Out, SessionCtl, SessionStats, SessionTable};
+use super::scheduler::{Cmd, Joined, Out, SessionCtl, SessionLink, SessionStats, SessionTable};
 
 struct Sess {
     stream: Box<dyn MotionStream>,
@@ -139,14 +139,8 @@ impl SessionTable for StreamScheduler {
         self.sessions.get(&sid).map(|s| &s.out)
     }
 
-    fn join(
-        &mut self,
-        sid: u64,
-        opts: &StreamOptions,
-        out: mpsc::Sender<Out>,
-        ctl: Arc<SessionCtl>,
-        credits: Arc<Semaphore>,
-    ) -> Result<Joined> {
+    fn join(&mut self, sid: u64, opts: &StreamOptions, link: SessionLink) -> Result<Joined> {
+        let SessionLink { out, ctl, credits } = link;
         let f = &self.frontend;
         self.model.new_stream(opts).map(|st| {
             // the first unit leaves once the audio reaches `lookahead_frames` past its end
