@@ -6,10 +6,10 @@
 
 use std::io::Write;
 
-use livegesture::audio::{RawFormat, RawPcmDecoder, RawPcmStream, WavStream};
-use livegesture::bundle::parse_manifest;
 #[cfg(feature = "serve")]
 use livegesture::audio::RESAMPLE_BLOCK;
+use livegesture::audio::{RawFormat, RawPcmDecoder, RawPcmStream, WavStream};
+use livegesture::bundle::parse_manifest;
 #[cfg(feature = "serve")]
 use livegesture::serve::protocol::{
     SessionInput, SessionParams, CLOSE_INTERNAL, CLOSE_INVALID, CLOSE_UNSUPPORTED,

@@ -27,6 +27,9 @@ stage "export the DiffSHEG tiny config (random weights) -> target/test-bundles/d
 "$LIVEGESTURE_PY" export/export.py --family diffsheg --config tiny --random-seed 0 --out target/test-bundles/diffsheg-tiny
 export LIVEGESTURE_DIFFSHEG_TINY_BUNDLE="$PWD/target/test-bundles/diffsheg-tiny"
 
+stage "rust formatting (cargo fmt --check)"
+cargo fmt --all -- --check
+
 stage "rust build (release)"
 cargo build --release --workspace --all-targets
 

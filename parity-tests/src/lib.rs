@@ -116,7 +116,10 @@ fn export_bundle(name: &str, args: &[&str]) -> PathBuf {
              `$LIVEGESTURE_PY export/export.py {} --out DIR`)",
             args.join(" ")
         ));
-        eprintln!("exporting the {name} test bundle into {} ...", dir.display());
+        eprintln!(
+            "exporting the {name} test bundle into {} ...",
+            dir.display()
+        );
         let out = Command::new(&py)
             .arg(root.join("export").join("export.py"))
             .args(args)

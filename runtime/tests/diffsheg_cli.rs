@@ -127,7 +127,8 @@ fn parity_fails_on_a_perturbed_denoiser_weight_naming_it() {
     let py = std::env::var_os("LIVEGESTURE_PY")
         .filter(|v| !v.is_empty())
         .expect("LIVEGESTURE_PY (source scripts/env.sh): breaking a bundle needs onnx");
-    let tool = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../parity-tests/tools/break_bundle.py");
+    let tool =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../parity-tests/tools/break_bundle.py");
     let o = Command::new(py)
         .arg(&tool)
         .arg(bundle())
@@ -146,7 +147,10 @@ fn parity_fails_on_a_perturbed_denoiser_weight_naming_it() {
         "graph",
     ]);
     let t = text(&o);
-    assert!(!o.status.success(), "parity passed on a broken bundle:\n{t}");
+    assert!(
+        !o.status.success(),
+        "parity passed on a broken bundle:\n{t}"
+    );
     let fails: Vec<&str> = t.lines().filter(|l| l.starts_with("FAIL ")).collect();
     assert!(!fails.is_empty(), "{t}");
     assert!(fails.iter().all(|l| l.contains("denoiser")), "{t}");

@@ -8,12 +8,12 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
+use livegesture::bundle::DiffshegManifest as DiffshegSections;
 use livegesture::model::diffsheg::foppas::{
     plan_windows, SamplerOptions, WindowSampler, MOTION_DIM,
 };
 use livegesture::model::diffsheg::noise::{fill_normals, NoiseStream};
 use livegesture::model::diffsheg::reference::RolloutReference;
-use livegesture::bundle::DiffshegManifest as DiffshegSections;
 
 fn bundle() -> PathBuf {
     livegesture_parity_tests::diffsheg_tiny_bundle()

@@ -1,8 +1,8 @@
 //! Tests of WAV reading, raw PCM decoding and resampling.
 
 use super::*;
-use std::path::Path;
 use std::io::Write;
+use std::path::Path;
 
 fn tone(n: usize, rate: u32, f: f64, amp: f64) -> Vec<f64> {
     (0..n)

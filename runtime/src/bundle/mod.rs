@@ -731,7 +731,10 @@ mod tests {
             v["family"] = "diffsheg".into();
         })
         .unwrap_err();
-        assert!(e.contains("family diffsheg") && e.contains("diffusion"), "{e}");
+        assert!(
+            e.contains("family diffsheg") && e.contains("diffusion"),
+            "{e}"
+        );
         // the common part stays required for every family
         let e = edited(|v| {
             v["family"] = "diffsheg".into();

@@ -407,9 +407,15 @@ mod tests {
         assert_eq!(end.input, AudioSpan::new(3, 16000));
         assert!(i.ended());
         let r = i.binary(&[0, 0]).unwrap_err();
-        assert_eq!((r.code, r.metric), (CLOSE_UNSUPPORTED, Some("unknown_message")));
+        assert_eq!(
+            (r.code, r.metric),
+            (CLOSE_UNSUPPORTED, Some("unknown_message"))
+        );
         let r = i.text(r#"{"type":"end"}"#).unwrap_err();
-        assert_eq!((r.code, r.metric), (CLOSE_UNSUPPORTED, Some("unknown_message")));
+        assert_eq!(
+            (r.code, r.metric),
+            (CLOSE_UNSUPPORTED, Some("unknown_message"))
+        );
     }
 
     #[test]
@@ -426,7 +432,10 @@ mod tests {
         assert_eq!((r.code, r.metric), (CLOSE_INVALID, Some("malformed")));
         // unknown and malformed text
         let mut i = input(&[]);
-        assert_eq!(i.text(r#"{"type":"pause"}"#).unwrap_err().code, CLOSE_UNSUPPORTED);
+        assert_eq!(
+            i.text(r#"{"type":"pause"}"#).unwrap_err().code,
+            CLOSE_UNSUPPORTED
+        );
         assert_eq!(i.text("{").unwrap_err().metric, Some("malformed"));
         // draining: no more input
         let mut i = input(&[("rate", "44100")]);
