@@ -76,6 +76,30 @@ pub struct SessionStats {
     pub latencies: Vec<f64>,
 }
 
+/// Accounts one produced unit (a token, or a DiffSHEG window) of a session that took `latency_s` from the
+/// audio completing it, and queues its `frames`. Returns false when the session's queue is full (a client
+/// that does not read): the caller cuts it.
+pub(super) fn deliver_unit(
+    stats: &mut SessionStats,
+    out: &mpsc::Sender<Out>,
+    metrics: &Metrics,
+    latency_s: f64,
+    frames: impl IntoIterator<Item = Frame>,
+) -> bool {
+    stats.tokens += 1;
+    metrics.tokens_total.fetch_add(1, Ordering::Relaxed);
+    stats.latencies.push(latency_s);
+    metrics.token_latency_seconds.observe(latency_s);
+    for f in frames {
+        if out.try_send(Out::Frame(Box::new(f))).is_err() {
+            return false;
+        }
+        stats.frames += 1;
+        metrics.frames_total.fetch_add(1, Ordering::Relaxed);
+    }
+    true
+}
+
 /// What a joining session gets back.
 #[derive(Debug, Clone)]
 pub struct Joined {
@@ -435,25 +459,20 @@ impl Scheduler {
                     let Some(s) = self.sessions.get_mut(&sid) else {
                         continue;
                     };
-                    s.stats.tokens += 1;
                     s.credits.add_permits(1);
-                    self.metrics.tokens_total.fetch_add(1, Ordering::Relaxed);
-                    let lat = (done - at).as_secs_f64();
-                    s.stats.latencies.push(lat);
-                    self.metrics.token_latency_seconds.observe(lat);
-                    let mut slow = false;
-                    for f in step.frames {
-                        if s.end_frames.is_some_and(|n| f.index >= n) {
-                            continue;
-                        }
-                        if s.out.try_send(Out::Frame(Box::new(f))).is_err() {
-                            slow = true;
-                            break;
-                        }
-                        s.stats.frames += 1;
-                        self.metrics.frames_total.fetch_add(1, Ordering::Relaxed);
-                    }
-                    if slow {
+                    let end = s.end_frames;
+                    let frames = step
+                        .frames
+                        .into_iter()
+                        .filter(|f| end.is_none_or(|n| f.index < n));
+                    let sent = deliver_unit(
+                        &mut s.stats,
+                        &s.out,
+                        &self.metrics,
+                        (done - at).as_secs_f64(),
+                        frames,
+                    );
+                    if !sent {
                         self.cut_slow(sid);
                     } else {
                         self.finish_if_complete(sid);

@@ -37,7 +37,9 @@ use crate::output::Frame;
 
 use super::metrics::Metrics;
 use super::protocol::{CLOSE_GOING_AWAY, CLOSE_INTERNAL};
-use super::scheduler::{Cmd, Joined, Out, SessionCtl, SessionLink, SessionStats, SessionTable};
+use super::scheduler::{
+    deliver_unit, Cmd, Joined, Out, SessionCtl, SessionLink, SessionStats, SessionTable,
+};
 
 struct Sess {
     stream: Box<dyn MotionStream>,
@@ -96,21 +98,13 @@ impl StreamScheduler {
         self.metrics.step_seconds.observe((done - t0).as_secs_f64());
         self.metrics.steps_total.fetch_add(1, Ordering::Relaxed);
         self.metrics.batch_size.observe(1.0);
-        self.metrics.tokens_total.fetch_add(1, Ordering::Relaxed);
-        s.stats.tokens += 1;
-        let lat = (done - at).as_secs_f64();
-        s.stats.latencies.push(lat);
-        self.metrics.token_latency_seconds.observe(lat);
-        let mut slow = false;
-        for f in frames {
-            if s.out.try_send(Out::Frame(Box::new(f))).is_err() {
-                slow = true;
-                break;
-            }
-            s.stats.frames += 1;
-            self.metrics.frames_total.fetch_add(1, Ordering::Relaxed);
-        }
-        if slow {
+        if !deliver_unit(
+            &mut s.stats,
+            &s.out,
+            &self.metrics,
+            (done - at).as_secs_f64(),
+            frames,
+        ) {
             self.cut_slow(sid);
         }
     }
