@@ -71,6 +71,20 @@ def load(path: str | os.PathLike):
     return model.eval()
 
 
+def load_to_fine_tune(path: str | os.PathLike, family: str, cfg, config_name: str):
+    """The trained model that ``train --init-from PATH`` continues from: refused (SystemExit, naming the file)
+    unless it is of ``family`` and its model config equals ``cfg`` (the run's ``--config config_name``)."""
+    model = load(path)
+    if getattr(model, "family", "livegesture") != family:
+        name = {"livegesture": "LiveGesture", "diffsheg": "DiffSHEG"}.get(family, family)
+        raise SystemExit(f"--init-from {path}: not a {name} checkpoint")
+    theirs, ours = model.cfg.to_dict(), cfg.to_dict()
+    if theirs != ours:
+        diff = sorted(k for k in ours.keys() | theirs.keys() if theirs.get(k) != ours.get(k))
+        raise SystemExit(f"--init-from {path}: its model config differs from --config {config_name} ({diff})")
+    return model
+
+
 def random_model(config, seed: int = 0, family: str = "livegesture"):
     """A model with random weights (tests, benchmarks of the paper config)."""
     if family == "diffsheg":

@@ -429,12 +429,7 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
     data = TrainData(roots if extra_data else data_dir, cfg, tcfg.speakers, augment=tcfg.augment, seed=tcfg.seed)
     src_model = None
     if init_from:
-        src_model = ckpt.load(init_from)
-        if getattr(src_model, "family", "livegesture") != "livegesture":
-            raise SystemExit(f"--init-from {init_from}: not a LiveGesture checkpoint")
-        if src_model.cfg.to_dict() != cfg.to_dict():
-            diff = sorted(k for k, v in cfg.to_dict().items() if src_model.cfg.to_dict().get(k) != v)
-            raise SystemExit(f"--init-from {init_from}: its model config differs from --config {config} ({diff})")
+        src_model = ckpt.load_to_fine_tune(init_from, "livegesture", cfg, config)
         svq_from = init_from
     if svq_from:
         # reuse a trained motion tokenizer (svq1 + svq2 of another checkpoint, with its motion statistics):

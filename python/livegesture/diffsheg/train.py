@@ -118,11 +118,7 @@ def train(config: str, data_dir: str, out: str, device: str = "cpu", overrides: 
     cfg = get_config(config)
     src = None
     if init_from:
-        src = ckpt.load(init_from)
-        if getattr(src, "family", "livegesture") != "diffsheg":
-            raise SystemExit(f"--init-from {init_from}: not a DiffSHEG checkpoint")
-        if src.cfg.to_dict() != cfg.to_dict():
-            raise SystemExit(f"--init-from {init_from}: its config ({src.cfg.name}) differs from --config {config}")
+        src = ckpt.load_to_fine_tune(init_from, "diffsheg", cfg, config)
     tc = DiffSHEGTrainConfig.for_model(cfg.name)
     if overrides:
         tc = replace(tc, **{k: v for k, v in overrides.items() if k in DiffSHEGTrainConfig.__dataclass_fields__})
