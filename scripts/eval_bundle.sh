@@ -2,6 +2,7 @@
 # Evaluate a bundle on a BEAT2-layout corpus: generate every test clip with the Rust runtime (N seeds),
 # then compute the BEAT2-style report with python -m livegesture.eval.
 #   bash scripts/eval_bundle.sh BUNDLE CORPUS OUT_DIR [SEEDS=2] [BACKEND=tract]
+# GENERATE_ARGS: more `livegesture generate` options for every clip, e.g. GENERATE_ARGS="--guidance 2 --jumps 1".
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/env.sh
@@ -14,7 +15,7 @@ for s in $(seq 1 "$seeds"); do
   d="$out/generated_seed$s"; mkdir -p "$d"
   for id in $(awk -F, '$2=="test"{print $1}' "$corpus/train_test_split.csv"); do
     "$bin" generate "$corpus/wave16k/$id.wav" -o "$d/$id.npz" --bundle "$bundle" \
-      --backend "$backend" --seed "$s" 2>/dev/null
+      --backend "$backend" --seed "$s" ${GENERATE_ARGS:-} 2>/dev/null
   done
   gen_args+=(--generated "$d")
 done

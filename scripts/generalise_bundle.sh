@@ -4,6 +4,7 @@
 # `livegesture generate` (N seeds), then runs python -m livegesture.eval.generalise on the npz folders.
 #   bash scripts/generalise_bundle.sh BUNDLE SYNTH_CORPUS OUT_DIR [SEEDS=1] [BACKEND=tract]
 # LIVEGESTURE_BIN: an already built CLI binary (otherwise ./target/release/livegesture, built with cargo).
+# GENERATE_ARGS: more `livegesture generate` options for every clip, e.g. GENERATE_ARGS="--temperature 0.8".
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/env.sh
@@ -21,7 +22,7 @@ for set in real synth; do
     d="$out/generated_${set}_seed$s"; mkdir -p "$d"
     for wav in "$out/audio/$set"/*.wav; do
       id=$(basename "$wav" .wav)
-      "$bin" generate "$wav" -o "$d/$id.npz" --bundle "$bundle" --backend "$backend" --seed "$s" 2>/dev/null
+      "$bin" generate "$wav" -o "$d/$id.npz" --bundle "$bundle" --backend "$backend" --seed "$s" ${GENERATE_ARGS:-} 2>/dev/null
     done
     args+=("--generated-$set" "$d")
   done
