@@ -524,17 +524,16 @@ def main(argv=None):
         ap.add_argument("--" + f.replace("_", "-"), type=float, default=None)
     ap.add_argument("--svq-from", help="take svq1/svq2 (the motion tokenizer and its motion statistics) from this "
                                        "checkpoint instead of training them; experts and fuse are trained")
-    ap.add_argument("--init-from", help="fine-tune this checkpoint: all its weights and statistics are loaded, "
-                                        "svq1/svq2 kept, experts and fuse continue from its weights "
-                                        "(use a lower --lr-ar)")
+    ap.add_argument("--init-from", help="fine-tune this trained checkpoint of the same family and config: all its "
+                                        "weights and statistics are loaded, with a fresh optimiser. LiveGesture: "
+                                        "svq1/svq2 kept, experts and fuse continue from its weights (use a lower "
+                                        "--lr-ar); DiffSHEG: normalisation and style ids kept")
     ap.add_argument("--extra-data", action="append", default=[],
                     help="another corpus folder whose train split is mixed in (repeatable)")
     ap.add_argument("--steps", type=int, default=None, help="diffsheg: training steps")
     ap.add_argument("--batch", type=int, default=None, help="diffsheg: batch size (windows)")
     ap.add_argument("--lr", type=float, default=None, help="diffsheg: learning rate")
     ap.add_argument("--max-minutes", type=float, default=None, help="diffsheg: stop after this training time")
-    ap.add_argument("--init-from", help="diffsheg: fine-tune this trained DiffSHEG checkpoint (keeps its weights, "
-                                        "normalisation and style ids; fresh optimiser)")
     args = ap.parse_args(argv)
     if args.family == "diffsheg":
         from .diffsheg.train import train as train_diffsheg

@@ -56,3 +56,16 @@ def test_init_from_rejects_another_config(tiny_corpus, source, tmp_path):
     with pytest.raises(SystemExit, match="exclude each other"):
         train("tiny", str(tiny_corpus), str(tmp_path / "bad2"), init_from=str(source), svq_from=str(source),
               overrides=OV)
+
+
+def test_train_command_line_fine_tunes(tiny_corpus, source, tmp_path, capsys):
+    # the command users type, through the argument parser (a duplicated option once broke `python -m
+    # livegesture.train` entirely while the function-level tests above passed)
+    from livegesture.train import main
+    with pytest.raises(SystemExit) as e:
+        main(["--help"])
+    assert e.value.code == 0 and "--init-from" in capsys.readouterr().out
+    out = tmp_path / "cli"
+    main(["--config", "tiny", "--data", str(tiny_corpus), "--out", str(out), "--speakers", "all",
+          "--init-from", str(source), "--lr-ar", "0", "--steps-experts", "2", "--steps-fuse", "2"])
+    assert _same(ckpt.load(source), ckpt.load(out / "final.pt")) == set()
