@@ -56,7 +56,8 @@ def power(path):
                   "audio-swap gap - chance gap | motion-swap gap |")
             print("|---|---|---|---|---|---|---|---|---|---|")
             for r in p["per_clip"] + [dict(s, id="**mean**", window_s=float("nan"))]:
-                print(f"| {r['id']} | {r['window_s']:.1f} | {r['onsets_per_s']:.2f} | {r['chance_bc']:.3f} | "
+                ws = "-" if r["window_s"] != r["window_s"] else f"{r['window_s']:.1f}"
+                print(f"| {r['id']} | {ws} | {r['onsets_per_s']:.2f} | {r['chance_bc']:.3f} | "
                       f"{r['shifted_bc']:.3f} | {r['bc_own']:.3f} | {r['bc_gap_audio_swap']:+.3f} | "
                       f"{r['chance_gap']:+.3f} | {r['bc_gap_audio_swap_minus_chance_gap']:+.3f} | "
                       f"{r['bc_gap_motion_swap']:+.3f} |")
@@ -66,7 +67,7 @@ def sweep(d):
     print("| T | top_k | real speed gap a / m | real jaw gap a / m | real BC gap a / m (clips a / m) | "
           "synth BC gap m (clips) | in-dist BC own / other | FGD test / train | L1 div eq.2 / BEAT2 | face MSE |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for sd in sorted(Path(d).glob("T*_K*"), key=lambda p: (-float(p.name.split("_")[0][1:]), -int(p.name.split("_K")[1]))):
+    for sd in sorted((p for p in Path(d).glob("T*_K*") if (p / "generalise.json").exists()), key=lambda p: (-float(p.name.split("_")[0][1:]), -int(p.name.split("_K")[1]))):
         g = json.loads((sd / "generalise.json").read_text())
         e = json.loads((sd / "eval.json").read_text())["generated"]
         ra, rm = g["real"]["model"]["summary"], g["real"]["motion_swap"]["model"]["summary"]
