@@ -64,22 +64,32 @@ def power(path):
 
 
 def sweep(d):
-    print("| T | top_k | real speed gap a / m | real jaw gap a / m | real BC gap a / m (clips a / m) | "
-          "synth BC gap m (clips) | in-dist BC own / other | FGD test / train | L1 div eq.2 / BEAT2 | face MSE |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for sd in sorted((p for p in Path(d).glob("T*_K*") if (p / "generalise.json").exists()), key=lambda p: (-float(p.name.split("_")[0][1:]), -int(p.name.split("_K")[1]))):
+    dirs = sorted((p for p in Path(d).glob("T*_K*") if (p / "generalise.json").exists()),
+                  key=lambda p: (-float(p.name.split("_")[0][1:]), -int(p.name.split("_K")[1])))
+    w = lambda s: f"{round(s['wins'] * s['clips'])}/{s['clips']}"
+    c = lambda s: f"{s['gap']:+.3f} [{s['gap_ci95'][0]:+.2f}, {s['gap_ci95'][1]:+.2f}] {w(s)}"
+    print("\nreal-speech validation split, 3 seeds: gap [95 % CI] clips own > other\n")
+    print("| T | top_k | design | upper-body speed | jaw | BC |")
+    print("|---|---|---|---|---|---|")
+    for sd in dirs:
+        g = json.loads((sd / "generalise.json").read_text())
+        t, k = sd.name.split("_K")
+        for design, b in (("audio swap", g["real"]["model"]), ("motion swap", g["real"]["motion_swap"]["model"])):
+            s = b["summary"]
+            print(f"| {t[1:]} | {k} | {design} | {c(s['speed_env'])} | {c(s['jaw_env'])} | {c(s['bc'])} |")
+    print("\nin distribution: synthetic test split, 2 seeds (scripts/eval_bundle.sh; check = generalise, motion swap)\n")
+    print("| T | top_k | BC own / other (gap, clips) | FGD vs test / train | L1 div eq.2 / BEAT2 | face MSE | "
+          "check speed / jaw / BC gap (BC clips) |")
+    print("|---|---|---|---|---|---|---|")
+    for sd in dirs:
         g = json.loads((sd / "generalise.json").read_text())
         e = json.loads((sd / "eval.json").read_text())["generated"]
-        ra, rm = g["real"]["model"]["summary"], g["real"]["motion_swap"]["model"]["summary"]
         sm = g["synth"]["motion_swap"]["model"]["summary"]
-        w = lambda s: f"{round(s['wins'] * s['clips'])}/{s['clips']}"
         t, k = sd.name.split("_K")
-        print(f"| {t[1:]} | {k} | {ra['speed_env']['gap']:+.3f} / {rm['speed_env']['gap']:+.3f} | "
-              f"{ra['jaw_env']['gap']:+.3f} / {rm['jaw_env']['gap']:+.3f} | "
-              f"{ra['bc']['gap']:+.3f} / {rm['bc']['gap']:+.3f} ({w(ra['bc'])} / {w(rm['bc'])}) | "
-              f"{sm['bc']['gap']:+.3f} ({w(sm['bc'])}) | {e['bc']:.3f} / {e['bc_mismatched_audio']:.3f} | "
-              f"{e['fgd']:.2f} / {e['fgd_vs_train']:.2f} | {e['l1div_realisations']:.2f} / {e['l1div_beat2']:.2f} | "
-              f"{e['face']['face']:.4f} |")
+        print(f"| {t[1:]} | {k} | {e['bc']:.3f} / {e['bc_mismatched_audio']:.3f} ({e['bc_gap']:+.3f}, "
+              f"{round(e['bc_matched_wins'] * e['clips'])}/{e['clips']}) | {e['fgd']:.2f} / {e['fgd_vs_train']:.2f} | "
+              f"{e['l1div_realisations']:.2f} / {e['l1div_beat2']:.2f} | {e['face']['face']:.4f} | "
+              f"{sm['speed_env']['gap']:+.3f} / {sm['jaw_env']['gap']:+.3f} / {sm['bc']['gap']:+.3f} ({w(sm['bc'])}) |")
 
 
 if __name__ == "__main__":
