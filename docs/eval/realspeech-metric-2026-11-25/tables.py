@@ -77,7 +77,8 @@ def sweep(d):
         for design, b in (("audio swap", g["real"]["model"]), ("motion swap", g["real"]["motion_swap"]["model"])):
             s = b["summary"]
             print(f"| {t[1:]} | {k} | {design} | {c(s['speed_env'])} | {c(s['jaw_env'])} | {c(s['bc'])} |")
-    print("\nin distribution: synthetic test split, 2 seeds (scripts/eval_bundle.sh; check = generalise, motion swap)\n")
+    print("\nin distribution: synthetic test split, 2 seeds "
+          "(scripts/eval_bundle.sh; check = generalise, motion swap)\n")
     print("| T | top_k | BC own / other (gap, clips) | FGD vs test / train | L1 div eq.2 / BEAT2 | face MSE | "
           "check speed / jaw / BC gap (BC clips) |")
     print("|---|---|---|---|---|---|---|")

@@ -544,11 +544,13 @@ def format_table(report: dict) -> str:
             lines += _summary_lines(blocks)
         lines.append("per clip (gap = own - other; a = audio swap, m = motion swap):")
         cols = [(d, src, k) for d in DESIGNS for src in design_blocks(sr, d) for k in MEASURES]
-        lines.append(f"  {'id':<38} {'s':>5} " + " ".join(f"{d[0] + ' ' + src[:3] + ' ' + k:>15}" for d, src, k in cols))
+        lines.append(f"  {'id':<38} {'s':>5} "
+                     + " ".join(f"{d[0] + ' ' + src[:3] + ' ' + k:>15}" for d, src, k in cols))
         first = any_block["per_clip"]
         for i, row in enumerate(first):
             vals = [_f(design_blocks(sr, d)[src]["per_clip"][i][k]["gap"], sign=True) for d, src, k in cols]
-            lines.append(f"  {row['id'][:38]:<38} {row['frames'] / FPS:>5.1f} " + " ".join(f"{v:>15}" for v in vals))
+            lines.append(f"  {row['id'][:38]:<38} {row['frames'] / FPS:>5.1f} "
+                         + " ".join(f"{v:>15}" for v in vals))
         for src, pw in sr.get("onset_power", {}).items():
             s = pw["summary"]
             lines.append(f"onset density and chance level of BC ({src}; window = BC's, {BC_TRIM_S} s trimmed):")
@@ -556,15 +558,18 @@ def format_table(report: dict) -> str:
                          f"{'chance gap':>10} {'a-chance':>8} {'m gap':>7}")
             for r in pw["per_clip"]:
                 lines.append(f"  {r['id'][:38]:<38} {r['onsets_per_s']:>5.2f} {_f(r['chance_bc']):>7} "
-                             f"{_f(r['shifted_bc']):>7} {_f(r['bc_own']):>7} {_f(r['bc_gap_audio_swap'], sign=True):>7} "
+                             f"{_f(r['shifted_bc']):>7} {_f(r['bc_own']):>7} "
+                             f"{_f(r['bc_gap_audio_swap'], sign=True):>7} "
                              f"{_f(r['chance_gap'], sign=True):>10} "
                              f"{_f(r['bc_gap_audio_swap_minus_chance_gap'], sign=True):>8} "
                              f"{_f(r.get('bc_gap_motion_swap', float('nan')), sign=True):>7}")
             lines.append(f"  {'mean':<38} {s['onsets_per_s']:>5.2f} {_f(s['chance_bc']):>7} {_f(s['shifted_bc']):>7} "
                          f"{_f(s['bc_own']):>7} {_f(s['bc_gap_audio_swap'], sign=True):>7} "
-                         f"{_f(s['chance_gap'], sign=True):>10} {_f(s['bc_gap_audio_swap_minus_chance_gap'], sign=True):>8} "
+                         f"{_f(s['chance_gap'], sign=True):>10} "
+                         f"{_f(s['bc_gap_audio_swap_minus_chance_gap'], sign=True):>8} "
                          f"{_f(s.get('bc_gap_motion_swap', float('nan')), sign=True):>7}")
-            lines.append(f"  audio-swap BC gap vs chance gap over clips: r = {_f(s['gap_vs_chance_gap_r'], sign=True)}, "
+            lines.append("  audio-swap BC gap vs chance gap over clips: "
+                         f"r = {_f(s['gap_vs_chance_gap_r'], sign=True)}, "
                          f"r^2 = {_f(s['gap_vs_chance_gap_r2'])}, slope = {_f(s['gap_vs_chance_gap_slope'])}; "
                          f"own BC above shifted on {s['own_above_shifted'] * len(pw['per_clip']):.0f}/"
                          f"{len(pw['per_clip'])} clips")
@@ -641,9 +646,11 @@ def main(argv: list[str] | None = None) -> int:
                 raise SystemExit(f"no motion for the {name} set: give --checkpoint or --generated-{name} DIR "
                                  f"(or drop the set: {'--no-real' if name == 'real' else 'leave out --synth'})")
     speed_ref = train_speed_ref(a.synth) if a.synth else None
-    report = {"settings": {"fps": FPS, "sample_rate": SAMPLE_RATE, "mismatch": "audio swap: clip i gets the audio of clip "
-                           "(i + 1) mod n (sorted ids); motion swap: clip i's audio gets the motion of every clip j != i", "env_range_db": ENV_RANGE_DB,
-                           "speed_smooth_s": SPEED_SMOOTH_S, "bc_trim_s": BC_TRIM_S, "bootstrap": a.bootstrap, "ci": 0.95,
+    report = {"settings": {"fps": FPS, "sample_rate": SAMPLE_RATE,
+                           "mismatch": "audio swap: clip i gets the audio of clip (i + 1) mod n (sorted ids); motion "
+                                       "swap: clip i's audio gets the motion of every clip j != i",
+                           "env_range_db": ENV_RANGE_DB, "speed_smooth_s": SPEED_SMOOTH_S, "bc_trim_s": BC_TRIM_S,
+                           "bootstrap": a.bootstrap, "ci": 0.95,
                            "bc_speed_ref": "synth train split" if speed_ref is not None else "evaluated motion",
                            "motion": a.checkpoint or gen},
               "sets": {}}
