@@ -11,8 +11,24 @@ Two sets of audio, each evaluated with the same three measures:
 - ``synth``: the held-out split (``--synth-split``, default ``test``) of a synthetic corpus (``--synth``),
   i.e. synthetic voices and sentences the model was not trained on.
 
-For every clip i, its motion is scored against its OWN audio and against ANOTHER clip's audio (a fixed
-derangement: clip i of the sorted ids gets the audio of clip (i + 1) mod n), over their common length:
+For every clip i, its motion is scored against its OWN audio and against a mismatched pair, in two designs
+reported side by side (:func:`evaluate_set`):
+
+- ``audio swap`` (SPEC 10's "BC with the audio of another clip"; the report's ``model``/``reference``
+  blocks): clip i's motion against ANOTHER clip's audio (a fixed derangement: clip i of the sorted ids
+  gets the audio of clip (i + 1) mod n), over their common length;
+- ``motion swap`` (the ``motion_swap`` blocks): clip i's OWN audio against the motion made for every
+  OTHER clip j != i (each pair over the common length of audio i, motion i and motion j, then averaged
+  over j). The onsets and envelope are the same on both sides, only the motion changes.
+
+The audio swap's BC gap mostly measures the difference in onset density between a clip and its partner:
+BC's chance level (:func:`chance_bc`, the BC of randomly placed motion beats) rises with the onset rate,
+and real speech (4-6 onsets/s in BC's window) puts it at ~0.93 with sigma 0.3 s. Every report holds an
+``onset_power`` block per set and motion source: onsets per second, chance BC, BC of the motion's own
+beats circularly shifted (:func:`shifted_bc`), and the regression of the per-clip audio-swap BC gap on the
+per-clip chance gap.
+
+The three measures:
 
 - ``bc``: Beat Constancy (:func:`livegesture.eval.metrics.beat_constancy`, upper-body joints, onsets from
   :func:`~livegesture.eval.metrics.detect_onsets`, the same settings as ``python -m livegesture.eval`` but
@@ -24,7 +40,7 @@ derangement: clip i of the sorted ids gets the audio of clip (i + 1) mod n), ove
   project skeleton, translation removed) and the envelope, both smoothed with a centred Gaussian
   (sigma ``SPEED_SMOOTH_S`` = 0.2 s) so that a stroke that peaks a few frames after its syllable counts.
 
-Per measure and set: the mean over clips of own, other and their difference (``gap``), a 95 % bootstrap
+Per measure, set and design: the mean over clips of own, other and their difference (``gap``), a 95 % bootstrap
 confidence interval of the mean gap (resampling clips, ``--bootstrap`` resamples, fixed seed), the fraction
 of clips whose own-audio value beats the other-audio value, and every clip's numbers. A motion that ignores
 its audio has gaps near zero (tests: another clip's motion, time-reversed motion); a motion that follows
@@ -46,7 +62,8 @@ for ``real``, the motion the synthetic corpus generator's motion model
 what a model trained on that corpus is asked to learn, i.e. what the check can show at most.
 
 ``--require-targets`` exits with status 1 unless the model's real-speech gaps reach the targets of issue 16
-(speed_env gap >= 0.15, jaw_env gap >= 0.6, positive BC gap on more than half of the clips).
+(speed_env gap >= 0.15, jaw_env gap >= 0.6, positive BC gap on more than half of the clips) in the audio
+swap design (``--targets-design motion_swap`` reads the motion swap instead); both verdicts are reported.
 """
 from __future__ import annotations
 
@@ -67,6 +84,7 @@ SPEED_SMOOTH_S = 0.2
 BC_TRIM_S = 0.5          # the recordings are 4-30 s: livegesture.eval's 2 s trim would leave nothing of some
 ENV_RANGE_DB = 50.0
 MEASURES = ("bc", "jaw_env", "speed_env")
+DESIGNS = ("audio_swap", "motion_swap")
 TARGETS = {"speed_env_gap": 0.15, "jaw_env_gap": 0.6, "bc_wins": 0.5}
 
 
@@ -144,10 +162,10 @@ class ClipAudio:
         self.env = speech_envelope(self.audio, self.n)
 
 
-def clip_measures(m: ClipMotion, a: ClipAudio, speed_ref=None) -> dict:
-    """The three measures of one motion against one audio, over their common length (BC is NaN when the
-    clip is too short for its trim)."""
-    T = min(m.n, a.n)
+def clip_measures(m: ClipMotion, a: ClipAudio, speed_ref=None, n_frames: int | None = None) -> dict:
+    """The three measures of one motion against one audio, over their common length, or its first
+    ``n_frames`` when shorter (BC is NaN when the clip is too short for its trim)."""
+    T = min(m.n, a.n) if n_frames is None else min(m.n, a.n, n_frames)
     try:
         bc = M.beat_constancy(m.joints[:T], onset_times=a.onsets, fps=FPS, speed_ref=speed_ref, trim_s=BC_TRIM_S)
     except ValueError:
@@ -179,29 +197,20 @@ def bootstrap_ci(values, n_boot: int = 2000, seed: int = 0, level: float = 0.95)
     return float(np.quantile(means, a)), float(np.quantile(means, 1 - a))
 
 
-def evaluate_set(ids: list[str], motions: list[list[dict]], audios: list[np.ndarray], speed_ref=None,
-                 n_boot: int = 2000, seed: int = 0) -> dict:
-    """``motions[i]``: the realisations (>= 1) for clip ``ids[i]`` whose own audio is ``audios[i]`` (16 kHz).
-    Returns the summary per measure and per-clip numbers (realisations averaged per clip)."""
-    n = len(ids)
-    if not (n == len(motions) == len(audios)):
-        raise ValueError(f"evaluate_set: {n} ids, {len(motions)} motions, {len(audios)} audios")
-    perm = derangement(n)
-    aud = [ClipAudio(a) for a in audios]
-    per_clip = []
-    for i, cid in enumerate(ids):
-        own, other = [], []
-        for mo in motions[i]:
-            cm = ClipMotion(mo)
-            own.append(clip_measures(cm, aud[i], speed_ref))
-            other.append(clip_measures(cm, aud[perm[i]], speed_ref))
-        row = {"id": cid, "other_audio": ids[perm[i]], "realisations": len(motions[i]),
-               "frames": own[0]["frames"]}
-        for k in MEASURES:
-            o = float(np.nanmean([r[k] for r in own])) if any(not math.isnan(r[k]) for r in own) else float("nan")
-            x = float(np.nanmean([r[k] for r in other])) if any(not math.isnan(r[k]) for r in other) else float("nan")
-            row[k] = {"own": o, "other": x, "gap": o - x}
-        per_clip.append(row)
+def _clip_motion(m) -> "ClipMotion":
+    return m if isinstance(m, ClipMotion) else ClipMotion(m)
+
+
+def _clip_audio(a) -> "ClipAudio":
+    return a if isinstance(a, ClipAudio) else ClipAudio(a)
+
+
+def _nanmean(values) -> float:
+    v = [x for x in values if not math.isnan(x)]
+    return float(np.mean(v)) if v else float("nan")
+
+
+def _summarise(per_clip: list[dict], n_boot: int, seed: int) -> dict:
     summary = {}
     for k in MEASURES:
         own = np.array([r[k]["own"] for r in per_clip])
@@ -214,8 +223,173 @@ def evaluate_set(ids: list[str], motions: list[list[dict]], audios: list[np.ndar
                       "gap": float(np.mean(gap[ok])) if ok.any() else float("nan"),
                       "gap_ci95": [lo, hi], "wins": float(np.mean(gap[ok] > 0)) if ok.any() else float("nan"),
                       "clips": int(ok.sum())}
-    return {"clips": n, "seconds": round(sum(len(a) for a in audios) / SAMPLE_RATE, 2), "summary": summary,
-            "per_clip": per_clip}
+    return summary
+
+
+def evaluate_set(ids: list[str], motions: list[list[dict]], audios: list[np.ndarray], speed_ref=None,
+                 n_boot: int = 2000, seed: int = 0, design: str = "audio_swap") -> dict:
+    """``motions[i]``: the realisations (>= 1) for clip ``ids[i]`` whose own audio is ``audios[i]`` (16 kHz).
+    Returns the summary per measure and per-clip numbers (realisations averaged per clip).
+
+    ``design`` picks the mismatched side of the gap (the own side is the same in both):
+
+    - ``"audio_swap"``: clip i's motion against the audio of clip :func:`derangement` (i) (SPEC 10: "BC with
+      the audio of another clip"). The two sides use different onset tracks and envelopes, so a clip whose
+      partner's onsets are sparser than its own shows a BC gap whatever its motion (see :func:`chance_bc`);
+    - ``"motion_swap"``: clip i's OWN audio against the motion made for every OTHER clip j != i: for each
+      pair, own motion i and motion j (realisations averaged) are both scored against the same first T_ij
+      frames of audio i (T_ij the common length of audio i, motion i and motion j), and own, other and gap
+      are the means over j. The onset track and the envelope are the same on both sides of every pair and
+      only the motion changes, so onset density (and clip length) cancels.
+
+    ``motions`` / ``audios`` items may also be prepared :class:`ClipMotion` / :class:`ClipAudio`.
+    """
+    n = len(ids)
+    if not (n == len(motions) == len(audios)):
+        raise ValueError(f"evaluate_set: {n} ids, {len(motions)} motions, {len(audios)} audios")
+    if design not in DESIGNS:
+        raise ValueError(f"evaluate_set: unknown design {design!r} (one of {', '.join(DESIGNS)})")
+    perm = derangement(n)
+    aud = [_clip_audio(a) for a in audios]
+    mot = [[_clip_motion(m) for m in reals] for reals in motions]
+    if any(len(r) == 0 for r in mot):
+        raise ValueError("evaluate_set: every clip needs at least one realisation")
+    per_clip = []
+    for i, cid in enumerate(ids):
+        own = [clip_measures(cm, aud[i], speed_ref) for cm in mot[i]]
+        row = {"id": cid, "realisations": len(mot[i]), "frames": own[0]["frames"]}
+        if design == "audio_swap":
+            other = [clip_measures(cm, aud[perm[i]], speed_ref) for cm in mot[i]]
+            row["other_audio"] = ids[perm[i]]
+            for k in MEASURES:
+                o, x = _nanmean([r[k] for r in own]), _nanmean([r[k] for r in other])
+                row[k] = {"own": o, "other": x, "gap": o - x}
+        else:
+            # pair (i, j): own and other over the SAME frames of audio i (the common length of audio i, motion
+            # i and motion j), so that both sides see the same onsets and envelope; then the mean over j
+            row["other_motions"] = n - 1
+            pairs = {k: ([], []) for k in MEASURES}
+            for j in range(n):
+                if j == i:
+                    continue
+                T = min([aud[i].n] + [cm.n for cm in mot[i]] + [cm.n for cm in mot[j]])
+                o_ij = [clip_measures(cm, aud[i], speed_ref, T) for cm in mot[i]]
+                x_ij = [clip_measures(cm, aud[i], speed_ref, T) for cm in mot[j]]
+                for k in MEASURES:
+                    pairs[k][0].append(_nanmean([r[k] for r in o_ij]))
+                    pairs[k][1].append(_nanmean([r[k] for r in x_ij]))
+            for k in MEASURES:
+                ok = [not (math.isnan(o) or math.isnan(x)) for o, x in zip(*pairs[k])]
+                o = _nanmean([v for v, g in zip(pairs[k][0], ok) if g])
+                x = _nanmean([v for v, g in zip(pairs[k][1], ok) if g])
+                row[k] = {"own": o, "other": x, "gap": o - x, "pairs": int(sum(ok))}
+        per_clip.append(row)
+    return {"design": design, "clips": n, "seconds": round(sum(len(a.audio) for a in aud) / SAMPLE_RATE, 2),
+            "summary": _summarise(per_clip, n_boot, seed), "per_clip": per_clip}
+
+
+# ----------------------------------------------------------------------------- power of the BC gap
+
+def bc_window(n_frames: int, fps: int = FPS, trim_s: float = BC_TRIM_S) -> tuple[int, int]:
+    """BC's trimmed window [start, stop) in frames (as :func:`livegesture.eval.metrics.beat_constancy`)."""
+    trim = int(round(trim_s * fps))
+    return trim, n_frames - trim
+
+
+def chance_bc(onsets: np.ndarray, n_frames: int, fps: int = FPS, sigma: float = M.SIGMA_S,
+              trim_s: float = BC_TRIM_S) -> float:
+    """Chance level of Beat Constancy for one onset track: the expected BC of motion beats placed uniformly
+    at random on the frames of BC's window (exactly the mean over every window frame of
+    exp(-d^2 / 2 sigma^2), d the distance to the nearest onset inside the window). It grows with the onset
+    density: with onsets every ``2 sigma`` (0.6 s) or closer, any motion scores about 0.8 or more."""
+    start, stop = bc_window(n_frames, fps, trim_s)
+    if stop - start < 3:
+        return float("nan")
+    a = np.asarray(onsets, np.float64)
+    a = a[(a >= start / fps) & (a < stop / fps)]
+    return M.bc_score(np.arange(start, stop) / fps, a, sigma)
+
+
+def shifted_bc(m: "ClipMotion", a: "ClipAudio", speed_ref=None, min_shift_s: float = 1.0,
+               sigma: float = M.SIGMA_S) -> float:
+    """Chance level of Beat Constancy for one motion and one onset track: the mean BC of the motion's own
+    beats circularly shifted inside BC's window by every shift of at least ``min_shift_s`` (either way),
+    against the same onsets. Keeps the motion's beat count and rhythm and the audio's onsets; only their
+    alignment is destroyed."""
+    T = min(m.n, a.n)
+    try:
+        _, det = M.beat_constancy(m.joints[:T], onset_times=a.onsets, fps=FPS, speed_ref=speed_ref,
+                                  trim_s=BC_TRIM_S, return_details=True)
+    except ValueError:
+        return float("nan")
+    start, W = det["start"], det["stop"] - det["start"]
+    k = int(math.ceil(min_shift_s * FPS))
+    shifts = np.arange(k, W - k + 1)
+    onsets = np.sort(np.asarray(det["audio_beats"], np.float64))
+    if len(shifts) == 0:
+        return float("nan")
+    per_joint = []
+    for b in det["motion_beats"]:
+        if len(b) == 0 or len(onsets) == 0:
+            per_joint.append(0.0)
+            continue
+        t = (((np.asarray(b)[None, :] - start + shifts[:, None]) % W) + start) / FPS   # (shifts, beats)
+        pos = np.searchsorted(onsets, t)
+        left = onsets[np.clip(pos - 1, 0, len(onsets) - 1)]
+        right = onsets[np.clip(pos, 0, len(onsets) - 1)]
+        d = np.minimum(np.abs(t - left), np.abs(t - right))
+        per_joint.append(float(np.exp(-d * d / (2.0 * sigma * sigma)).mean()))
+    return float(np.mean(per_joint))
+
+
+def onset_power(ids: list[str], motions: list[list], audios: list, audio_swap: dict, motion_swap: dict | None = None,
+                speed_ref=None) -> dict:
+    """How much power the BC gap has on one set: per clip the onset rate inside BC's window, the chance BC
+    of its onset track (:func:`chance_bc`), the motion's BC at chance alignment (:func:`shifted_bc`,
+    realisations averaged), and how much of the audio-swap BC gap the difference in chance level between
+    the clip's own onset track and its partner's explains (Pearson r, r^2 and least-squares slope of the
+    per-clip BC gap on the per-clip chance gap; a gap that is only onset density has slope ~1)."""
+    n = len(ids)
+    aud = [_clip_audio(a) for a in audios]
+    mot = [[_clip_motion(m) for m in reals] for reals in motions]
+    perm = derangement(n)
+    rows = []
+    for i, cid in enumerate(ids):
+        T_own = min(mot[i][0].n, aud[i].n)
+        T_oth = min(mot[i][0].n, aud[perm[i]].n)
+        start, stop = bc_window(T_own)
+        a = aud[i].onsets
+        n_on = int(((a >= start / FPS) & (a < stop / FPS)).sum())
+        c_own, c_oth = chance_bc(aud[i].onsets, T_own), chance_bc(aud[perm[i]].onsets, T_oth)
+        row = {"id": cid, "window_s": max(stop - start, 0) / FPS, "onsets": n_on,
+               "onsets_per_s": n_on / max((stop - start) / FPS, 1e-9),
+               "chance_bc": c_own, "chance_bc_other_audio": c_oth, "chance_gap": c_own - c_oth,
+               "shifted_bc": _nanmean([shifted_bc(cm, aud[i], speed_ref) for cm in mot[i]]),
+               "bc_own": audio_swap["per_clip"][i]["bc"]["own"],
+               "bc_gap_audio_swap": audio_swap["per_clip"][i]["bc"]["gap"]}
+        row["bc_gap_audio_swap_minus_chance_gap"] = row["bc_gap_audio_swap"] - row["chance_gap"]
+        if motion_swap is not None:
+            row["bc_gap_motion_swap"] = motion_swap["per_clip"][i]["bc"]["gap"]
+        rows.append(row)
+    g = np.array([r["bc_gap_audio_swap"] for r in rows])
+    c = np.array([r["chance_gap"] for r in rows])
+    ok = ~(np.isnan(g) | np.isnan(c))
+    r = pearson(g[ok], c[ok]) if ok.sum() > 2 else float("nan")
+    slope = float(np.polyfit(c[ok], g[ok], 1)[0]) if ok.sum() > 2 and np.std(c[ok]) > 0 else float("nan")
+    col = lambda k: _nanmean([row[k] for row in rows])
+    summary = {"onsets_per_s": col("onsets_per_s"), "chance_bc": col("chance_bc"), "shifted_bc": col("shifted_bc"),
+               "bc_own": col("bc_own"),
+               "own_above_shifted": float(np.mean([row["bc_own"] > row["shifted_bc"] for row in rows
+                                                   if not math.isnan(row["shifted_bc"])])),
+               "gap_vs_chance_gap_r": r, "gap_vs_chance_gap_r2": r * r if not math.isnan(r) else float("nan"),
+               "gap_vs_chance_gap_slope": slope,
+               "bc_gap_audio_swap": col("bc_gap_audio_swap"), "chance_gap": col("chance_gap"),
+               "bc_gap_audio_swap_minus_chance_gap": col("bc_gap_audio_swap_minus_chance_gap"),
+               "wins_audio_swap_minus_chance_gap": float(np.mean([row["bc_gap_audio_swap_minus_chance_gap"] > 0
+                                                                  for row in rows]))}
+    if motion_swap is not None:
+        summary["bc_gap_motion_swap"] = col("bc_gap_motion_swap")
+    return {"summary": summary, "per_clip": rows}
 
 
 def targets_met(block: dict) -> dict:
@@ -322,37 +496,90 @@ def _f(v, nd=3, sign=False):
     return f"{v:+.{nd}f}" if sign else f"{v:.{nd}f}"
 
 
+SOURCES = ("model", "reference")
+DESIGN_TITLES = {"audio_swap": "audio swap: clip i's motion vs its own audio / vs clip i+1's audio",
+                 "motion_swap": "motion swap: clip i's own audio vs its own motion / vs the motion of every "
+                                "other clip j != i"}
+
+
+def design_blocks(set_report: dict, design: str) -> dict:
+    """{source: block} of one set's report for one design (audio swap: the set's ``model``/``reference``
+    blocks; motion swap: those under ``motion_swap``)."""
+    src = set_report if design == "audio_swap" else set_report.get("motion_swap", {})
+    return {k: src[k] for k in SOURCES if k in src}
+
+
+def _summary_lines(blocks: dict) -> list[str]:
+    lines = [f"{'motion':<10} {'measure':<10} {'own':>7} {'other':>7} {'gap':>7} {'gap 95% CI':>17} {'own>other':>9}"]
+    for src, b in blocks.items():
+        for k in MEASURES:
+            s = b["summary"][k]
+            ci = f"[{_f(s['gap_ci95'][0], sign=True)}, {_f(s['gap_ci95'][1], sign=True)}]"
+            wins = f"{round(s['wins'] * s['clips'])}/{s['clips']}" if not math.isnan(s["wins"]) else "nan"
+            lines.append(f"{src:<10} {k:<10} {_f(s['own']):>7} {_f(s['other']):>7} {_f(s['gap'], sign=True):>7} "
+                         f"{ci:>17} {wins:>9}")
+    return lines
+
+
+def _targets_line(t: dict, design: str) -> str:
+    return (f"issue-16 targets on real speech (model, {design.replace('_', ' ')}): speed_env gap >= 0.15: "
+            f"{t['speed_env_gap']}, jaw_env gap >= 0.6: {t['jaw_env_gap']}, BC gap > 0 on most clips: "
+            f"{t['bc_gap_positive_on_most_clips']}")
+
+
 def format_table(report: dict) -> str:
     lines = []
     for set_name in ("real", "synth"):
-        blocks = report.get(set_name)
-        if not blocks:
+        sr = report.get(set_name)
+        if not sr:
             continue
-        any_block = next(iter(blocks.values()))
+        any_block = next(iter(design_blocks(sr, "audio_swap").values()))
         lines.append(f"== {set_name}: {report['sets'][set_name]} ({any_block['clips']} clips, "
                      f"{any_block['seconds']:.0f} s)")
-        lines.append(f"{'motion':<10} {'measure':<10} {'own':>7} {'other':>7} {'gap':>7} {'gap 95% CI':>17} "
-                     f"{'own>other':>9}")
-        for src, b in blocks.items():
-            for k in MEASURES:
-                s = b["summary"][k]
-                ci = f"[{_f(s['gap_ci95'][0], sign=True)}, {_f(s['gap_ci95'][1], sign=True)}]"
-                wins = f"{round(s['wins'] * s['clips'])}/{s['clips']}" if not math.isnan(s["wins"]) else "nan"
-                lines.append(f"{src:<10} {k:<10} {_f(s['own']):>7} {_f(s['other']):>7} {_f(s['gap'], sign=True):>7} "
-                             f"{ci:>17} {wins:>9}")
-        lines.append("per clip (gap = own - other):")
-        lines.append(f"  {'id':<38} {'s':>5} " + " ".join(f"{src[:5] + ' ' + k:>18}" for src in blocks
-                                                           for k in MEASURES))
-        first = next(iter(blocks.values()))["per_clip"]
+        for design in DESIGNS:
+            blocks = design_blocks(sr, design)
+            if not blocks:
+                continue
+            lines.append(f"-- {DESIGN_TITLES[design]}")
+            lines += _summary_lines(blocks)
+        lines.append("per clip (gap = own - other; a = audio swap, m = motion swap):")
+        cols = [(d, src, k) for d in DESIGNS for src in design_blocks(sr, d) for k in MEASURES]
+        lines.append(f"  {'id':<38} {'s':>5} "
+                     + " ".join(f"{d[0] + ' ' + src[:3] + ' ' + k:>15}" for d, src, k in cols))
+        first = any_block["per_clip"]
         for i, row in enumerate(first):
-            vals = [_f(blocks[src]["per_clip"][i][k]["gap"], sign=True) for src in blocks for k in MEASURES]
-            lines.append(f"  {row['id'][:38]:<38} {row['frames'] / FPS:>5.1f} " + " ".join(f"{v:>18}" for v in vals))
+            vals = [_f(design_blocks(sr, d)[src]["per_clip"][i][k]["gap"], sign=True) for d, src, k in cols]
+            lines.append(f"  {row['id'][:38]:<38} {row['frames'] / FPS:>5.1f} "
+                         + " ".join(f"{v:>15}" for v in vals))
+        for src, pw in sr.get("onset_power", {}).items():
+            s = pw["summary"]
+            lines.append(f"onset density and chance level of BC ({src}; window = BC's, {BC_TRIM_S} s trimmed):")
+            lines.append(f"  {'id':<38} {'on/s':>5} {'chance':>7} {'shifted':>7} {'BC own':>7} {'a gap':>7} "
+                         f"{'chance gap':>10} {'a-chance':>8} {'m gap':>7}")
+            for r in pw["per_clip"]:
+                lines.append(f"  {r['id'][:38]:<38} {r['onsets_per_s']:>5.2f} {_f(r['chance_bc']):>7} "
+                             f"{_f(r['shifted_bc']):>7} {_f(r['bc_own']):>7} "
+                             f"{_f(r['bc_gap_audio_swap'], sign=True):>7} "
+                             f"{_f(r['chance_gap'], sign=True):>10} "
+                             f"{_f(r['bc_gap_audio_swap_minus_chance_gap'], sign=True):>8} "
+                             f"{_f(r.get('bc_gap_motion_swap', float('nan')), sign=True):>7}")
+            lines.append(f"  {'mean':<38} {s['onsets_per_s']:>5.2f} {_f(s['chance_bc']):>7} {_f(s['shifted_bc']):>7} "
+                         f"{_f(s['bc_own']):>7} {_f(s['bc_gap_audio_swap'], sign=True):>7} "
+                         f"{_f(s['chance_gap'], sign=True):>10} "
+                         f"{_f(s['bc_gap_audio_swap_minus_chance_gap'], sign=True):>8} "
+                         f"{_f(s.get('bc_gap_motion_swap', float('nan')), sign=True):>7}")
+            lines.append("  audio-swap BC gap vs chance gap over clips: "
+                         f"r = {_f(s['gap_vs_chance_gap_r'], sign=True)}, "
+                         f"r^2 = {_f(s['gap_vs_chance_gap_r2'])}, slope = {_f(s['gap_vs_chance_gap_slope'])}; "
+                         f"own BC above shifted on {s['own_above_shifted'] * len(pw['per_clip']):.0f}/"
+                         f"{len(pw['per_clip'])} clips")
         lines.append("")
-    if report.get("targets_real_model"):
-        t = report["targets_real_model"]
-        lines.append("issue-16 targets on real speech (model): speed_env gap >= 0.15: "
-                     f"{t['speed_env_gap']}, jaw_env gap >= 0.6: {t['jaw_env_gap']}, BC gap > 0 on most clips: "
-                     f"{t['bc_gap_positive_on_most_clips']}")
+    for design in DESIGNS:
+        key = "targets_real_model" + ("" if design == "audio_swap" else "_" + design)
+        if report.get(key):
+            lines.append(_targets_line(report[key], design))
+    if report.get("targets_design"):
+        lines.append(f"--require-targets reads the {report['targets_design'].replace('_', ' ')} design")
     return "\n".join(lines)
 
 
@@ -391,6 +618,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", help="write the report as JSON here (a .txt table beside it)")
     ap.add_argument("--require-targets", action="store_true",
                     help="exit 1 unless the model reaches issue 16's targets on the real set")
+    ap.add_argument("--targets-design", choices=DESIGNS, default="audio_swap",
+                    help="which mismatch design --require-targets reads (default audio_swap, SPEC 10's \"audio "
+                         "of another clip\"); both are always reported")
     a = ap.parse_args(argv)
 
     sets = {}
@@ -416,9 +646,11 @@ def main(argv: list[str] | None = None) -> int:
                 raise SystemExit(f"no motion for the {name} set: give --checkpoint or --generated-{name} DIR "
                                  f"(or drop the set: {'--no-real' if name == 'real' else 'leave out --synth'})")
     speed_ref = train_speed_ref(a.synth) if a.synth else None
-    report = {"settings": {"fps": FPS, "sample_rate": SAMPLE_RATE, "mismatch": "clip i gets the audio of clip "
-                           "(i + 1) mod n (sorted ids)", "env_range_db": ENV_RANGE_DB,
-                           "speed_smooth_s": SPEED_SMOOTH_S, "bc_trim_s": BC_TRIM_S, "bootstrap": a.bootstrap, "ci": 0.95,
+    report = {"settings": {"fps": FPS, "sample_rate": SAMPLE_RATE,
+                           "mismatch": "audio swap: clip i gets the audio of clip (i + 1) mod n (sorted ids); motion "
+                                       "swap: clip i's audio gets the motion of every clip j != i",
+                           "env_range_db": ENV_RANGE_DB, "speed_smooth_s": SPEED_SMOOTH_S, "bc_trim_s": BC_TRIM_S,
+                           "bootstrap": a.bootstrap, "ci": 0.95,
                            "bc_speed_ref": "synth train split" if speed_ref is not None else "evaluated motion",
                            "motion": a.checkpoint or gen},
               "sets": {}}
@@ -434,10 +666,18 @@ def main(argv: list[str] | None = None) -> int:
         else:
             model_m = _load_generated(gen[name], ids, f"--generated-{name}")
         ref_m = [[m] for m in mot] if mot is not None else [[reference_real_motion(x)] for x in aud]
-        report[name] = {"model": evaluate_set(ids, model_m, aud, speed_ref, a.bootstrap),
-                        "reference": evaluate_set(ids, ref_m, aud, speed_ref, a.bootstrap)}
+        ca = [ClipAudio(x) for x in aud]
+        report[name] = {"motion_swap": {}, "onset_power": {}}
+        for src, mm in (("model", model_m), ("reference", ref_m)):
+            cm = [[ClipMotion(m) for m in reals] for reals in mm]
+            report[name][src] = evaluate_set(ids, cm, ca, speed_ref, a.bootstrap, design="audio_swap")
+            report[name]["motion_swap"][src] = evaluate_set(ids, cm, ca, speed_ref, a.bootstrap, design="motion_swap")
+            report[name]["onset_power"][src] = onset_power(ids, cm, ca, report[name][src],
+                                                           report[name]["motion_swap"][src], speed_ref)
     if "real" in report:
         report["targets_real_model"] = targets_met(report["real"]["model"])
+        report["targets_real_model_motion_swap"] = targets_met(report["real"]["motion_swap"]["model"])
+        report["targets_design"] = a.targets_design
     report["seconds"] = round(time.time() - t0, 1)
     text = format_table(report)
     print(text)
@@ -448,8 +688,10 @@ def main(argv: list[str] | None = None) -> int:
         tmp.write_text(json.dumps(_jsonable(report), indent=1))
         tmp.replace(out)
         out.with_suffix(".txt").write_text(text + "\n")
-    if a.require_targets and "real" in report and not report["targets_real_model"]["all"]:
-        return 1
+    if a.require_targets and "real" in report:
+        key = "targets_real_model" + ("" if a.targets_design == "audio_swap" else "_" + a.targets_design)
+        if not report[key]["all"]:
+            return 1
     return 0
 
 
