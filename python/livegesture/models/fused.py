@@ -1,0 +1,183 @@
+"""Fused region forms (SPEC section 14): the four region eXperts as one step graph on a region axis.
+
+The canonical form runs one ``expert_<region>`` graph per region, about 150 small nodes each, and a
+LiveGesture token on the ``default`` config is bound by per-node dispatch. :class:`FusedExperts` computes
+exactly the four eXperts' steps with their weights stacked per layer on a leading region axis, so every
+linear layer is one batched MatMul ``(R, rows, d_in) @ (R, d_in, d_out)`` instead of four Gemms, and every
+elementwise node runs once for the four regions.
+
+Contract (recorded in the manifest's ``forms``):
+
+- graph ``experts_fused``; data inputs ``prev_token`` (B, R) int64 (column r: region r's previous token,
+  regions in the manifest's order), ``audio`` (B, audio_dim), ``cond`` (B,); data output ``hidden``
+  (B, R, d_model) (row r: region r's hidden state, what ``expert_<r>`` returns as ``hidden``);
+- caches: ``step`` (B,) int64 (the regions step together), and per attention layer ``<layer>.k`` /
+  ``<layer>.v`` of shape (B, R, heads, window - 1, head_dim): each region's canonical cache of the same name
+  stacked on axis 1. Batch stays axis 0 of every tensor.
+
+Inside the graph the activations are region-major, (R, rows, d), so each projection is a batched MatMul
+with the region as its batch axis; the attention caches (batch-major, the runtime stacks streams on axis 0)
+get the new keys and values through one Transpose each, and the queries and attention output one more.
+
+This is a different arrangement of the same arithmetic, not a different model: the weights are copies of
+the eXperts' (taken when the module is built) and :func:`check_fused_experts` compares it with the four
+canonical steps.
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from .expert import RegionExpert
+from .layers import CacheSpec, check_cache, check_shape, window_bias
+
+FUSED_EXPERTS = "experts_fused"
+
+
+def _stack_linear(lins: list[nn.Linear]) -> tuple[torch.Tensor, torch.Tensor]:
+    """(R, d_in, d_out) weights (transposed for x @ W) and (R, 1, d_out) biases."""
+    w = torch.stack([l.weight.detach().t() for l in lins]).contiguous()
+    b = torch.stack([l.bias.detach() for l in lins])[:, None, :].contiguous()
+    return w, b
+
+
+def _stack_ln(lns: list[nn.LayerNorm]) -> tuple[torch.Tensor, torch.Tensor]:
+    return (torch.stack([l.weight.detach() for l in lns])[:, None, :].contiguous(),
+            torch.stack([l.bias.detach() for l in lns])[:, None, :].contiguous())
+
+
+class FusedExperts(nn.Module):
+    """The region eXperts ``experts`` (in region order) as one step on a region axis (module docs)."""
+
+    def __init__(self, experts: list[RegionExpert]):
+        super().__init__()
+        e0 = experts[0]
+        self.cfg, self.regions = e0.cfg, [e.region for e in experts]
+        self.name = FUSED_EXPERTS
+        R = len(experts)
+        self.R, self.d, self.eps = R, e0.cfg.d_model, e0.norm.eps
+        n_emb = e0.embed.num_embeddings
+        buf = lambda n, t: self.register_buffer(n, t.contiguous(), persistent=False)  # noqa: E731
+        # one flat embedding table: region r's token x is row r * n_emb + x
+        buf("embed", torch.cat([e.embed.weight.detach() for e in experts], 0))
+        buf("embed_offset", torch.arange(R, dtype=torch.int64)[:, None] * n_emb)   # (R, 1)
+        for i in (0, 2):
+            w, b = _stack_linear([e.embed_mlp[i] for e in experts])
+            buf(f"mlp{i}_w", w)
+            buf(f"mlp{i}_b", b)
+        buf("null_audio", torch.stack([e.null_audio.detach() for e in experts])[:, None, :])   # (R, 1, Da)
+        self.layer_names = e0.layer_names()
+        self.layer_meta = []
+        for li, name in enumerate(self.layer_names):
+            layers = [e.layers[li] for e in experts]
+            a0 = layers[0].attn
+            p = f"l{li}_"
+            for key, lins in (("q", [l.attn.q for l in layers]), ("kv", [l.attn.kv for l in layers]),
+                              ("o", [l.attn.o for l in layers]), ("fc1", [l.ffn.fc1 for l in layers]),
+                              ("fc2", [l.ffn.fc2 for l in layers])):
+                w, b = _stack_linear(lins)
+                buf(p + key + "_w", w)
+                buf(p + key + "_b", b)
+            for key, lns in (("ln1", [l.ln1 for l in layers]), ("ln2", [l.ln2 for l in layers])):
+                w, b = _stack_ln(lns)
+                buf(p + key + "_w", w)
+                buf(p + key + "_b", b)
+            buf(p + "qrot", a0.qrot.detach().clone())
+            self.layer_meta.append({"name": name, "cross": layers[0].is_cross, "w": a0.w, "h": a0.h, "hd": a0.hd,
+                                    "ln_eps": layers[0].ln1.eps})
+        w, b = _stack_ln([e.norm for e in experts])
+        buf("norm_w", w)
+        buf("norm_b", b)
+
+    def cache_specs(self) -> list[CacheSpec]:
+        specs = [CacheSpec("step", (), "int64")]
+        for m in self.layer_meta:
+            shape = (self.R, m["h"], m["w"] - 1, m["hd"])
+            specs += [CacheSpec(f"{m['name']}.k", shape), CacheSpec(f"{m['name']}.v", shape)]
+        return specs
+
+    def init_cache(self, batch: int, device=None) -> dict:
+        return {s.name: s.zeros(batch, device) for s in self.cache_specs()}
+
+    def _ln(self, x, w, b, eps):
+        return F.layer_norm(x, (self.d,), eps=eps) * w + b
+
+    def _lin(self, x, p):
+        return x @ getattr(self, p + "_w") + getattr(self, p + "_b")
+
+    def step(self, prev_token: torch.Tensor, audio: torch.Tensor, cond: torch.Tensor, cache: dict):
+        """prev_token (B, R) int64, audio (B, audio_dim), cond (B,) float32 ->
+        ({'hidden': (B, R, d_model)}, new_cache)."""
+        R, d = self.R, self.d
+        check_shape(self.name, "prev_token", prev_token, (None, R), torch.int64)
+        B = prev_token.shape[0]
+        check_shape(self.name, "audio", audio, (B, self.cfg.audio_dim), torch.float32)
+        check_shape(self.name, "cond", cond, (B,), torch.float32)
+        check_cache(self.name, self.cache_specs(), cache, B)
+        new_cache: dict = {}
+        step = cache["step"]
+        x = F.embedding(prev_token.transpose(0, 1) + self.embed_offset, self.embed)   # (R, B, E)
+        x = self._lin(F.gelu(self._lin(x, "mlp0")), "mlp2")                           # (R, B, d)
+        c = cond.to(audio.dtype)[None, :, None]                                        # (1, B, 1)
+        a = c * audio[None] + (1 - c) * self.null_audio                                # (R, B, Da)
+        bias = {w: window_bias(step, w)[:, None] for w in {m["w"] for m in self.layer_meta}}   # (B, 1, 1, W)
+        for li, m in enumerate(self.layer_meta):
+            p = f"l{li}_"
+            W, h, hd, name = m["w"], m["h"], m["hd"], m["name"]
+            hx = self._ln(x, getattr(self, p + "ln1_w"), getattr(self, p + "ln1_b"), m["ln_eps"])
+            kv = self._lin(a if m["cross"] else hx, p + "kv").transpose(0, 1)          # (B, R, 2d)
+            k_new = kv[..., :d].reshape(-1, R, h, 1, hd)
+            v_new = kv[..., d:].reshape(-1, R, h, 1, hd)
+            k_all = torch.cat([cache[f"{name}.k"], k_new], dim=-2)                     # (B, R, h, W, hd)
+            v_all = torch.cat([cache[f"{name}.v"], v_new], dim=-2)
+            new_cache[f"{name}.k"] = k_all[..., 1:, :]
+            new_cache[f"{name}.v"] = v_all[..., 1:, :]
+            q = self._lin(hx, p + "q").transpose(0, 1).reshape(-1, R, h, hd)           # (B, R, h, hd)
+            qr = (q @ getattr(self, p + "qrot")).reshape(-1, R, h, W, hd)
+            scores = (qr * k_all).sum(-1) + bias[W]                                    # (B, R, h, W)
+            pr = torch.softmax(scores, dim=-1)
+            y = (pr[..., None] * v_all).sum(-2).reshape(-1, R, d).transpose(0, 1)      # (R, B, d)
+            x = x + self._lin(y, p + "o")
+            hf = self._ln(x, getattr(self, p + "ln2_w"), getattr(self, p + "ln2_b"), m["ln_eps"])
+            x = x + self._lin(F.gelu(self._lin(hf, p + "fc1")), p + "fc2")
+        new_cache["step"] = step + 1
+        hidden = self._ln(x, self.norm_w, self.norm_b, self.eps).transpose(0, 1)      # (B, R, d)
+        return {"hidden": hidden}, new_cache
+
+    def split_cache(self, cache: dict) -> list[dict]:
+        """The fused caches as the canonical eXperts' caches, one dict per region."""
+        return [{k: (v if k == "step" else v[:, r]) for k, v in cache.items()} for r in range(self.R)]
+
+
+@torch.no_grad()
+def check_fused_experts(model, steps: int, batch: int = 2, seed: int = 0) -> tuple[float, str, int]:
+    """Compares :class:`FusedExperts` with the four canonical eXpert steps over ``steps`` chained steps from
+    the zero caches with random inputs (BOS first): every region's hidden state and every cache. Returns the
+    max abs difference and where it occurred (output name, step)."""
+    from ..regions import REGION_NAMES
+    experts = [model.experts[r] for r in REGION_NAMES]
+    fused = FusedExperts(experts).eval()
+    cfg = model.cfg
+    g = torch.Generator().manual_seed(seed)
+    f_cache = fused.init_cache(batch)
+    c_caches = [e.init_cache(batch) for e in experts]
+    cond = torch.tensor([1.0 if i % 2 == 0 else 0.0 for i in range(batch)])
+    worst, where = -1.0, ("hidden", 0)
+    for s in range(steps):
+        prev = torch.randint(0, cfg.codebook_size, (batch, len(experts)), generator=g)
+        if s == 0:
+            prev[:] = cfg.bos_token
+        audio = torch.randn(batch, cfg.audio_dim, generator=g)
+        fo, f_cache = fused.step(prev, audio, cond, f_cache)
+        pairs = []
+        for r, e in enumerate(experts):
+            co, c_caches[r] = e.step(prev[:, r], audio, cond, c_caches[r])
+            pairs.append((f"hidden[:, {r}] ({REGION_NAMES[r]})", fo["hidden"][:, r], co["hidden"]))
+        for r, split in enumerate(fused.split_cache(f_cache)):
+            pairs += [(f"new_cache.{k}[:, {r}]", v, c_caches[r][k]) for k, v in split.items()]
+        for name, a, b in pairs:
+            err = float((a.double() - b.double()).abs().max())
+            if err > worst:
+                worst, where = err, (name, s)
+    return worst, where[0], where[1]
