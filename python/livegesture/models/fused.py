@@ -58,7 +58,13 @@ class FusedExperts(nn.Module):
         R = len(experts)
         self.R, self.d, self.eps = R, e0.cfg.d_model, e0.norm.eps
         n_emb = e0.embed.num_embeddings
-        buf = lambda n, t: self.register_buffer(n, t.contiguous(), persistent=False)  # noqa: E731
+        # weights are (frozen) parameters, so the ONNX export writes them as initializers like the canonical
+        # graphs' (tools that edit or quantize weights find them there); index tables are buffers
+        def buf(n, t):
+            if t.is_floating_point():
+                self.register_parameter(n, nn.Parameter(t.contiguous(), requires_grad=False))
+            else:
+                self.register_buffer(n, t.contiguous(), persistent=False)
         # one flat embedding table: region r's token x is row r * n_emb + x
         buf("embed", torch.cat([e.embed.weight.detach() for e in experts], 0))
         buf("embed_offset", torch.arange(R, dtype=torch.int64)[:, None] * n_emb)   # (R, 1)
@@ -83,7 +89,7 @@ class FusedExperts(nn.Module):
                 w, b = _stack_ln(lns)
                 buf(p + key + "_w", w)
                 buf(p + key + "_b", b)
-            buf(p + "qrot", a0.qrot.detach().clone())
+            self.register_buffer(p + "qrot", a0.qrot.detach().clone(), persistent=False)   # a constant
             self.layer_meta.append({"name": name, "cross": layers[0].is_cross, "w": a0.w, "h": a0.h, "hd": a0.hd,
                                     "ln_eps": layers[0].ln1.eps})
         w, b = _stack_ln([e.norm for e in experts])
