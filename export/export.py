@@ -54,6 +54,12 @@ ROLLOUT_SEED = 1234
 FUSED_VS_CANONICAL = 1e-5    # torch fused form vs the canonical eXperts, every hidden state and cache
 ROLLOUT_FRAMES = 1e-4        # SPEC 7, rollout frames
 FORMS = ("canonical", "fused")
+# The form each backend runs (SPEC 14). ort runs the fused eXperts: bit-identical to the canonical graphs on
+# ort and faster. tract keeps the canonical ones: its kernels round differently for another head count (like
+# for another batch size), so the fused form's logits differ from the canonical form's by ~1e-7 on tract, which
+# flips numerical near-ties of the sampler (the tiny test bundle's rollout has one at step 1044); see
+# BENCHMARKS.md "Fused region forms".
+DEFAULT_BACKEND_FORMS = {"ort": "fused", "tract": "canonical"}
 
 
 def sha256(path: Path) -> str:
@@ -233,7 +239,8 @@ def build_bundle(model, out: Path, *, provenance: dict, reference_wav: str | Non
 
 
 def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_tokens, log,
-           forms=("canonical", "fused")) -> dict:
+           forms=("canonical", "fused"), backend_forms: dict | None = None) -> dict:
+    backend_forms = dict(backend_forms or DEFAULT_BACKEND_FORMS)
     cfg = model.cfg
     (tmp / "reference").mkdir()
     files, graphs, checks = {}, [], {}
@@ -313,8 +320,9 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
             "regions": list(REGION_NAMES),
             "contract": "experts_fused runs the four region eXperts at once: prev_token (batch, regions) int64, "
                         "audio and cond as expert_<region>; hidden (batch, regions, d_model), row r = expert_<r>'s "
-                        "hidden; caches: step (batch,) shared by the regions, every other cache is expert_<r>'s "
-                        "cache of the same name stacked on axis 1 (region_axis) in region order",
+                        "hidden; caches: step (batch,) shared by the regions; every attention cache is "
+                        "(batch, regions * heads, window - 1, head_dim) where rows r * heads .. (r + 1) * heads of "
+                        "axis 1 are expert_<r>'s cache of the same name (regions in region order)",
         }
 
     files.update(file_table(tmp))
@@ -332,7 +340,7 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
             "first_prev_token": "bos_token",
         },
         "forms": forms_manifest,
-        "backend_forms": {b: ("fused" if fused_graphs else "canonical") for b in ("ort", "tract")},
+        "backend_forms": {b: (f if f in forms_manifest else "canonical") for b, f in backend_forms.items()},
         "normalisation": model.normalisation(),
         "sampling": {"guidance": cfg.guidance, "temperature": cfg.temperature, "top_k": cfg.top_k,
                      "guidance_disabled_when": "guidance == 1.0 (no unconditional branch)",
@@ -368,6 +376,9 @@ def main(argv=None):
     ap.add_argument("--forms", default="canonical,fused",
                     help="graph forms to write (SPEC 14): canonical (always) and fused (the four eXperts as one "
                          "graph on a region axis); default both")
+    ap.add_argument("--backend-forms", default=",".join(f"{b}={f}" for b, f in DEFAULT_BACKEND_FORMS.items()),
+                    help="the form each backend runs by default, e.g. ort=fused,tract=canonical (a form not "
+                         "written falls back to canonical)")
     ap.add_argument("--provenance", help="JSON file merged into the manifest's provenance (training data "
                                          "description, evaluation figures, commands)")
     args = ap.parse_args(argv)
@@ -406,7 +417,16 @@ def main(argv=None):
     if "canonical" not in forms or any(f not in FORMS for f in forms):
         print(f"export failed: --forms {args.forms}: expected canonical[,fused]", file=sys.stderr)
         return 2
-    kw = {"forms": tuple(forms)}
+    try:
+        backend_forms = dict(kv.split("=", 1) for kv in args.backend_forms.split(",") if kv.strip())
+    except ValueError:
+        backend_forms = None
+    if (not backend_forms or set(backend_forms) - {"ort", "tract"}
+            or any(f not in FORMS for f in backend_forms.values())):
+        print(f"export failed: --backend-forms {args.backend_forms}: expected BACKEND=FORM pairs "
+              f"(backends ort, tract; forms {', '.join(FORMS)})", file=sys.stderr)
+        return 2
+    kw = {"forms": tuple(forms), "backend_forms": backend_forms}
     if family == "diffsheg":
         import diffsheg_export
         kw = {"builder": diffsheg_export.build, "rollout_windows": args.rollout_windows}

@@ -2,9 +2,9 @@
 
 The canonical form runs one ``expert_<region>`` graph per region, about 150 small nodes each, and a
 LiveGesture token on the ``default`` config is bound by per-node dispatch. :class:`FusedExperts` computes
-exactly the four eXperts' steps with their weights stacked per layer on a leading region axis, so every
-linear layer is one batched MatMul ``(R, rows, d_in) @ (R, d_in, d_out)`` instead of four Gemms, and every
-elementwise node runs once for the four regions.
+exactly the four eXperts' steps on a leading region axis: every elementwise, normalisation and attention node runs
+once for the four regions. The linear layers are one Split, a MatMul + Add per region with that region's
+2-D weight, and one Concat (not one batched MatMul with (R, d_in, d_out) weights: see :meth:`_lin`).
 
 Contract (recorded in the manifest's ``forms``):
 
@@ -12,12 +12,14 @@ Contract (recorded in the manifest's ``forms``):
   regions in the manifest's order), ``audio`` (B, audio_dim), ``cond`` (B,); data output ``hidden``
   (B, R, d_model) (row r: region r's hidden state, what ``expert_<r>`` returns as ``hidden``);
 - caches: ``step`` (B,) int64 (the regions step together), and per attention layer ``<layer>.k`` /
-  ``<layer>.v`` of shape (B, R, heads, window - 1, head_dim): each region's canonical cache of the same name
-  stacked on axis 1. Batch stays axis 0 of every tensor.
+  ``<layer>.v`` of shape (B, R * heads, window - 1, head_dim): region r's canonical cache of the same name,
+  (heads, window - 1, head_dim), is rows r * heads .. (r + 1) * heads of axis 1 (the canonical caches
+  stacked on a region axis 1 and that axis merged with the heads). Batch stays axis 0 of every tensor.
 
-Inside the graph the activations are region-major, (R, rows, d), so each projection is a batched MatMul
-with the region as its batch axis; the attention caches (batch-major, the runtime stacks streams on axis 0)
-get the new keys and values through one Transpose each, and the queries and attention output one more.
+Inside the graph the activations are batch-major with the regions side by side on the feature axis,
+(B, R * d): a Split gives each region's block to its Gemm, a Concat joins them, a Reshape to (B, R, d) gives
+the per-region LayerNorms; the attention runs on R * heads heads exactly as the canonical step on its heads.
+No Transpose anywhere.
 
 This is a different arrangement of the same arithmetic, not a different model: the weights are copies of
 the eXperts' (taken when the module is built) and :func:`check_fused_experts` compares it with the four
@@ -35,11 +37,6 @@ from .layers import CacheSpec, check_cache, check_shape, window_bias
 FUSED_EXPERTS = "experts_fused"
 
 
-def _stack_linear(lins: list[nn.Linear]) -> tuple[torch.Tensor, torch.Tensor]:
-    """(R, d_in, d_out) weights (transposed for x @ W) and (R, 1, d_out) biases."""
-    w = torch.stack([l.weight.detach().t() for l in lins]).contiguous()
-    b = torch.stack([l.bias.detach() for l in lins])[:, None, :].contiguous()
-    return w, b
 
 
 def _stack_ln(lns: list[nn.LayerNorm]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -58,21 +55,31 @@ class FusedExperts(nn.Module):
         R = len(experts)
         self.R, self.d, self.eps = R, e0.cfg.d_model, e0.norm.eps
         n_emb = e0.embed.num_embeddings
+
         # weights are (frozen) parameters, so the ONNX export writes them as initializers like the canonical
         # graphs' (tools that edit or quantize weights find them there); index tables are buffers
         def buf(n, t):
             if t.is_floating_point():
-                self.register_parameter(n, nn.Parameter(t.contiguous(), requires_grad=False))
+                self.register_parameter(n, nn.Parameter(t.detach().clone().contiguous(), requires_grad=False))
             else:
                 self.register_buffer(n, t.contiguous(), persistent=False)
+
+        def linear(key, lins):   # per region: the canonical (d_out, d_in) weight and bias (one Gemm each)
+            for r, l in enumerate(lins):
+                buf(f"{key}_w{r}", l.weight)
+                buf(f"{key}_b{r}", l.bias)
+
+        def norm(key, lns):      # (R, d) scale and shift
+            buf(key + "_w", torch.stack([l.weight.detach() for l in lns]))
+            buf(key + "_b", torch.stack([l.bias.detach() for l in lns]))
+
         # one flat embedding table: region r's token x is row r * n_emb + x
         buf("embed", torch.cat([e.embed.weight.detach() for e in experts], 0))
-        buf("embed_offset", torch.arange(R, dtype=torch.int64)[:, None] * n_emb)   # (R, 1)
+        buf("embed_offset", torch.arange(R, dtype=torch.int64) * n_emb)   # (R,)
+        self.embed_dim = e0.embed.embedding_dim
         for i in (0, 2):
-            w, b = _stack_linear([e.embed_mlp[i] for e in experts])
-            buf(f"mlp{i}_w", w)
-            buf(f"mlp{i}_b", b)
-        buf("null_audio", torch.stack([e.null_audio.detach() for e in experts])[:, None, :])   # (R, 1, Da)
+            linear(f"mlp{i}", [e.embed_mlp[i] for e in experts])
+        buf("null_audio", torch.stack([e.null_audio.detach() for e in experts]))   # (R, Da)
         self.layer_names = e0.layer_names()
         self.layer_meta = []
         for li, name in enumerate(self.layer_names):
@@ -82,35 +89,39 @@ class FusedExperts(nn.Module):
             for key, lins in (("q", [l.attn.q for l in layers]), ("kv", [l.attn.kv for l in layers]),
                               ("o", [l.attn.o for l in layers]), ("fc1", [l.ffn.fc1 for l in layers]),
                               ("fc2", [l.ffn.fc2 for l in layers])):
-                w, b = _stack_linear(lins)
-                buf(p + key + "_w", w)
-                buf(p + key + "_b", b)
-            for key, lns in (("ln1", [l.ln1 for l in layers]), ("ln2", [l.ln2 for l in layers])):
-                w, b = _stack_ln(lns)
-                buf(p + key + "_w", w)
-                buf(p + key + "_b", b)
+                linear(p + key, lins)
+            norm(p + "ln1", [l.ln1 for l in layers])
+            norm(p + "ln2", [l.ln2 for l in layers])
             self.register_buffer(p + "qrot", a0.qrot.detach().clone(), persistent=False)   # a constant
             self.layer_meta.append({"name": name, "cross": layers[0].is_cross, "w": a0.w, "h": a0.h, "hd": a0.hd,
                                     "ln_eps": layers[0].ln1.eps})
-        w, b = _stack_ln([e.norm for e in experts])
-        buf("norm_w", w)
-        buf("norm_b", b)
+        norm("norm", [e.norm for e in experts])
 
     def cache_specs(self) -> list[CacheSpec]:
         specs = [CacheSpec("step", (), "int64")]
         for m in self.layer_meta:
-            shape = (self.R, m["h"], m["w"] - 1, m["hd"])
+            shape = (self.R * m["h"], m["w"] - 1, m["hd"])
             specs += [CacheSpec(f"{m['name']}.k", shape), CacheSpec(f"{m['name']}.v", shape)]
         return specs
 
     def init_cache(self, batch: int, device=None) -> dict:
         return {s.name: s.zeros(batch, device) for s in self.cache_specs()}
 
-    def _ln(self, x, w, b, eps):
-        return F.layer_norm(x, (self.d,), eps=eps) * w + b
+    def _ln(self, x, key, eps):
+        """x (B, R*d) -> LayerNorm per region with region r's scale and shift, as (B, R, d)."""
+        y = F.layer_norm(x.reshape(-1, self.R, self.d), (self.d,), eps=eps)
+        return y * getattr(self, key + "_w") + getattr(self, key + "_b")
 
-    def _lin(self, x, p):
-        return x @ getattr(self, p + "_w") + getattr(self, p + "_b")
+    def _lin(self, xs, key):
+        """xs: the R region blocks (B, d_in) -> (B, R*d_out): region r's block through region r's weights,
+        one Gemm each (the canonical Gemm), concatenated. A batched MatMul with (R, d_in, d_out) weights
+        would be one node, but onnxruntime packs a batched constant weight again at every run (measured 3x
+        slower than the canonical graphs), while a 2-D Gemm weight is packed once when the graph loads."""
+        return torch.cat([F.linear(xs[r], getattr(self, f"{key}_w{r}"), getattr(self, f"{key}_b{r}"))
+                          for r in range(self.R)], 1)
+
+    def _split(self, x, width):
+        return torch.split(x, width, dim=1)   # (B, R*width) -> R blocks (B, width): one Split
 
     def step(self, prev_token: torch.Tensor, audio: torch.Tensor, cond: torch.Tensor, cache: dict):
         """prev_token (B, R) int64, audio (B, audio_dim), cond (B,) float32 ->
@@ -118,42 +129,50 @@ class FusedExperts(nn.Module):
         R, d = self.R, self.d
         check_shape(self.name, "prev_token", prev_token, (None, R), torch.int64)
         B = prev_token.shape[0]
-        check_shape(self.name, "audio", audio, (B, self.cfg.audio_dim), torch.float32)
+        Da = self.cfg.audio_dim
+        check_shape(self.name, "audio", audio, (B, Da), torch.float32)
         check_shape(self.name, "cond", cond, (B,), torch.float32)
         check_cache(self.name, self.cache_specs(), cache, B)
         new_cache: dict = {}
         step = cache["step"]
-        x = F.embedding(prev_token.transpose(0, 1) + self.embed_offset, self.embed)   # (R, B, E)
-        x = self._lin(F.gelu(self._lin(x, "mlp0")), "mlp2")                           # (R, B, d)
-        c = cond.to(audio.dtype)[None, :, None]                                        # (1, B, 1)
-        a = c * audio[None] + (1 - c) * self.null_audio                                # (R, B, Da)
-        bias = {w: window_bias(step, w)[:, None] for w in {m["w"] for m in self.layer_meta}}   # (B, 1, 1, W)
+        # activations are batch-major, regions side by side on the feature axis: (B, R*d)
+        e = F.embedding(prev_token + self.embed_offset, self.embed).reshape(-1, R * self.embed_dim)
+        x = self._lin(self._split(F.gelu(self._lin(self._split(e, self.embed_dim), "mlp0")), d), "mlp2")
+        c = cond.to(audio.dtype)[:, None, None]                                       # (B, 1, 1)
+        a = (c * audio[:, None, :] + (1 - c) * self.null_audio).reshape(-1, R * Da)   # (B, R*Da)
+        a_blocks = self._split(a, Da)
+        bias = {w: window_bias(step, w) for w in {m["w"] for m in self.layer_meta}}   # (B, 1, W)
         for li, m in enumerate(self.layer_meta):
             p = f"l{li}_"
             W, h, hd, name = m["w"], m["h"], m["hd"], m["name"]
-            hx = self._ln(x, getattr(self, p + "ln1_w"), getattr(self, p + "ln1_b"), m["ln_eps"])
-            kv = self._lin(a if m["cross"] else hx, p + "kv").transpose(0, 1)          # (B, R, 2d)
-            k_new = kv[..., :d].reshape(-1, R, h, 1, hd)
-            v_new = kv[..., d:].reshape(-1, R, h, 1, hd)
-            k_all = torch.cat([cache[f"{name}.k"], k_new], dim=-2)                     # (B, R, h, W, hd)
+            hx = self._split(self._ln(x, p + "ln1", m["ln_eps"]).reshape(-1, R * d), d)
+            kv = self._lin(a_blocks if m["cross"] else hx, p + "kv").reshape(-1, R, 2 * d)
+            k_new = kv[..., :d].reshape(-1, R * h, 1, hd)                            # region-major heads
+            v_new = kv[..., d:].reshape(-1, R * h, 1, hd)
+            k_all = torch.cat([cache[f"{name}.k"], k_new], dim=-2)                    # (B, R*h, W, hd)
             v_all = torch.cat([cache[f"{name}.v"], v_new], dim=-2)
             new_cache[f"{name}.k"] = k_all[..., 1:, :]
             new_cache[f"{name}.v"] = v_all[..., 1:, :]
-            q = self._lin(hx, p + "q").transpose(0, 1).reshape(-1, R, h, hd)           # (B, R, h, hd)
-            qr = (q @ getattr(self, p + "qrot")).reshape(-1, R, h, W, hd)
-            scores = (qr * k_all).sum(-1) + bias[W]                                    # (B, R, h, W)
+            q = self._lin(hx, p + "q").reshape(-1, R * h, hd)
+            qr = (q @ getattr(self, p + "qrot")).reshape(-1, R * h, W, hd)
+            scores = (qr * k_all).sum(-1) + bias[W]                                   # (B, R*h, W)
             pr = torch.softmax(scores, dim=-1)
-            y = (pr[..., None] * v_all).sum(-2).reshape(-1, R, d).transpose(0, 1)      # (R, B, d)
-            x = x + self._lin(y, p + "o")
-            hf = self._ln(x, getattr(self, p + "ln2_w"), getattr(self, p + "ln2_b"), m["ln_eps"])
-            x = x + self._lin(F.gelu(self._lin(hf, p + "fc1")), p + "fc2")
+            y = (pr[..., None] * v_all).sum(-2).reshape(-1, R * d)
+            x = x + self._lin(self._split(y, d), p + "o")
+            hf = self._split(self._ln(x, p + "ln2", m["ln_eps"]).reshape(-1, R * d), d)
+            x = x + self._lin(self._split(F.gelu(self._lin(hf, p + "fc1")), self.cfg.ffn_mult * d), p + "fc2")
         new_cache["step"] = step + 1
-        hidden = self._ln(x, self.norm_w, self.norm_b, self.eps).transpose(0, 1)      # (B, R, d)
-        return {"hidden": hidden}, new_cache
+        return {"hidden": self._ln(x, "norm", self.eps)}, new_cache
 
     def split_cache(self, cache: dict) -> list[dict]:
         """The fused caches as the canonical eXperts' caches, one dict per region."""
-        return [{k: (v if k == "step" else v[:, r]) for k, v in cache.items()} for r in range(self.R)]
+        out = []
+        for r in range(self.R):
+            d = {}
+            for k, v in cache.items():
+                d[k] = v if k == "step" else v.reshape(v.shape[0], self.R, -1, *v.shape[2:])[:, r]
+            out.append(d)
+        return out
 
 
 @torch.no_grad()

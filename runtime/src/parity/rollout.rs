@@ -210,8 +210,8 @@ pub(super) fn rollout_rows(
             )),
         }
     }
-    // the forms against each other (SPEC 14): each other form's rollout vs the default form's on the
-    // same backend, identical tokens and frames within the rollout bound; the graph name in `what`
+    // the forms against each other (SPEC 14): the canonical form's rollout vs the form a backend runs,
+    // on that backend: identical tokens, frames within the rollout bound
     for (kind, alt) in other_forms.iter_mut() {
         let Some(main) = runs.iter().find(|r| r.kind == *kind) else {
             continue;
@@ -222,7 +222,7 @@ pub(super) fn rollout_rows(
             .map(|(_, p)| p.form().to_string())
             .unwrap_or_default();
         let comparison = format!("{kind} {} vs {kind} {main_form}", alt.form());
-        let what = format!("rollout ({} forms)", alt.form());
+        let what = format!("rollout ({main_form} form)");
         let t0 = Instant::now();
         let steps = match run_stream(alt, &opts, &audio, 16000, false) {
             Ok(s) => s,
