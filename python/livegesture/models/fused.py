@@ -17,9 +17,9 @@ Contract (recorded in the manifest's ``forms``):
   stacked on a region axis 1 and that axis merged with the heads). Batch stays axis 0 of every tensor.
 
 Inside the graph the activations are batch-major with the regions side by side on the feature axis,
-(B, R * d): a Split gives each region's block to its Gemm, a Concat joins them, a Reshape to (B, R, d) gives
-the per-region LayerNorms; the attention runs on R * heads heads exactly as the canonical step on its heads.
-No Transpose anywhere.
+(B, R * d): a Split gives each region's block to its LayerNorm and Gemms (the canonical nodes with the canonical
+weights), a Concat joins the Gemm outputs; the attention core, residuals, GELU and masks run once on all
+regions, the attention on R * heads heads exactly as the canonical step on its heads. No Transpose anywhere.
 
 This is a different arrangement of the same arithmetic, not a different model: the weights are copies of
 the eXperts' (taken when the module is built) and :func:`check_fused_experts` compares it with the four
@@ -69,9 +69,10 @@ class FusedExperts(nn.Module):
                 buf(f"{key}_w{r}", l.weight)
                 buf(f"{key}_b{r}", l.bias)
 
-        def norm(key, lns):      # (R, d) scale and shift
-            buf(key + "_w", torch.stack([l.weight.detach() for l in lns]))
-            buf(key + "_b", torch.stack([l.bias.detach() for l in lns]))
+        def norm(key, lns):      # per region: the canonical (d,) scale and shift (one LayerNormalization each)
+            for r, l in enumerate(lns):
+                buf(f"{key}_w{r}", l.weight)
+                buf(f"{key}_b{r}", l.bias)
 
         # one flat embedding table: region r's token x is row r * n_emb + x
         buf("embed", torch.cat([e.embed.weight.detach() for e in experts], 0))
@@ -108,9 +109,12 @@ class FusedExperts(nn.Module):
         return {s.name: s.zeros(batch, device) for s in self.cache_specs()}
 
     def _ln(self, x, key, eps):
-        """x (B, R*d) -> LayerNorm per region with region r's scale and shift, as (B, R, d)."""
-        y = F.layer_norm(x.reshape(-1, self.R, self.d), (self.d,), eps=eps)
-        return y * getattr(self, key + "_w") + getattr(self, key + "_b")
+        """x (B, R*d) -> the R region blocks (B, d), each through its region's LayerNorm (scale and shift inside
+        the LayerNormalization as in the canonical graph: a shared normalisation followed by a per-region
+        Mul + Add rounds differently, 4e-6 on the default model)."""
+        xs = self._split(x, self.d)
+        return [F.layer_norm(xs[r], (self.d,), getattr(self, f"{key}_w{r}"), getattr(self, f"{key}_b{r}"), eps)
+                for r in range(self.R)]
 
     def _lin(self, xs, key):
         """xs: the R region blocks (B, d_in) -> (B, R*d_out): region r's block through region r's weights,
@@ -145,7 +149,7 @@ class FusedExperts(nn.Module):
         for li, m in enumerate(self.layer_meta):
             p = f"l{li}_"
             W, h, hd, name = m["w"], m["h"], m["hd"], m["name"]
-            hx = self._split(self._ln(x, p + "ln1", m["ln_eps"]).reshape(-1, R * d), d)
+            hx = self._ln(x, p + "ln1", m["ln_eps"])
             kv = self._lin(a_blocks if m["cross"] else hx, p + "kv").reshape(-1, R, 2 * d)
             k_new = kv[..., :d].reshape(-1, R * h, 1, hd)                            # region-major heads
             v_new = kv[..., d:].reshape(-1, R * h, 1, hd)
@@ -159,10 +163,10 @@ class FusedExperts(nn.Module):
             pr = torch.softmax(scores, dim=-1)
             y = (pr[..., None] * v_all).sum(-2).reshape(-1, R * d)
             x = x + self._lin(self._split(y, d), p + "o")
-            hf = self._split(self._ln(x, p + "ln2", m["ln_eps"]).reshape(-1, R * d), d)
+            hf = self._ln(x, p + "ln2", m["ln_eps"])
             x = x + self._lin(self._split(F.gelu(self._lin(hf, p + "fc1")), self.cfg.ffn_mult * d), p + "fc2")
         new_cache["step"] = step + 1
-        return {"hidden": self._ln(x, "norm", self.eps)}, new_cache
+        return {"hidden": torch.stack(self._ln(x, "norm", self.eps), 1)}, new_cache
 
     def split_cache(self, cache: dict) -> list[dict]:
         """The fused caches as the canonical eXperts' caches, one dict per region."""
