@@ -83,7 +83,8 @@ class Chain:
         self.temperature = float(m["sampling"]["temperature"])
         self.top_k = int(m["sampling"]["top_k"])
         self.frontend = FrontendConfig(**{k: m["frontend"][k] for k in FrontendConfig.__dataclass_fields__})
-        self.specs = {g["name"]: g for g in m["graphs"]}
+        # the canonical graphs, chained the way a script would (a bundle's fused eXperts form is not loaded)
+        self.specs = {g["name"]: g for g in m["graphs"] if g.get("form", "canonical") == "canonical"}
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = threads
         opts.inter_op_num_threads = 1

@@ -41,14 +41,25 @@ from livegesture.regions import REGION_NAMES, region_layout  # noqa: E402
 from livegesture.sampling import __doc__ as SAMPLER_DOC  # noqa: E402
 from livegesture.stream import generate_clip  # noqa: E402
 
-from graphs import StepGraph, call_step, data_io, random_inputs  # noqa: E402
-from verify import ExportCheckError, check_onnx_structure, check_ort_vs_torch, check_step_vs_offline  # noqa: E402
+from graphs import StepGraph, call_step, component, data_io, fused_components, random_inputs  # noqa: E402
+from livegesture.models.fused import FUSED_EXPERTS, check_fused_experts  # noqa: E402
+from verify import (ExportCheckError, check_onnx_structure, check_ort_vs_torch, check_step_vs_offline,  # noqa: E402
+                    fail)
 
 SCHEMA_VERSION = 1
 OPSET = 17
 REFERENCE_STEPS = 10
 REFERENCE_BATCH = 2
 ROLLOUT_SEED = 1234
+FUSED_VS_CANONICAL = 1e-5    # torch fused form vs the canonical eXperts, every hidden state and cache
+ROLLOUT_FRAMES = 1e-4        # SPEC 7, rollout frames
+FORMS = ("canonical", "fused")
+# The form each backend runs (SPEC 14). ort runs the fused eXperts: bit-identical to the canonical graphs on
+# ort and faster. tract keeps the canonical ones: its kernels round differently for another head count (like
+# for another batch size), so the fused form's logits differ from the canonical form's by ~1e-7 on tract, which
+# flips numerical near-ties of the sampler (the tiny test bundle's rollout has one at step 1044); see
+# BENCHMARKS.md "Fused region forms".
+DEFAULT_BACKEND_FORMS = {"ort": "fused", "tract": "canonical"}
 
 
 def sha256(path: Path) -> str:
@@ -106,7 +117,7 @@ def save_stamped(m, path: Path, model, graph: str, family: str | None = None):
     meta = {"livegesture.schema_version": str(SCHEMA_VERSION)}
     if family is not None:
         meta["livegesture.family"] = family
-    meta.update({"livegesture.graph": graph, "livegesture.component": type(model.components()[graph]).__name__,
+    meta.update({"livegesture.graph": graph, "livegesture.component": type(component(model, graph)).__name__,
                  "livegesture.config": model.cfg.name, "livegesture.version": livegesture.__version__})
     for k, v in meta.items():
         p = m.metadata_props.add()
@@ -120,7 +131,7 @@ def export_graph(model, graph: str, path: Path):
     wrapper = StepGraph(model, graph).eval()
     g = torch.Generator().manual_seed(0)
     inputs = random_inputs(model, graph, 2, g)
-    cache = model.components()[graph].init_cache(2)
+    cache = component(model, graph).init_cache(2)
     args = tuple(inputs[i["name"]] for i in wrapper.inputs) + tuple(cache[s.name] for s in wrapper.cache_specs)
     names_in, names_out = wrapper.input_names(), wrapper.output_names()
     dyn = {n: {0: "batch"} for n in names_in + names_out}
@@ -142,12 +153,12 @@ def graph_reference(model, graph: str, seed: int) -> dict[str, np.ndarray]:
     zero caches, and the caches after the last step: ``step{s}.input.<name>``, ``step{s}.output.<name>``,
     ``step{S-1}.new_cache.<name>``."""
     g = torch.Generator().manual_seed(seed)
-    comp = model.components()[graph]
+    comp = component(model, graph)
     cache = comp.init_cache(REFERENCE_BATCH)
     out = {"n_steps": np.array(REFERENCE_STEPS), "batch": np.array(REFERENCE_BATCH)}
     for s in range(REFERENCE_STEPS):
         inp = random_inputs(model, graph, REFERENCE_BATCH, g)
-        if graph.startswith("expert_") and s == 0:
+        if (graph.startswith("expert_") or graph == FUSED_EXPERTS) and s == 0:
             inp["prev_token"][:] = model.cfg.bos_token
         o, new = call_step(model, graph, inp, cache)
         for k, v in inp.items():
@@ -227,7 +238,9 @@ def build_bundle(model, out: Path, *, provenance: dict, reference_wav: str | Non
                                    ref_seconds=ref_seconds, rollout_tokens=rollout_tokens, log=log, **kw)
 
 
-def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_tokens, log) -> dict:
+def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_tokens, log,
+           forms=("canonical", "fused"), backend_forms: dict | None = None) -> dict:
+    backend_forms = dict(backend_forms or DEFAULT_BACKEND_FORMS)
     cfg = model.cfg
     (tmp / "reference").mkdir()
     files, graphs, checks = {}, [], {}
@@ -248,6 +261,27 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
         checks[graph] = {"torch_step_vs_offline_max_abs": e_off, "ort_vs_torch_max_abs": e_ort}
         log(f"  {graph:<16} step-vs-offline {e_off:.2e}  ort-vs-torch {e_ort:.2e}  ({time.time() - t0:.1f}s)")
 
+    # the fused forms (SPEC 14): checked against the canonical torch steps, then like every graph
+    fused_graphs = []
+    for graph, comp in (fused_components(model).items() if "fused" in forms else ()):
+        t0 = time.time()
+        e_can, out_name, step = check_fused_experts(model, steps=max(cfg.history, cfg.audio_window) + 5)
+        if e_can > FUSED_VS_CANONICAL:
+            fail(graph, out_name, step, e_can, FUSED_VS_CANONICAL, "torch fused form vs the canonical eXperts")
+        path = tmp / f"{graph}.onnx"
+        export_graph(model, graph, path)
+        check_onnx_structure(str(path), graph, OPSET)
+        e_ort = check_ort_vs_torch(model, graph, str(path))
+        ref = tmp / "reference" / f"{graph}.npz"
+        np.savez_compressed(ref, **graph_reference(model, graph, seed=len(graphs)))
+        ins, outs = data_io(model, graph)
+        graphs.append({"name": graph, "file": path.name, "component": type(comp).__name__, "region": None,
+                       "form": "fused", "inputs": ins, "outputs": outs, "caches": cache_entries(comp),
+                       "reference": f"reference/{graph}.npz"})
+        fused_graphs.append(graph)
+        checks[graph] = {"torch_fused_vs_canonical_max_abs": e_can, "ort_vs_torch_max_abs": e_ort}
+        log(f"  {graph:<16} fused-vs-canonical {e_can:.2e}  ort-vs-torch {e_ort:.2e}  ({time.time() - t0:.1f}s)")
+
     # reference clip, its log-mel frames, and a whole seeded rollout of >= rollout_tokens steps
     clip, clip_desc = reference_audio(reference_wav, ref_seconds)
     write_wav(tmp / "reference" / "clip.wav", clip)
@@ -262,6 +296,34 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
                         trans=ro["trans"], expressions=ro["expressions"], foot_contact=ro["foot_contact"],
                         seed=np.array(ROLLOUT_SEED, dtype=np.uint64), clip_repeats=np.array(reps))
     log(f"  rollout          {len(ro['tokens'])} tokens in {time.time() - t0:.1f}s")
+    forms_manifest = {"canonical": {"experts": [f"expert_{r}" for r in REGION_NAMES]}}
+    if fused_graphs:
+        # the forms against each other on the seeded reference rollout (SPEC 14): identical tokens
+        t0 = time.time()
+        rf = generate_clip(model, rollout_audio, seed=ROLLOUT_SEED, form="fused")
+        same = rf["tokens"] == ro["tokens"]
+        if rf["tokens"].shape != ro["tokens"].shape or not same.all():
+            bad = int(np.argwhere(~same)[0][0]) if rf["tokens"].shape == ro["tokens"].shape else 0
+            raise ExportCheckError(f"torch rollout, fused form vs canonical: graph '{FUSED_EXPERTS}', output 'tokens', "
+                                   f"step {bad}: tokens differ (fused {rf['tokens'][bad].tolist()}, canonical "
+                                   f"{ro['tokens'][bad].tolist()})")
+        e_frames = max(float(np.abs(rf[k].astype(np.float64) - ro[k]).max()) for k in
+                       ("poses", "trans", "expressions", "foot_contact"))
+        if e_frames > ROLLOUT_FRAMES:
+            fail(FUSED_EXPERTS, "rollout frames", -1, e_frames, ROLLOUT_FRAMES, "torch rollout, fused form vs canonical")
+        checks["forms"] = {"rollout_tokens_identical": int(len(ro["tokens"])), "rollout_frames_max_abs": e_frames}
+        log(f"  rollout fused    {len(rf['tokens'])} tokens identical, frames max abs {e_frames:.2e} "
+            f"({time.time() - t0:.1f}s)")
+        forms_manifest["fused"] = {
+            "experts": fused_graphs,
+            "region_axis": 1,
+            "regions": list(REGION_NAMES),
+            "contract": "experts_fused runs the four region eXperts at once: prev_token (batch, regions) int64, "
+                        "audio and cond as expert_<region>; hidden (batch, regions, d_model), row r = expert_<r>'s "
+                        "hidden; caches: step (batch,) shared by the regions; every attention cache is "
+                        "(batch, regions * heads, window - 1, head_dim) where rows r * heads .. (r + 1) * heads of "
+                        "axis 1 are expert_<r>'s cache of the same name (regions in region order)",
+        }
 
     files.update(file_table(tmp))
     manifest = {
@@ -277,6 +339,8 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
                                  "and cond=0 (unconditional, null audio); audio_encoder and decoder_* run once per stream",
             "first_prev_token": "bos_token",
         },
+        "forms": forms_manifest,
+        "backend_forms": {b: (f if f in forms_manifest else "canonical") for b, f in backend_forms.items()},
         "normalisation": model.normalisation(),
         "sampling": {"guidance": cfg.guidance, "temperature": cfg.temperature, "top_k": cfg.top_k,
                      "guidance_disabled_when": "guidance == 1.0 (no unconditional branch)",
@@ -309,6 +373,12 @@ def main(argv=None):
     ap.add_argument("--rollout-tokens", type=int, default=1000, help="length of the reference rollout (>= 1000 for CI)")
     ap.add_argument("--rollout-windows", type=int, default=5,
                     help="diffsheg: FOPPAS windows of the reference rollout (>= 4; the last one is shorter)")
+    ap.add_argument("--forms", default="canonical,fused",
+                    help="graph forms to write (SPEC 14): canonical (always) and fused (the four eXperts as one "
+                         "graph on a region axis); default both")
+    ap.add_argument("--backend-forms", default=",".join(f"{b}={f}" for b, f in DEFAULT_BACKEND_FORMS.items()),
+                    help="the form each backend runs by default, e.g. ort=fused,tract=canonical (a form not "
+                         "written falls back to canonical)")
     ap.add_argument("--provenance", help="JSON file merged into the manifest's provenance (training data "
                                          "description, evaluation figures, commands)")
     args = ap.parse_args(argv)
@@ -343,7 +413,20 @@ def main(argv=None):
     out.parent.mkdir(parents=True, exist_ok=True)
     family = getattr(model, "family", "livegesture")
     print(f"exporting {family} {model.cfg.name} -> {out}")
-    kw = {}
+    forms = [f.strip() for f in args.forms.split(",") if f.strip()]
+    if "canonical" not in forms or any(f not in FORMS for f in forms):
+        print(f"export failed: --forms {args.forms}: expected canonical[,fused]", file=sys.stderr)
+        return 2
+    try:
+        backend_forms = dict(kv.split("=", 1) for kv in args.backend_forms.split(",") if kv.strip())
+    except ValueError:
+        backend_forms = None
+    if (not backend_forms or set(backend_forms) - {"ort", "tract"}
+            or any(f not in FORMS for f in backend_forms.values())):
+        print(f"export failed: --backend-forms {args.backend_forms}: expected BACKEND=FORM pairs "
+              f"(backends ort, tract; forms {', '.join(FORMS)})", file=sys.stderr)
+        return 2
+    kw = {"forms": tuple(forms), "backend_forms": backend_forms}
     if family == "diffsheg":
         import diffsheg_export
         kw = {"builder": diffsheg_export.build, "rollout_windows": args.rollout_windows}

@@ -2,6 +2,7 @@
 
 Naming (the contract with the runtime, recorded in manifest.json):
   data inputs        audio_encoder: mel | expert_<r>: prev_token, audio, cond |
+                     experts_fused (SPEC 14 fused form of the four eXperts): prev_token (B, R), audio, cond |
                      fusion: hidden_upper, hidden_hands, hidden_lower, hidden_face, audio, cond |
                      decoder_<r>: token
   data outputs       audio | hidden | logits | motion
@@ -12,8 +13,30 @@ from __future__ import annotations
 import torch
 import torch.nn as nn
 
+from livegesture.models.fused import FUSED_EXPERTS, FusedExperts
 from livegesture.models.model import LiveGesture
 from livegesture.regions import REGION_NAMES
+
+
+def fused_components(model: LiveGesture) -> dict[str, nn.Module]:
+    """The fused forms (SPEC 14) by graph name: ``experts_fused``, the four eXperts on a region axis. Built
+    from the model's current weights (a copy); cached on the model so every export step sees one module."""
+    cached = getattr(model, "_fused_components", None)
+    if cached is None:
+        cached = {FUSED_EXPERTS: FusedExperts([model.experts[r] for r in REGION_NAMES]).eval()}
+        object.__setattr__(model, "_fused_components", cached)
+    return cached
+
+
+def component(model: LiveGesture, graph: str) -> nn.Module:
+    """The step component of a canonical graph (``model.components()``) or of a fused form."""
+    comps = model.components()
+    if graph in comps:
+        return comps[graph]
+    fused = fused_components(model)
+    if graph in fused:
+        return fused[graph]
+    raise ValueError(f"unknown graph {graph!r}")
 
 
 def data_io(model: LiveGesture, graph: str) -> tuple[list[dict], list[dict]]:
@@ -29,6 +52,12 @@ def data_io(model: LiveGesture, graph: str) -> tuple[list[dict], list[dict]]:
                  {"name": "audio", "dtype": f32, "shape": ["batch", Da]},
                  {"name": "cond", "dtype": f32, "shape": ["batch"]}],
                 [{"name": "hidden", "dtype": f32, "shape": ["batch", d]}])
+    if graph == FUSED_EXPERTS:
+        R = len(REGION_NAMES)
+        return ([{"name": "prev_token", "dtype": i64, "shape": ["batch", R]},
+                 {"name": "audio", "dtype": f32, "shape": ["batch", Da]},
+                 {"name": "cond", "dtype": f32, "shape": ["batch"]}],
+                [{"name": "hidden", "dtype": f32, "shape": ["batch", R, d]}])
     if graph == "fusion":
         return ([{"name": f"hidden_{r}", "dtype": f32, "shape": ["batch", d]} for r in REGION_NAMES]
                 + [{"name": "audio", "dtype": f32, "shape": ["batch", Da]},
@@ -43,10 +72,10 @@ def data_io(model: LiveGesture, graph: str) -> tuple[list[dict], list[dict]]:
 
 def call_step(model: LiveGesture, graph: str, inputs: dict, cache: dict) -> tuple[dict, dict]:
     """Run a component's torch step with named inputs."""
-    comp = model.components()[graph]
+    comp = component(model, graph)
     if graph == "audio_encoder":
         return comp.step(inputs["mel"], cache)
-    if graph.startswith("expert_"):
+    if graph.startswith("expert_") or graph == FUSED_EXPERTS:
         return comp.step(inputs["prev_token"], inputs["audio"], inputs["cond"], cache)
     if graph == "fusion":
         return comp.step({r: inputs[f"hidden_{r}"] for r in REGION_NAMES}, inputs["audio"], inputs["cond"], cache)
@@ -60,7 +89,8 @@ class StepGraph(nn.Module):
         super().__init__()
         self.model, self.graph = model, graph
         self.inputs, self.outputs = data_io(model, graph)
-        self.cache_specs = model.components()[graph].cache_specs()
+        self.comp = component(model, graph)   # registered, so a fused form's weights are module state
+        self.cache_specs = self.comp.cache_specs()
 
     def input_names(self):
         return [i["name"] for i in self.inputs] + [f"cache.{s.name}" for s in self.cache_specs]

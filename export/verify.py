@@ -13,7 +13,7 @@ import torch
 from livegesture.models.model import LiveGesture
 from livegesture.regions import REGION_NAMES
 
-from graphs import call_step, random_inputs
+from graphs import call_step, component, random_inputs
 
 STEP_VS_OFFLINE = 1e-5
 ORT_VS_TORCH = 1e-5
@@ -100,7 +100,7 @@ def check_ort_vs_torch(model: LiveGesture, graph: str, path: str, n_steps: int =
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = 1
     sess = ort.InferenceSession(path, opts, providers=["CPUExecutionProvider"])
-    comp = model.components()[graph]
+    comp = component(model, graph)
     specs = comp.cache_specs()
     out_names = [o.name for o in sess.get_outputs()]
     worst = 0.0

@@ -41,10 +41,19 @@ class LiveGestureStream:
     """One stream's state: frontend buffer, caches of every component, previous tokens, PRNG.
 
     ``push(chunk)`` accepts float samples at 16 kHz (any chunk size) and returns the frames completed.
+    ``form``: ``canonical`` runs the four region eXperts one by one, ``fused`` runs them as one step on a region
+    axis (:class:`livegesture.models.fused.FusedExperts`, SPEC 14); both give the same tokens.
     """
 
     def __init__(self, model: LiveGesture, seed: int = 0, guidance: float | None = None,
-                 temperature: float | None = None, top_k: int | None = None):
+                 temperature: float | None = None, top_k: int | None = None, form: str = "canonical"):
+        if form not in ("canonical", "fused"):
+            raise ValueError(f"form must be 'canonical' or 'fused', got {form!r}")
+        self.form = form
+        self.fused = None
+        if form == "fused":
+            from .models.fused import FusedExperts
+            self.fused = FusedExperts([model.experts[r] for r in REGION_NAMES]).eval()
         self.model = model.eval()
         cfg = model.cfg
         self.cfg = cfg
@@ -63,8 +72,11 @@ class LiveGestureStream:
         self.frontend = StreamingLogMel(self.cfg.frontend)
         self.cache = {"audio_encoder": m.audio_encoder.init_cache(1), "fusion": m.fuse.init_cache(B)}
         for r in REGION_NAMES:
-            self.cache[f"expert_{r}"] = m.experts[r].init_cache(B)
+            if self.fused is None:
+                self.cache[f"expert_{r}"] = m.experts[r].init_cache(B)
             self.cache[f"decoder_{r}"] = m.svq[r].init_cache(1)
+        if self.fused is not None:
+            self.cache["experts_fused"] = self.fused.init_cache(B)
         self.prev = {r: self.cfg.bos_token for r in REGION_NAMES}
         self.rng = SplitMix64(self.seed)
         self.t = 0
@@ -81,10 +93,15 @@ class LiveGestureStream:
         audio = out["audio"].expand(B, -1)
         cond = torch.tensor([1.0, 0.0][:B])
         hidden = {}
-        for r in REGION_NAMES:
-            prev = torch.full((B,), self.prev[r], dtype=torch.int64)
-            o, self.cache[f"expert_{r}"] = m.experts[r].step(prev, audio, cond, self.cache[f"expert_{r}"])
-            hidden[r] = o["hidden"]
+        if self.fused is not None:
+            prev = torch.tensor([[self.prev[r] for r in REGION_NAMES]] * B, dtype=torch.int64)
+            o, self.cache["experts_fused"] = self.fused.step(prev, audio, cond, self.cache["experts_fused"])
+            hidden = {r: o["hidden"][:, i] for i, r in enumerate(REGION_NAMES)}
+        else:
+            for r in REGION_NAMES:
+                prev = torch.full((B,), self.prev[r], dtype=torch.int64)
+                o, self.cache[f"expert_{r}"] = m.experts[r].step(prev, audio, cond, self.cache[f"expert_{r}"])
+                hidden[r] = o["hidden"]
         o, self.cache["fusion"] = m.fuse.step(hidden, audio, cond, self.cache["fusion"])
         logits = o["logits"].numpy()                     # (B, R, K)
         self.logits.append(logits)
@@ -144,8 +161,9 @@ def frames_to_arrays(frames: list[Frame]) -> dict[str, np.ndarray]:
 
 def generate_clip(model: LiveGesture, audio_16k: np.ndarray, seed: int = 0, guidance: float | None = None,
                   chunk: int | None = None, temperature: float | None = None, top_k: int | None = None,
-                  finish: bool = False) -> dict:
+                  finish: bool = False, form: str = "canonical") -> dict:
     """Run the streaming loop over a whole clip. Returns dict(poses, trans, expressions, foot_contact, tokens).
+    ``form``: the eXperts' form (see :class:`LiveGestureStream`).
 
     ``finish=True`` covers the whole audio as the runtime's ``generate`` does (SPEC 8, ``LiveGestureStream.finish``);
     the default stops at the last complete token, as the exported reference rollout does."""
@@ -154,7 +172,7 @@ def generate_clip(model: LiveGesture, audio_16k: np.ndarray, seed: int = 0, guid
         if temperature is not None or top_k is not None:
             raise ValueError("diffsheg: temperature and top_k do not apply (diffusion sampling)")
         return diffsheg_generate_clip(model, audio_16k, seed=seed, guidance=guidance, chunk=chunk)
-    s = LiveGestureStream(model, seed=seed, guidance=guidance, temperature=temperature, top_k=top_k)
+    s = LiveGestureStream(model, seed=seed, guidance=guidance, temperature=temperature, top_k=top_k, form=form)
     audio = np.asarray(audio_16k, dtype=np.float32)
     chunk = chunk or len(audio) or 1
     frames = []

@@ -39,8 +39,9 @@ def test_manifest_validates_and_files_match(bundle):
     jsonschema.validate(on_disk, schema)
     for rel, info in on_disk["files"].items():
         assert exporter.sha256(out / rel) == info["sha256"], rel
-    assert {g["name"] for g in on_disk["graphs"]} == {"audio_encoder", "fusion", *(f"{k}_{r}" for k in ("expert", "decoder")
-                                                                                    for r in ("upper", "hands", "lower", "face"))}
+    assert {g["name"] for g in on_disk["graphs"]} == {"audio_encoder", "fusion", "experts_fused",
+                                                      *(f"{k}_{r}" for k in ("expert", "decoder")
+                                                        for r in ("upper", "hands", "lower", "face"))}
     bad = dict(on_disk, schema_version=2)
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate(bad, schema)
@@ -119,3 +120,32 @@ def test_future_reading_attention_is_caught(tmp_path, monkeypatch):
     monkeypatch.setattr(layers.WindowedAttention, "forward", peeking)
     with pytest.raises(ExportCheckError, match=r"torch step-by-step vs offline causal forward: graph 'expert_upper'"):
         build(scrambled_model("tiny"), tmp_path / "bad")
+
+
+def test_fused_form_is_listed_checked_and_equal_to_the_canonical_one(bundle):
+    """SPEC 14: the fused eXperts are a form in the manifest, checked against the canonical torch steps and on
+    the rollout (identical tokens), and computed exactly as the canonical steps in torch."""
+    from livegesture.models.fused import check_fused_experts
+    out, manifest, model = bundle
+    assert manifest["forms"]["canonical"]["experts"] == [f"expert_{r}" for r in ("upper", "hands", "lower", "face")]
+    assert manifest["forms"]["fused"]["experts"] == ["experts_fused"]
+    assert manifest["backend_forms"] == {"ort": "fused", "tract": "canonical"}
+    assert manifest["checks"]["experts_fused"]["torch_fused_vs_canonical_max_abs"] <= 1e-6
+    assert manifest["checks"]["forms"]["rollout_tokens_identical"] == manifest["reference"]["rollout_tokens"]
+    err, _, _ = check_fused_experts(model, steps=12)
+    assert err <= 1e-6
+
+
+def test_broken_fused_form_is_caught_naming_it(tmp_path, monkeypatch):
+    from livegesture.models.fused import FusedExperts
+    orig = FusedExperts.step
+
+    def broken(self, prev_token, audio, cond, cache):
+        out, new = orig(self, prev_token, audio, cond, cache)
+        h = out["hidden"].clone()
+        h[:, 2] = h[:, 2] * 1.001                               # the lower region drifts
+        return {"hidden": h}, new
+    monkeypatch.setattr(FusedExperts, "step", broken)
+    with pytest.raises(ExportCheckError, match=r"graph 'experts_fused', output 'hidden\[:, 2\] \(lower\)', step \d+"):
+        build(scrambled_model("tiny"), tmp_path / "bad")
+    assert not (tmp_path / "bad").exists()

@@ -29,7 +29,9 @@ fn test_bundle_loads_and_describes_itself() {
     assert_eq!(b.family(), livegesture::bundle::Family::LiveGesture);
     let lg = b.livegesture().unwrap();
     assert_eq!(lg.region_names(), ["upper", "hands", "lower", "face"]);
-    assert_eq!(b.graphs().len(), 10);
+    // 10 canonical graphs and the fused eXperts (SPEC 14)
+    assert_eq!(b.graphs().len(), 11);
+    assert!(b.graph("experts_fused").is_ok());
     assert!(lg.vocab.bos_token >= lg.vocab.codebook_size as i64);
     assert!(lg.sampling.temperature > 0.0);
     // initial state comes from the manifest's cache shapes
@@ -43,6 +45,29 @@ fn test_bundle_loads_and_describes_itself() {
             assert!(c.dtype == DType::F32 || c.dtype == DType::I64);
         }
     }
+}
+
+#[test]
+fn a_form_naming_a_missing_graph_or_an_unknown_form_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = common::copy_bundle(tmp.path());
+    edit_manifest(&dir, |v| {
+        v["forms"]["fused"]["experts"] = serde_json::json!(["experts_missing"]);
+    });
+    let e = load_err(&dir);
+    assert!(
+        e.contains("forms.fused.experts") && e.contains("experts_missing"),
+        "{e}"
+    );
+    edit_manifest(&dir, |v| {
+        v["forms"]["fused"]["experts"] = serde_json::json!(["experts_fused"]);
+        v["backend_forms"]["tract"] = serde_json::json!("sideways");
+    });
+    let e = load_err(&dir);
+    assert!(
+        e.contains("backend_forms.tract") && e.contains("sideways"),
+        "{e}"
+    );
 }
 
 #[test]

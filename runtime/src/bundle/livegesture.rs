@@ -5,6 +5,8 @@
 //! the chain is fixed by the LiveGesture implementation (`model::livegesture`), whose graph roles are
 //! checked against the graphs' inputs when the model loads.
 
+use std::collections::BTreeMap;
+
 use serde::{Deserialize, Serialize};
 
 use super::Manifest;
@@ -58,6 +60,20 @@ pub struct SamplingDefaults {
     pub prng: Option<String>,
 }
 
+/// One form of the chain's components (SPEC 14): which graphs compute the region eXperts.
+///
+/// `canonical`: one `expert_<region>` graph per region, in region order. `fused`: one graph
+/// (`experts_fused`) computing all regions on a region axis: `prev_token` `(batch, regions)`,
+/// `hidden` `(batch, regions, d_model)`, caches of the canonical names stacked on axis 1.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+pub struct FormSpec {
+    /// The graphs running the region eXperts in this form.
+    pub experts: Vec<String>,
+}
+
+/// The form names the runtime knows.
+pub const FORMS: [&str; 2] = ["canonical", "fused"];
+
 /// The LiveGesture sections of `manifest.json` (see the module docs).
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 pub struct LiveGestureManifest {
@@ -65,6 +81,12 @@ pub struct LiveGestureManifest {
     pub regions: Vec<RegionSpec>,
     pub vocab: Vocab,
     pub sampling: SamplingDefaults,
+    /// The forms the bundle carries (SPEC 14), by name; absent: the canonical form only.
+    #[serde(default)]
+    pub forms: BTreeMap<String, FormSpec>,
+    /// The form each backend runs by default (`ort`, `tract`); absent: canonical.
+    #[serde(default)]
+    pub backend_forms: BTreeMap<String, String>,
 }
 
 impl LiveGestureManifest {
@@ -82,6 +104,31 @@ impl LiveGestureManifest {
             wanted.push(format!("decoder_{}", r.name));
         }
         wanted
+    }
+
+    /// The forms of the bundle's region eXperts: the manifest's `forms`, with `canonical` (the
+    /// `expert_<region>` graphs) when it does not list it.
+    pub fn expert_forms(&self) -> BTreeMap<String, Vec<String>> {
+        let mut out: BTreeMap<String, Vec<String>> = self
+            .forms
+            .iter()
+            .map(|(k, f)| (k.clone(), f.experts.clone()))
+            .collect();
+        out.entry("canonical".into()).or_insert_with(|| {
+            self.regions
+                .iter()
+                .map(|r| format!("expert_{}", r.name))
+                .collect()
+        });
+        out
+    }
+
+    /// The form `backend` runs by default: the manifest's `backend_forms`, else canonical.
+    pub fn default_form(&self, backend: &str) -> &str {
+        self.backend_forms
+            .get(backend)
+            .map(String::as_str)
+            .unwrap_or("canonical")
     }
 
     /// Checks the sections against themselves and the common part; the error says what is wrong.
@@ -123,6 +170,36 @@ impl LiveGestureManifest {
                         super::shape_string(shape)
                     ));
                 }
+            }
+        }
+        for (name, f) in &self.forms {
+            if !FORMS.contains(&name.as_str()) {
+                return Err(format!(
+                    "forms: unknown form '{name}' (this runtime knows {FORMS:?})"
+                ));
+            }
+            let want = if name == "fused" {
+                1
+            } else {
+                self.regions.len()
+            };
+            if f.experts.len() != want {
+                return Err(format!(
+                    "forms.{name}.experts lists {} graphs, expected {want}",
+                    f.experts.len()
+                ));
+            }
+            for g in &f.experts {
+                if !m.graphs.iter().any(|x| &x.name == g) {
+                    return Err(format!("forms.{name}.experts: no graph named '{g}'"));
+                }
+            }
+        }
+        for (backend, form) in &self.backend_forms {
+            if form != "canonical" && !self.forms.contains_key(form) {
+                return Err(format!(
+                    "backend_forms.{backend} is '{form}', which is not in forms"
+                ));
             }
         }
         if self.vocab.bos_token < 0 {

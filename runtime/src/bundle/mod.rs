@@ -55,7 +55,9 @@ pub use diffsheg::DiffshegManifest;
 pub use graph::{
     concrete_shape, has_named_axis, shape_fits, shape_string, CacheSpec, Dim, GraphSpec, TensorSpec,
 };
-pub use livegesture::{LiveGestureManifest, RegionPart, RegionSpec, SamplingDefaults, Vocab};
+pub use livegesture::{
+    FormSpec, LiveGestureManifest, RegionPart, RegionSpec, SamplingDefaults, Vocab, FORMS,
+};
 
 /// The manifest schema version this runtime reads.
 pub const SCHEMA_VERSION: u64 = 1;

@@ -41,6 +41,11 @@ pub use common::exit_code;
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
+    /// Form of the region eXperts (SPEC 14): auto (the bundle's form for the backend, see `info`),
+    /// canonical (one graph per region) or fused (one graph on a region axis). Sets
+    /// $LIVEGESTURE_FORM, which is read when it is not given.
+    #[arg(long, global = true, value_name = "FORM")]
+    pub form: Option<String>,
 }
 
 #[derive(Debug, Subcommand)]
@@ -66,6 +71,12 @@ pub enum Command {
 
 /// Runs the parsed command.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
+    if let Some(f) = &cli.form {
+        f.parse::<livegesture::model::livegesture::FormChoice>()
+            .map_err(|e| common::InputError(format!("--form: {e}")))?;
+        // read by every pipeline this process loads (set before any thread is started)
+        std::env::set_var(livegesture::model::livegesture::FORM_ENV, f);
+    }
     match cli.command {
         Command::Generate(a) => generate::run(a),
         Command::Stream(a) => stream::run(a),

@@ -10,6 +10,7 @@
 //! | `graph` | the same, tract vs torch (implied by the two above) | [`TRACT_VS_TORCH`] |
 //! | `graph` | torch step-by-step vs torch offline: measured by the exporter (it needs PyTorch) and read from the manifest's `checks` | [`TORCH_STEP_VS_OFFLINE`] |
 //! | `rollout` | the whole seeded rollout (`reference/clip.wav` repeated `clip_repeats` times, the manifest's seed and sampling defaults): tokens identical at every step, frames (poses, trans, expressions, foot contact) | [`ROLLOUT_FRAMES`] |
+//! | `rollout` | a bundle with several forms (SPEC 14): on each backend that runs a form other than canonical (the manifest's `backend_forms`, or `--form`), the canonical form's rollout vs that form's: identical tokens, frames | [`ROLLOUT_FRAMES`] |
 //! | `logmel` | the Rust log-mel frontend on `reference/clip.wav` vs `reference/logmel.npy` | [`LOGMEL`] |
 //! | `chunks` | chunks of 1 sample, 160, 3200, 16000 samples and the whole prefix give identical frames, the stream finished at the end of the prefix as `generate` does (SPEC 8: last partial token completed with silence, `ceil(duration x 30)` frames) (on a prefix of the clip, [`ParityOptions::chunk_seconds`]) | exact |
 //! | `batch` | [`Pipeline::step_batch`] with 1, 2 and 5 streams (different seeds, audio, one without guidance) vs separate runs: identical tokens, frames | [`BATCH_FRAMES`] (ort), [`TRACT_BATCH_FRAMES`] (tract) |
@@ -67,7 +68,7 @@ use crate::audio::{read_wav_16k_mono, AudioSpan};
 use crate::backend::{self, Backend, BackendKind, BackendOptions, Tensor, TensorData};
 use crate::bundle::{Bundle, Family, GraphSpec};
 use crate::frontend::logmel;
-use crate::model::livegesture::{Pipeline, StepLogits, StreamOptions, TokenStep};
+use crate::model::livegesture::{FormChoice, Pipeline, StepLogits, StreamOptions, TokenStep};
 use crate::output::Frame;
 use crate::sampling::{guide, Draw, SplitMix64, TokenDistribution};
 
@@ -381,10 +382,56 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
             }
         }
     }
+    // SPEC 14: a backend that runs a form other than canonical (the bundle's `backend_forms`, or
+    // `--form`) is checked against the canonical form on the rollout, on that backend. A backend that
+    // runs the canonical form is checked by the other rows; the other forms are checked on it only
+    // when `--form` makes it run them.
+    let mut other_forms: Vec<(BackendKind, Pipeline)> = Vec::new();
+    if want(Check::Rollout) {
+        let forms = bundle.livegesture()?.expert_forms();
+        for (k, be) in &backends {
+            let Some(main) = pipelines
+                .iter()
+                .find(|(x, _)| x == k)
+                .map(|(_, p)| p.form())
+            else {
+                continue;
+            };
+            if main == "canonical" {
+                if forms.len() > 1 {
+                    notes.push(format!(
+                        "forms: {k} runs the canonical form; the bundle's other forms ({}) are not run on {k} (`--form` chooses one)",
+                        forms
+                            .keys()
+                            .filter(|f| f.as_str() != "canonical")
+                            .cloned()
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ));
+                }
+                continue;
+            }
+            for f in forms.keys().filter(|f| f.as_str() == "canonical") {
+                let choice: FormChoice = f.parse().map_err(|e: String| anyhow::anyhow!(e))?;
+                match Pipeline::with_form(&bundle, be.as_ref(), choice) {
+                    Ok(p) => other_forms.push((*k, p)),
+                    Err(e) => rows.push(Row::failed(
+                        Check::Rollout,
+                        format!("rollout ({main} form)"),
+                        k.to_string(),
+                        "(all)",
+                        0.0,
+                        format!("{k} could not load the {f} form: {e:#}"),
+                    )),
+                }
+            }
+        }
+    }
     if want(Check::Rollout) {
         rollout_rows(
             &bundle,
             &mut pipelines,
+            &mut other_forms,
             &clip,
             &mut rows,
             &mut notes,

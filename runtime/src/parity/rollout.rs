@@ -129,6 +129,7 @@ impl BackendRollout {
 pub(super) fn rollout_rows(
     bundle: &Bundle,
     pipelines: &mut [(BackendKind, Pipeline)],
+    other_forms: &mut [(BackendKind, Pipeline)],
     clip: &[f32],
     rows: &mut Vec<Row>,
     notes: &mut Vec<String>,
@@ -207,6 +208,71 @@ pub(super) fn rollout_rows(
                 0.0,
                 format!("{kind} failed: {e:#}"),
             )),
+        }
+    }
+    // the forms against each other (SPEC 14): the canonical form's rollout vs the form a backend runs,
+    // on that backend: identical tokens, frames within the rollout bound
+    for (kind, alt) in other_forms.iter_mut() {
+        let Some(main) = runs.iter().find(|r| r.kind == *kind) else {
+            continue;
+        };
+        let main_form = pipelines
+            .iter()
+            .find(|(k, _)| k == kind)
+            .map(|(_, p)| p.form().to_string())
+            .unwrap_or_default();
+        let comparison = format!("{kind} {} vs {kind} {main_form}", alt.form());
+        let what = format!("rollout ({main_form} form)");
+        let t0 = Instant::now();
+        let steps = match run_stream(alt, &opts, &audio, 16000, false) {
+            Ok(s) => s,
+            Err(e) => {
+                rows.push(Row::failed(
+                    Check::Rollout,
+                    &what,
+                    &comparison,
+                    "tokens",
+                    0.0,
+                    format!("the {} form failed on {kind}: {e:#}", alt.form()),
+                ));
+                continue;
+            }
+        };
+        log(&format!(
+            "rollout on {kind}, {} form: {} tokens in {:.1} s",
+            alt.form(),
+            steps.len(),
+            t0.elapsed().as_secs_f64()
+        ));
+        let alt_trace = RolloutTrace {
+            name: format!("{kind} {}", alt.form()),
+            tokens: steps.iter().map(|s| s.tokens.clone()).collect(),
+            logits: None,
+        };
+        let mut main_trace = main.trace();
+        main_trace.name = format!("{kind} {main_form}");
+        let div =
+            find_divergence(&alt_trace, &main_trace, &params).map_err(|e| ref_err(&path, e))?;
+        let prefix = div.as_ref().map(|d| d.step as usize).unwrap_or(usize::MAX);
+        rows.push(token_row(
+            Check::Rollout,
+            &what,
+            &comparison,
+            &alt_trace.tokens,
+            &main_trace.tokens,
+            div.as_ref().map(|d| d.to_string()),
+        ));
+        let n = steps.len().min(main.steps.len()).min(prefix);
+        frame_rows_steps(
+            Check::Rollout,
+            &what,
+            &comparison,
+            &[(String::new(), &steps[..n], &main.steps[..n])],
+            ROLLOUT_FRAMES,
+            rows,
+        );
+        if let Some(d) = div {
+            divergences.push(d);
         }
     }
     // each backend vs torch

@@ -110,6 +110,35 @@ impl Stage {
     }
 }
 
+/// Checks that `stage` has the fused eXperts' contract for `regions` regions: `prev_token`
+/// `(batch, regions)` and one output `hidden` `(batch, regions, d)`.
+pub(super) fn check_fused_experts(stage: &Stage, regions: usize) -> Result<()> {
+    let spec = &stage.spec;
+    let prev = spec
+        .inputs
+        .iter()
+        .find(|i| i.name == "prev_token")
+        .with_context(|| format!("graph '{}' has no input 'prev_token'", spec.name))?;
+    ensure!(
+        prev.row_len() == regions,
+        "graph '{}': input 'prev_token' has {} values per row, expected one per region ({regions})",
+        spec.name,
+        prev.row_len()
+    );
+    let h = spec
+        .outputs
+        .first()
+        .with_context(|| format!("graph '{}' has no output", spec.name))?;
+    ensure!(
+        h.row_len() % regions == 0,
+        "graph '{}': output '{}' has {} values per row, not a multiple of the {regions} regions",
+        spec.name,
+        h.name,
+        h.row_len()
+    );
+    Ok(())
+}
+
 /// The guidance-branch inputs shared by the experts and fusion: the audio token of each stream
 /// repeated once per branch row, and the `cond` flag of each row (1 conditional, 0 unconditional).
 struct Branches {
@@ -176,13 +205,51 @@ impl Pipeline {
     }
 
     /// Step 3: every region's expert on both guidance branches; returns the hidden states in region
-    /// order.
+    /// order. The fused form runs one graph for all regions and splits its `hidden` by region.
     fn run_experts(
         &mut self,
         streams: &[&mut StreamState],
         store: &mut impl CacheStore,
         b: &Branches,
     ) -> Result<Vec<Tensor>> {
+        let n_regions = self.regions.len();
+        if self.experts.len() == 1 && n_regions > 1 {
+            let mut prev = Vec::with_capacity(b.total * n_regions);
+            for (s, &r) in streams.iter().zip(&b.rows) {
+                for _ in 0..r {
+                    prev.extend_from_slice(&s.prev[..n_regions]);
+                }
+            }
+            let prev = Tensor::i64(vec![b.total, n_regions], prev)?;
+            let stage = &mut self.experts[0];
+            let name = stage.spec.name.clone();
+            let hidden = stage.run_slot(Slot::Expert(0), store, |role| match role {
+                Role::PrevToken => Ok(prev.clone()),
+                Role::Audio => Ok(b.audio.clone()),
+                Role::Cond => Ok(b.cond.clone()),
+                other => bail!("{name}: unexpected input {other:?}"),
+            })?;
+            let hv = hidden.as_f32("fused eXperts hidden")?;
+            let d = hidden.row_len() / n_regions;
+            ensure!(
+                hidden.shape.len() == 3
+                    && hidden.shape[0] == b.total
+                    && hidden.shape[1] == n_regions,
+                "{name}: hidden has shape {:?}, expected [{}, {n_regions}, d]",
+                hidden.shape,
+                b.total
+            );
+            return (0..n_regions)
+                .map(|ri| {
+                    let mut v = Vec::with_capacity(b.total * d);
+                    for row in 0..b.total {
+                        let o = (row * n_regions + ri) * d;
+                        v.extend_from_slice(&hv[o..o + d]);
+                    }
+                    Tensor::f32(vec![b.total, d], v)
+                })
+                .collect();
+        }
         let mut hidden = Vec::with_capacity(self.experts.len());
         for (ri, stage) in self.experts.iter_mut().enumerate() {
             let mut prev = Vec::with_capacity(b.total);

@@ -13,17 +13,31 @@ use crate::output::Frame;
 /// True for the graphs that run both guidance branches (2 rows per guided stream): the experts and
 /// fusion.
 fn is_branched(graph: &str) -> bool {
-    graph.starts_with("expert_") || graph == "fusion"
+    graph.starts_with("expert_") || graph.starts_with("experts_") || graph == "fusion"
+}
+
+/// The graphs of the forms other than canonical (SPEC 14): a stream holds the caches of one form.
+fn other_form_graphs(bundle: &Bundle) -> Result<Vec<String>> {
+    Ok(bundle
+        .livegesture()?
+        .expert_forms()
+        .into_iter()
+        .filter(|(k, _)| k != "canonical")
+        .flat_map(|(_, g)| g)
+        .collect())
 }
 
 /// Bytes of per-stream state: caches of every graph (expert and fusion caches twice with guidance)
-/// plus the frontend's sample buffer at its largest (one token span and one window of `f64`).
+/// plus the frontend's sample buffer at its largest (one token span and one window of `f64`). The
+/// canonical form's caches are counted; the fused form's hold the same values.
 pub fn state_bytes(bundle: &Bundle, guided: bool) -> Result<usize> {
     let n_regions = bundle.livegesture()?.regions.len();
     let rows = if guided { 2 } else { 1 };
+    let skip = other_form_graphs(bundle)?;
     let caches: usize = bundle
         .graphs()
         .iter()
+        .filter(|g| !skip.contains(&g.name))
         .map(|g| {
             let r = if is_branched(&g.name) { rows } else { 1 };
             g.cache_row_bytes() * r
@@ -66,6 +80,7 @@ pub fn describe(bundle: &Bundle) -> Result<Description> {
         .collect();
     let (with, without) = (state_bytes(bundle, true)?, state_bytes(bundle, false)?);
     let kib = |n: usize| format!("{:.1} KiB", n as f64 / 1024.0);
+    let forms = lg.expert_forms();
     let lines = vec![
         ("regions".to_string(), regions.join(", ")),
         (
@@ -99,11 +114,29 @@ pub fn describe(bundle: &Bundle) -> Result<Description> {
             ),
         ),
         ("look-ahead".to_string(), "0 (causal, one token at a time)".to_string()),
+        (
+            "forms".to_string(),
+            format!(
+                "{} (SPEC 14); runs ort: {}, tract: {} (--form or $LIVEGESTURE_FORM overrides)",
+                forms
+                    .iter()
+                    .map(|(k, g)| format!("{k}: eXperts {}", g.join(" ")))
+                    .collect::<Vec<_>>()
+                    .join("; "),
+                lg.default_form("ort"),
+                lg.default_form("tract")
+            ),
+        ),
     ];
     let mut json = serde_json::Map::new();
     json.insert("regions".into(), serde_json::json!(lg.region_names()));
     json.insert("sampling".into(), serde_json::to_value(&lg.sampling)?);
     json.insert("vocab".into(), serde_json::to_value(&lg.vocab)?);
+    json.insert("forms".into(), serde_json::to_value(&forms)?);
+    json.insert(
+        "backend_forms".into(),
+        serde_json::json!({"ort": lg.default_form("ort"), "tract": lg.default_form("tract")}),
+    );
     json.insert(
         "state_bytes_per_stream".into(),
         serde_json::json!({"guided": with, "unguided": without}),

@@ -87,6 +87,49 @@ use caches::{Caches, SeparateCaches, StackedCaches};
 use chain::Stage;
 use stream::StreamState;
 
+/// Environment variable choosing the form of the region eXperts (SPEC 14) when a pipeline is made
+/// with [`Pipeline::new`]: `auto` (the bundle's `backend_forms`), `canonical` or `fused`. The CLI's
+/// `--form` sets it.
+pub const FORM_ENV: &str = "LIVEGESTURE_FORM";
+
+/// Which form of the region eXperts a [`Pipeline`] runs (SPEC 14).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum FormChoice {
+    /// The form the bundle's manifest names for the backend (`backend_forms`), else canonical.
+    #[default]
+    Auto,
+    /// One `expert_<region>` graph per region.
+    Canonical,
+    /// The four eXperts as one graph on a region axis (`experts_fused`).
+    Fused,
+}
+
+impl std::str::FromStr for FormChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "auto" | "" => Ok(FormChoice::Auto),
+            "canonical" => Ok(FormChoice::Canonical),
+            "fused" => Ok(FormChoice::Fused),
+            other => Err(format!(
+                "unknown form '{other}'; expected auto, canonical or fused"
+            )),
+        }
+    }
+}
+
+impl FormChoice {
+    /// The choice in [`FORM_ENV`] (unset: auto); an unknown value is an error naming the variable.
+    pub fn from_env() -> Result<Self> {
+        match std::env::var(FORM_ENV) {
+            Ok(v) => v
+                .parse()
+                .map_err(|e: String| anyhow::anyhow!("{FORM_ENV}: {e}")),
+            Err(_) => Ok(FormChoice::Auto),
+        }
+    }
+}
+
 /// The loaded graphs of a bundle, shared by any number of [`Stream`]s.
 pub struct Pipeline {
     frontend: FrontendConfig,
@@ -97,7 +140,10 @@ pub struct Pipeline {
     frames_per_token: usize,
     backend: String,
     audio_encoder: Stage,
+    /// The region eXperts: one stage per region (canonical form) or one for all (fused form).
     experts: Vec<Stage>,
+    /// The form of the eXperts (`canonical` or `fused`).
+    form: String,
     fusion: Stage,
     decoders: Vec<Stage>,
 }
@@ -106,6 +152,7 @@ impl std::fmt::Debug for Pipeline {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Pipeline")
             .field("backend", &self.backend)
+            .field("form", &self.form)
             .field(
                 "regions",
                 &self.regions.iter().map(|r| &r.name).collect::<Vec<_>>(),
@@ -115,17 +162,41 @@ impl std::fmt::Debug for Pipeline {
 }
 
 impl Pipeline {
-    /// Loads every graph of `bundle` with `backend`.
+    /// Loads every graph of `bundle` with `backend`, the eXperts in the form [`FORM_ENV`] chooses
+    /// (by default the bundle's form for the backend).
     pub fn new(bundle: &Bundle, backend: &dyn Backend) -> Result<Self> {
+        Self::with_form(bundle, backend, FormChoice::from_env()?)
+    }
+
+    /// Loads every graph of `bundle` with `backend`, the region eXperts in the form `form`. Asking
+    /// for a form the bundle does not carry is an error naming the forms it has.
+    pub fn with_form(bundle: &Bundle, backend: &dyn Backend, form: FormChoice) -> Result<Self> {
         let lg = bundle.livegesture()?;
         let names: Vec<String> = lg.region_names().iter().map(|s| s.to_string()).collect();
         let regions = resolve_layouts(&lg.regions)?;
+        let forms = lg.expert_forms();
+        let form = match form {
+            FormChoice::Auto => lg.default_form(backend.name()),
+            FormChoice::Canonical => "canonical",
+            FormChoice::Fused => "fused",
+        }
+        .to_string();
+        let expert_graphs = forms.get(&form).with_context(|| {
+            format!(
+                "the bundle {} has no '{form}' form (it has {:?})",
+                bundle.dir().display(),
+                forms.keys().collect::<Vec<_>>()
+            )
+        })?;
         let audio_encoder = Stage::new(bundle, backend, "audio_encoder", &names)?;
         let fusion = Stage::new(bundle, backend, "fusion", &names)?;
-        let experts = names
+        let experts = expert_graphs
             .iter()
-            .map(|r| Stage::new(bundle, backend, &format!("expert_{r}"), &names))
+            .map(|g| Stage::new(bundle, backend, g, &names))
             .collect::<Result<Vec<_>>>()?;
+        if experts.len() == 1 && names.len() > 1 {
+            chain::check_fused_experts(&experts[0], names.len())?;
+        }
         let decoders = names
             .iter()
             .map(|r| Stage::new(bundle, backend, &format!("decoder_{r}"), &names))
@@ -157,9 +228,15 @@ impl Pipeline {
             backend: backend.name().to_string(),
             audio_encoder,
             experts,
+            form,
             fusion,
             decoders,
         })
+    }
+
+    /// The form of the region eXperts this pipeline runs (`canonical` or `fused`, SPEC 14).
+    pub fn form(&self) -> &str {
+        &self.form
     }
 
     /// The backend the graphs run on.

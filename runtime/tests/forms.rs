@@ -1,0 +1,243 @@
+//! Graph forms (SPEC 14): the tiny test bundle carries the canonical region eXperts (one graph per
+//! region) and the fused form (`experts_fused`, the four on a region axis). Both forms give identical
+//! tokens and frames on both backends, alone and in a [`StreamBatch`]; a bundle whose fused graph
+//! has one perturbed weight fails parity, naming the fused graph; `--form` chooses the form.
+
+use livegesture_parity_tests as common;
+
+use std::path::Path;
+use std::process::Command;
+
+use livegesture::audio::read_wav_16k_mono;
+use livegesture::backend::{self, BackendKind, BackendOptions};
+use livegesture::bundle::Bundle;
+use livegesture::model::livegesture::{FormChoice, Pipeline, StreamOptions, TokenStep};
+use livegesture::parity::{batch_bound, Check};
+
+fn pipeline(bundle: &Bundle, kind: BackendKind, form: FormChoice) -> Pipeline {
+    if kind == BackendKind::Ort {
+        common::require_ort();
+    }
+    let be = backend::create(&BackendOptions {
+        kind,
+        ..Default::default()
+    })
+    .expect("backend");
+    Pipeline::with_form(bundle, be.as_ref(), form).expect("pipeline")
+}
+
+/// `seconds` of the reference clip (repeated).
+fn audio(bundle: &Bundle, seconds: f64) -> Vec<f32> {
+    let clip = read_wav_16k_mono(bundle.path("reference/clip.wav")).expect("reference clip");
+    clip.iter()
+        .cycle()
+        .take((seconds * 16000.0) as usize)
+        .copied()
+        .collect()
+}
+
+fn run(p: &mut Pipeline, opts: &StreamOptions, audio: &[f32]) -> Vec<TokenStep> {
+    let mut s = p.new_stream(opts).expect("stream");
+    let mut out = Vec::new();
+    for c in audio.chunks(16000) {
+        out.extend(p.push_steps(&mut s, c).expect("push"));
+    }
+    out
+}
+
+/// Identical tokens; frames within `bound` (0: bit-identical).
+fn assert_same(a: &[TokenStep], b: &[TokenStep], bound: f32, what: &str) {
+    assert_eq!(a.len(), b.len(), "{what}: step counts differ");
+    for (x, y) in a.iter().zip(b) {
+        assert_eq!(
+            x.tokens, y.tokens,
+            "{what}: tokens differ at step {}",
+            x.token_index
+        );
+        for (fx, fy) in x.frames.iter().zip(&y.frames) {
+            assert_eq!(fx.index, fy.index);
+            for (name, u, v) in [
+                ("poses", &fx.poses[..], &fy.poses[..]),
+                ("trans", &fx.trans[..], &fy.trans[..]),
+                ("expressions", &fx.expressions[..], &fy.expressions[..]),
+            ] {
+                let err = u
+                    .iter()
+                    .zip(v.iter())
+                    .map(|(p, q)| (p - q).abs())
+                    .fold(0.0f32, f32::max);
+                assert!(
+                    err <= bound,
+                    "{what}: {name} differ by {err:e} at frame {} (bound {bound:e})",
+                    fx.index
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn the_tiny_bundle_carries_both_forms() {
+    let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
+    let lg = bundle.livegesture().unwrap();
+    let forms = lg.expert_forms();
+    assert_eq!(forms["fused"], vec!["experts_fused".to_string()]);
+    assert_eq!(forms["canonical"].len(), lg.regions.len());
+    let be = backend::create(&BackendOptions::default()).unwrap();
+    for (choice, name) in [
+        (FormChoice::Canonical, "canonical"),
+        (FormChoice::Fused, "fused"),
+        (FormChoice::Auto, lg.default_form("tract")),
+    ] {
+        let p = Pipeline::with_form(&bundle, be.as_ref(), choice).unwrap();
+        assert_eq!(p.form(), name);
+    }
+}
+
+fn forms_agree(kind: BackendKind) {
+    let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
+    let audio = audio(&bundle, 20.0);
+    let mut canonical = pipeline(&bundle, kind, FormChoice::Canonical);
+    let mut fused = pipeline(&bundle, kind, FormChoice::Fused);
+    for opts in [
+        StreamOptions {
+            seed: 7,
+            ..Default::default()
+        },
+        StreamOptions {
+            seed: 8,
+            guidance: Some(1.0),
+            ..Default::default()
+        },
+    ] {
+        let a = run(&mut canonical, &opts, &audio);
+        let b = run(&mut fused, &opts, &audio);
+        assert!(a.len() >= 140, "{} steps", a.len());
+        // one stream: the same tokens through the same decoders at the same batch size: bit-identical
+        assert_same(
+            &b,
+            &a,
+            0.0,
+            &format!("{kind} fused vs canonical, seed {}", opts.seed),
+        );
+    }
+    // several streams stepped together in the fused form (stacked caches) = each alone
+    let mut batch = fused.new_batch();
+    let opts: Vec<StreamOptions> = (0..3)
+        .map(|i| StreamOptions {
+            seed: 20 + i,
+            guidance: (i == 1).then_some(1.0),
+            ..Default::default()
+        })
+        .collect();
+    for o in &opts {
+        batch.add(fused.new_stream(o).unwrap()).unwrap();
+    }
+    let fpt = bundle.frontend().mel_frames_per_token as usize;
+    let mut alone: Vec<_> = opts
+        .iter()
+        .map(|o| canonical.new_stream(o).unwrap())
+        .collect();
+    let mut mel = livegesture::frontend::StreamingLogMel::new(bundle.frontend()).unwrap();
+    let mels = mel.push(&audio[..16000 * 6]).unwrap();
+    for m in &mels {
+        assert_eq!(m.nrows(), fpt);
+        let steps = fused
+            .step_stream_batch(&mut batch, &vec![m.clone(); opts.len()])
+            .unwrap();
+        for (i, st) in steps.iter().enumerate() {
+            let want = canonical.step(&mut alone[i], m).unwrap();
+            // decoders at batch 3 vs 1: the batch check's bound (tract plans per batch size)
+            assert_same(
+                std::slice::from_ref(st),
+                std::slice::from_ref(&want),
+                batch_bound(kind) as f32,
+                &format!("{kind} fused batch vs canonical alone, stream {i}"),
+            );
+        }
+    }
+}
+
+#[test]
+fn fused_and_canonical_forms_agree_on_tract() {
+    forms_agree(BackendKind::Tract);
+}
+
+#[test]
+fn fused_and_canonical_forms_agree_on_ort() {
+    forms_agree(BackendKind::Ort);
+}
+
+#[test]
+fn parity_fails_on_a_perturbed_fused_weight_naming_the_fused_graph() {
+    let dir = tempfile::tempdir().unwrap();
+    let broken = dir.path().join("broken");
+    common::break_bundle(
+        &common::tiny_bundle(),
+        &broken,
+        "experts_fused",
+        &common::Breakage::PerturbWeight { delta: 0.05 },
+    );
+    let report = common::run_parity(&broken, &[Check::Graph]);
+    let failed: Vec<_> = report.rows.iter().filter(|r| !r.pass).collect();
+    assert!(
+        !failed.is_empty(),
+        "parity passed on a perturbed fused graph"
+    );
+    assert!(
+        failed
+            .iter()
+            .all(|r| r.what == "experts_fused" && r.comparison.contains("vs torch")),
+        "only the fused graph vs torch fails: {failed:#?}"
+    );
+    // the forms disagree on the rollout too, on a backend that runs the fused form
+    let report = common::run_parity(&broken, &[Check::Rollout]);
+    let row = report
+        .rows
+        .iter()
+        .find(|r| r.what == "rollout (fused form)" && r.output == "tokens")
+        .expect("the rollout compares the fused form with the canonical one");
+    assert!(
+        !row.pass,
+        "the forms agree with a perturbed fused graph: {row:?}"
+    );
+}
+
+#[test]
+fn cli_form_flag_chooses_the_form_and_rejects_unknown_ones() {
+    let bin = Path::new(env!("CARGO_BIN_EXE_livegesture"));
+    let bundle = common::tiny_bundle();
+    let out = Command::new(bin)
+        .args(["info", "--bundle"])
+        .arg(&bundle)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("experts_fused"), "{text}");
+    let out = Command::new(bin)
+        .args(["--form", "sideways", "info", "--bundle"])
+        .arg(&bundle)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("unknown form 'sideways'"));
+    let dir = tempfile::tempdir().unwrap();
+    let mut npz = Vec::new();
+    for form in ["canonical", "fused"] {
+        let o = dir.path().join(format!("{form}.npz"));
+        let st = Command::new(bin)
+            .args(["generate", "--form", form, "--backend", "tract", "--bundle"])
+            .arg(&bundle)
+            .arg(bundle.join("reference/clip.wav"))
+            .arg("-o")
+            .arg(&o)
+            .status()
+            .unwrap();
+        assert!(st.success());
+        npz.push(std::fs::read(&o).unwrap());
+    }
+    assert!(
+        npz[0] == npz[1],
+        "generate wrote different motion with --form canonical and --form fused"
+    );
+}
