@@ -44,3 +44,18 @@ def test_refuses_pair_with_other_tokenizer(pair, tmp_path):
         interpolate(base, tmp_path / "other.pt", 0.5)
     with pytest.raises(ValueError, match="must lie in"):
         interpolate(base, base, 1.5)
+
+
+def test_uniform_soup_of_several_tuned(pair, tmp_path):
+    base, tuned = pair
+    t2 = ckpt.load(tuned)
+    with torch.no_grad():
+        for n, p in t2.named_parameters():
+            if not n.startswith("svq."):
+                p.mul_(-1.0)
+    ckpt.save(t2, tmp_path / "tuned2.pt")
+    st, st2 = ckpt.load(tuned).state_dict(), t2.state_dict()
+    soup, prov = interpolate(base, [tuned, tmp_path / "tuned2.pt"], 1.0)
+    for k, v in soup.state_dict().items():
+        torch.testing.assert_close(v, (st[k] + st2[k]) / 2)
+    assert len(prov["interpolation"]["tuned"]) == 2
