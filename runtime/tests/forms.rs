@@ -241,3 +241,44 @@ fn cli_form_flag_chooses_the_form_and_rejects_unknown_ones() {
         "generate wrote different motion with --form canonical and --form fused"
     );
 }
+
+#[test]
+fn asking_for_a_form_the_bundle_lacks_is_bad_input_and_writes_nothing() {
+    // a bundle exported with the canonical form only (no `forms` / `backend_forms` in its manifest)
+    let dir = tempfile::tempdir().unwrap();
+    let bundle = common::copy_bundle(dir.path());
+    let path = bundle.join("manifest.json");
+    let mut m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let obj = m.as_object_mut().unwrap();
+    assert!(obj.remove("forms").is_some(), "the tiny bundle lists no forms");
+    obj.remove("backend_forms");
+    std::fs::write(&path, serde_json::to_string_pretty(&m).unwrap()).unwrap();
+    let bin = Path::new(env!("CARGO_BIN_EXE_livegesture"));
+    let o = dir.path().join("out.npz");
+    let out = Command::new(bin)
+        .args(["generate", "--form", "fused", "--bundle"])
+        .arg(&bundle)
+        .arg(bundle.join("reference/clip.wav"))
+        .arg("-o")
+        .arg(&o)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("manifest.json") && err.contains("no 'fused' form"),
+        "{err}"
+    );
+    assert!(!o.exists(), "a refused run left {}", o.display());
+    // the canonical form still runs from that bundle
+    let st = Command::new(bin)
+        .args(["generate", "--backend", "tract", "--bundle"])
+        .arg(&bundle)
+        .arg(bundle.join("reference/clip.wav"))
+        .arg("-o")
+        .arg(&o)
+        .status()
+        .unwrap();
+    assert!(st.success());
+}
