@@ -309,6 +309,12 @@ def main(argv=None):
     ap.add_argument("--rollout-tokens", type=int, default=1000, help="length of the reference rollout (>= 1000 for CI)")
     ap.add_argument("--rollout-windows", type=int, default=5,
                     help="diffsheg: FOPPAS windows of the reference rollout (>= 4; the last one is shorter)")
+    ap.add_argument("--guidance", type=float, default=None,
+                    help="diffsheg: the bundle's default classifier-free guidance scale (manifest "
+                         "diffusion.guidance.scale; default: the checkpoint config's)")
+    ap.add_argument("--jumps", type=int, default=None,
+                    help="diffsheg: the bundle's default RePaint jumps per DDIM step (manifest foppas.jumps; "
+                         "default: the checkpoint config's)")
     ap.add_argument("--provenance", help="JSON file merged into the manifest's provenance (training data "
                                          "description, evaluation figures, commands)")
     args = ap.parse_args(argv)
@@ -340,8 +346,28 @@ def main(argv=None):
             print(f"export failed: --provenance {args.provenance}: {e}", file=sys.stderr)
             return 2
     out = Path(args.out).resolve()
-    out.parent.mkdir(parents=True, exist_ok=True)
     family = getattr(model, "family", "livegesture")
+    sampler = {k: v for k, v in (("guidance", args.guidance), ("jumps", args.jumps)) if v is not None}
+    if sampler:
+        if family != "diffsheg":
+            print(f"export failed: --{' / --'.join(sampler)} set a DiffSHEG bundle's sampler defaults; "
+                  f"this is a {family} model", file=sys.stderr)
+            return 2
+        import dataclasses
+        from livegesture.diffsheg.foppas import SamplerOptions
+        cfg = dataclasses.replace(model.cfg, **sampler)
+        try:
+            SamplerOptions.from_config(cfg)
+        except ValueError as e:
+            print(f"export failed: {e}", file=sys.stderr)
+            return 2
+        provenance["sampler_defaults"] = {
+            "set_at_export": sampler, "model_config": {k: getattr(model.cfg, k) for k in sampler},
+            "meaning": "the model's config (trained with) had the model_config values as its sampling defaults; "
+                       "export --guidance/--jumps wrote set_at_export into model.config, the diffusion and foppas "
+                       "sections and the reference rollout instead (sampling only, the weights are unchanged)"}
+        model.cfg = cfg
+    out.parent.mkdir(parents=True, exist_ok=True)
     print(f"exporting {family} {model.cfg.name} -> {out}")
     kw = {}
     if family == "diffsheg":
