@@ -6,6 +6,7 @@ setting, for upper-body speed vs envelope and jaw vs envelope: own, mean over th
 gap with a 95 % bootstrap CI over the 8 clips (livegesture.eval.generalise.bootstrap_ci, same seed), and the
 clips whose own value beats the mean other value. Same measures and settings as generalise (clip_measures);
 each clip's motion is scored against audio j over their common length; realisations averaged per clip."""
+import re
 import sys
 from pathlib import Path
 
@@ -15,7 +16,7 @@ from livegesture.eval import corpus as C
 from livegesture.eval.generalise import ClipAudio, ClipMotion, bootstrap_ci, clip_measures, real_set
 
 out, seeds = Path(sys.argv[1]), list(sys.argv[2])
-settings = sys.argv[3:] or sorted(p.name for p in out.glob("*x*") if p.is_dir())
+settings = sys.argv[3:] or sorted(p.name for p in out.glob("*x*") if p.is_dir() and re.fullmatch(r"[0-9.]+x[0-9]+", p.name))
 ids, audios = real_set()
 aud = [ClipAudio(a) for a in audios]
 n = len(ids)
