@@ -6,6 +6,7 @@
     python export/export.py --config paper --random-seed 0 --out /tmp/paper-bundle --rollout-tokens 16
     python export/export.py --family diffsheg --config tiny --random-seed 0 --out /tmp/diffsheg-tiny
     python export/export.py --checkpoint runs/diffsheg/final.pt --out models/diffsheg    # family from the checkpoint
+    python export/export.py --checkpoint runs/diffsheg/final.pt --out /tmp/g3 --guidance 3   # DiffSHEG sampler defaults
 
 The bundle is written to a temporary folder beside ``--out`` and moved into place only after every check
 passed (see verify.py): a failed export leaves no half-written bundle. The format is documented in
@@ -379,6 +380,12 @@ def main(argv=None):
     ap.add_argument("--backend-forms", default=",".join(f"{b}={f}" for b, f in DEFAULT_BACKEND_FORMS.items()),
                     help="the form each backend runs by default, e.g. ort=fused,tract=canonical (a form not "
                          "written falls back to canonical)")
+    ap.add_argument("--guidance", type=float, default=None,
+                    help="diffsheg: the bundle's default classifier-free guidance scale (manifest "
+                         "diffusion.guidance.scale; default: the checkpoint config's)")
+    ap.add_argument("--jumps", type=int, default=None,
+                    help="diffsheg: the bundle's default RePaint jumps per DDIM step (manifest foppas.jumps; "
+                         "default: the checkpoint config's)")
     ap.add_argument("--provenance", help="JSON file merged into the manifest's provenance (training data "
                                          "description, evaluation figures, commands)")
     args = ap.parse_args(argv)
@@ -410,8 +417,28 @@ def main(argv=None):
             print(f"export failed: --provenance {args.provenance}: {e}", file=sys.stderr)
             return 2
     out = Path(args.out).resolve()
-    out.parent.mkdir(parents=True, exist_ok=True)
     family = getattr(model, "family", "livegesture")
+    sampler = {k: v for k, v in (("guidance", args.guidance), ("jumps", args.jumps)) if v is not None}
+    if sampler:
+        if family != "diffsheg":
+            print(f"export failed: --{' / --'.join(sampler)} set a DiffSHEG bundle's sampler defaults; "
+                  f"this is a {family} model", file=sys.stderr)
+            return 2
+        import dataclasses
+        from livegesture.diffsheg.foppas import SamplerOptions
+        cfg = dataclasses.replace(model.cfg, **sampler)
+        try:
+            SamplerOptions.from_config(cfg)
+        except ValueError as e:
+            print(f"export failed: {e}", file=sys.stderr)
+            return 2
+        provenance["sampler_defaults"] = {
+            "set_at_export": sampler, "model_config": {k: getattr(model.cfg, k) for k in sampler},
+            "meaning": "the model's config (trained with) had the model_config values as its sampling defaults; "
+                       "export --guidance/--jumps wrote set_at_export into model.config, the diffusion and foppas "
+                       "sections and the reference rollout instead (sampling only, the weights are unchanged)"}
+        model.cfg = cfg
+    out.parent.mkdir(parents=True, exist_ok=True)
     print(f"exporting {family} {model.cfg.name} -> {out}")
     forms = [f.strip() for f in args.forms.split(",") if f.strip()]
     if "canonical" not in forms or any(f not in FORMS for f in forms):

@@ -349,6 +349,27 @@ def test_export_cli_refuses_bad_input(tmp_path):
     assert not (tmp_path / "y").exists()
 
 
+def test_export_sampler_defaults(tmp_path):
+    """export --guidance / --jumps write the bundle's default sampler settings (manifest sections, reference
+    rollout, provenance); they are DiffSHEG options and are checked before anything is written."""
+    import export as exporter
+    out = tmp_path / "b"
+    assert exporter.main(["--family", "diffsheg", "--config", "tiny", "--random-seed", "0", "--guidance", "2",
+                          "--jumps", "1", "--rollout-windows", "4", "--out", str(out)]) == 0
+    man = json.loads((out / "manifest.json").read_text())
+    assert man["diffusion"]["guidance"]["scale"] == 2.0 and man["foppas"]["jumps"] == 1
+    assert man["model"]["config"]["guidance"] == 2.0 and man["model"]["config"]["jumps"] == 1
+    assert man["reference"]["rollout_options"]["guidance"] == 2.0 and man["reference"]["rollout_options"]["jumps"] == 1
+    from livegesture.diffsheg.config import get_config
+    tiny_cfg = get_config("tiny")
+    assert man["provenance"]["sampler_defaults"]["set_at_export"] == {"guidance": 2.0, "jumps": 1}
+    assert man["provenance"]["sampler_defaults"]["model_config"] == {"guidance": tiny_cfg.guidance,
+                                                                       "jumps": tiny_cfg.jumps}
+    assert exporter.main(["--family", "diffsheg", "--config", "tiny", "--jumps", "0", "--out", str(tmp_path / "z")]) == 2
+    assert exporter.main(["--config", "tiny", "--guidance", "2", "--out", str(tmp_path / "lg")]) == 2
+    assert not (tmp_path / "z").exists() and not (tmp_path / "lg").exists()
+
+
 def test_stream_generate_clip_dispatches_on_family(tiny):
     """livegesture.stream.generate_clip (used by livegesture.eval --checkpoint) runs FOPPAS for a DiffSHEG model."""
     from livegesture.stream import generate_clip as any_family
