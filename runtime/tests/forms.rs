@@ -251,7 +251,10 @@ fn asking_for_a_form_the_bundle_lacks_is_bad_input_and_writes_nothing() {
     let mut m: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
     let obj = m.as_object_mut().unwrap();
-    assert!(obj.remove("forms").is_some(), "the tiny bundle lists no forms");
+    assert!(
+        obj.remove("forms").is_some(),
+        "the tiny bundle lists no forms"
+    );
     obj.remove("backend_forms");
     std::fs::write(&path, serde_json::to_string_pretty(&m).unwrap()).unwrap();
     let bin = Path::new(env!("CARGO_BIN_EXE_livegesture"));

@@ -182,16 +182,17 @@ impl Pipeline {
         }
         .to_string();
         // a form the bundle does not carry is bad input (exit code 2), named in the manifest's terms
-        let expert_graphs = forms
-            .get(&form)
-            .ok_or_else(|| crate::bundle::BundleError::Manifest {
-                path: bundle.dir().join("manifest.json"),
-                detail: format!(
-                    "forms: no '{form}' form of the region eXperts (the bundle has {:?}; \
+        let expert_graphs =
+            forms
+                .get(&form)
+                .ok_or_else(|| crate::bundle::BundleError::Manifest {
+                    path: bundle.dir().join("manifest.json"),
+                    detail: format!(
+                        "forms: no '{form}' form of the region eXperts (the bundle has {:?}; \
                      --form / ${FORM_ENV} asked for it)",
-                    forms.keys().collect::<Vec<_>>()
-                ),
-            })?;
+                        forms.keys().collect::<Vec<_>>()
+                    ),
+                })?;
         let audio_encoder = Stage::new(bundle, backend, "audio_encoder", &names)?;
         let fusion = Stage::new(bundle, backend, "fusion", &names)?;
         let experts = expert_graphs
