@@ -4,7 +4,11 @@
 - ``default``: trained on the synthetic corpus on one CPU thread in ~30-40 minutes, shipped in models/diffsheg;
 - ``paper``: the paper's / the authors' code's widths and depths (latent 512, feed-forward 1024, 8 heads,
   8 style-aware transformer layers per branch, audio latent 256, 128 mel bins), 88-frame windows at 30 fps
-  with an overlap of 10 (the SHOW setting), DDIM 25 steps, guidance 1.25.
+  with an overlap of 10 (the SHOW setting), DDIM 25 steps.
+
+The guidance scale is the project's choice: the paper gives none (the authors' SHOW scripts use 1.15). Configs
+keep 1.25; the shipped models/diffsheg bundle samples with 3.0, set at export (``export.py --guidance 3``,
+docs/eval/diffsheg-guidance-2026-11-25).
 """
 from __future__ import annotations
 
@@ -41,7 +45,7 @@ class DiffSHEGConfig:
     beta_start: float = 1e-4
     beta_end: float = 0.02
     ddim_steps: int = 25
-    guidance: float = 1.25
+    guidance: float = 1.25            # not a paper value (see the module doc); models/diffsheg exports 3.0
     window: int = 88                  # N: frames per window (the longest window; positional table length)
     overlap: int = 10                 # L_o
     jumps: int = 2                    # U: RePaint resampling jumps per DDIM step
