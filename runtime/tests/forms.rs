@@ -285,3 +285,65 @@ fn asking_for_a_form_the_bundle_lacks_is_bad_input_and_writes_nothing() {
         .unwrap();
     assert!(st.success());
 }
+
+#[test]
+fn form_comes_from_the_flag_or_the_environment_and_is_refused_for_diffsheg() {
+    let bin = Path::new(env!("CARGO_BIN_EXE_livegesture"));
+    let bundle = common::tiny_bundle();
+    let dir = tempfile::tempdir().unwrap();
+    // LIVEGESTURE_FORM is read by the CLI (clap), not by the library: an unknown value is a usage error
+    let out = Command::new(bin)
+        .env("LIVEGESTURE_FORM", "sideways")
+        .args(["info", "--bundle"])
+        .arg(&bundle)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("unknown form 'sideways'"));
+    // the same motion whether the form comes from the flag or the variable
+    let mut npz = Vec::new();
+    for (i, (flag, env)) in [(Some("fused"), None), (None, Some("fused"))]
+        .iter()
+        .enumerate()
+    {
+        let o = dir.path().join(format!("{i}.npz"));
+        let mut c = Command::new(bin);
+        c.env_remove("LIVEGESTURE_FORM");
+        if let Some(e) = env {
+            c.env("LIVEGESTURE_FORM", e);
+        }
+        c.arg("generate");
+        if let Some(f) = flag {
+            c.args(["--form", f]);
+        }
+        let st = c
+            .args(["--backend", "tract", "--bundle"])
+            .arg(&bundle)
+            .arg(bundle.join("reference/clip.wav"))
+            .arg("-o")
+            .arg(&o)
+            .status()
+            .unwrap();
+        assert!(st.success());
+        npz.push(std::fs::read(&o).unwrap());
+    }
+    assert!(npz[0] == npz[1]);
+    // a DiffSHEG bundle has one form: asking for one is bad input, and nothing is written
+    let ds = common::diffsheg_tiny_bundle();
+    let o = dir.path().join("ds.npz");
+    let out = Command::new(bin)
+        .args(["generate", "--form", "canonical", "--bundle"])
+        .arg(&ds)
+        .arg(ds.join("reference/clip.wav"))
+        .arg("-o")
+        .arg(&o)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--form canonical") && err.contains("diffsheg"),
+        "{err}"
+    );
+    assert!(!o.exists());
+}

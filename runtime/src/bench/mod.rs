@@ -68,6 +68,9 @@ pub struct BenchConfig {
     pub batch_seconds: f64,
     /// Batched stepping with churn: at every step one stream leaves and a fresh one joins.
     pub churn: bool,
+    /// LiveGesture: the form of the region eXperts to measure (SPEC 14; auto = the bundle's form
+    /// for the backend).
+    pub form: crate::model::livegesture::FormChoice,
 }
 
 impl Default for BenchConfig {
@@ -86,6 +89,7 @@ impl Default for BenchConfig {
             batch_min_steps: 5,
             batch_seconds: 15.0,
             churn: true,
+            form: Default::default(),
         }
     }
 }
@@ -263,7 +267,7 @@ pub fn run(
     let rec = Arc::new(Recorder::default());
     let timing = TimingBackend::new(backend, rec.clone());
     let t0 = Instant::now();
-    let mut pipe = Pipeline::new(bundle, &timing)?;
+    let mut pipe = Pipeline::with_form(bundle, &timing, cfg.form)?;
     let load_seconds = t0.elapsed().as_secs_f64();
     let fe = bundle.frontend().clone();
     let sr = fe.sample_rate as f64;

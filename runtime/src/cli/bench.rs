@@ -8,6 +8,7 @@ use anyhow::{Context, Result};
 
 use livegesture::bench::diffsheg::DiffshegBenchConfig;
 use livegesture::bench::{run_family, BenchConfig};
+use livegesture::model::livegesture::FormChoice;
 
 use super::common::{DiffshegArgs, InputError, ModelArgs};
 
@@ -90,7 +91,7 @@ fn positive_list(flag: &str, v: &str) -> Result<Vec<usize>> {
         .collect::<Result<Vec<_>, _>>()?)
 }
 
-pub fn run(a: Args) -> Result<()> {
+pub fn run(a: Args, form: FormChoice) -> Result<()> {
     let streams = positive_list("--streams", &a.streams)?;
     let dcfg = DiffshegBenchConfig {
         ddim_steps: a.diffsheg.ddim_steps,
@@ -106,6 +107,7 @@ pub fn run(a: Args) -> Result<()> {
         return Err(InputError("--steps must be at least 1".into()).into());
     }
     let bundle = a.model.bundle()?;
+    super::common::check_form(&bundle, form)?;
     let audio = match a.audio {
         Some(p) => p,
         None => bundle.path("reference/clip.wav"),
@@ -123,6 +125,7 @@ pub fn run(a: Args) -> Result<()> {
         batch_min_steps: a.batch_min_steps,
         batch_seconds: a.batch_seconds,
         churn: !a.no_churn,
+        form,
         ..Default::default()
     };
     // the backend alone: the bench wraps it to time each graph

@@ -8,6 +8,7 @@ use clap::ValueEnum;
 use livegesture::audio::AudioError;
 use livegesture::backend::{self, BackendKind, BackendOptions};
 use livegesture::bundle::{default_bundle_dir, Bundle, BundleError};
+use livegesture::model::livegesture::FormChoice;
 use livegesture::model::{self, MotionModel, StreamOptions};
 
 /// An error caused by the user's input or arguments (exit code 2).
@@ -164,10 +165,12 @@ impl ModelArgs {
         Ok(opts)
     }
 
-    /// Creates the backend and loads the bundle's model (whichever its family).
-    pub fn model(&self, bundle: &Bundle) -> Result<Box<dyn MotionModel>> {
+    /// Creates the backend and loads the bundle's model (whichever its family), the region eXperts
+    /// of a LiveGesture bundle in the form `form` (`--form`).
+    pub fn model(&self, bundle: &Bundle, form: FormChoice) -> Result<Box<dyn MotionModel>> {
+        check_form(bundle, form)?;
         let be = backend::create(&self.backend_options()?)?;
-        model::load(bundle, be.as_ref()).with_context(|| {
+        model::load_with(bundle, be.as_ref(), &model::LoadOptions { form }).with_context(|| {
             format!(
                 "loading the bundle {} with {}",
                 bundle.dir().display(),
@@ -175,6 +178,19 @@ impl ModelArgs {
             )
         })
     }
+}
+
+/// `--form` chooses among a LiveGesture bundle's forms; a DiffSHEG bundle has one (input error).
+pub fn check_form(bundle: &Bundle, form: FormChoice) -> Result<()> {
+    if form != FormChoice::Auto && bundle.family() != livegesture::bundle::Family::LiveGesture {
+        return Err(InputError(format!(
+            "--form {form}: {} is a {} bundle, which has one graph form; --form chooses the form of a LiveGesture bundle's region eXperts",
+            bundle.dir().display(),
+            bundle.family()
+        ))
+        .into());
+    }
+    Ok(())
 }
 
 /// A new stream of `model`; options the model refuses (out of range, or of another family) are input

@@ -14,6 +14,7 @@ use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use livegesture::audio::WavStream;
+use livegesture::model::livegesture::FormChoice;
 use livegesture::output::{FrameSink, NpzFrameWriter};
 
 use super::common::{GenArgs, InputError, ModelArgs};
@@ -36,7 +37,7 @@ pub struct Args {
     pub gen: GenArgs,
 }
 
-pub fn run(a: Args) -> Result<()> {
+pub fn run(a: Args, form: FormChoice) -> Result<()> {
     let opts = a.gen.stream_options()?;
     if let Some(parent) = a.output.parent().filter(|p| !p.as_os_str().is_empty()) {
         if !parent.is_dir() {
@@ -57,7 +58,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     let mut wav = WavStream::open(&a.input)?;
     let bundle = a.model.bundle()?;
-    let model = a.model.model(&bundle)?;
+    let model = a.model.model(&bundle, form)?;
     let mut stream = super::common::new_stream(model.as_ref(), &opts)?;
     let total = wav.output_len();
     let bar = if std::io::stderr().is_terminal() {

@@ -9,6 +9,7 @@
 //! call the library's `parity::run` / `bench::run`, which dispatch on the family themselves.
 
 use clap::{Parser, Subcommand};
+use livegesture::model::livegesture::FormChoice;
 
 #[cfg(feature = "bench")]
 pub mod bench;
@@ -41,11 +42,16 @@ pub use common::exit_code;
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
-    /// Form of the region eXperts (SPEC 14): auto (the bundle's form for the backend, see `info`),
-    /// canonical (one graph per region) or fused (one graph on a region axis). Sets
-    /// $LIVEGESTURE_FORM, which is read when it is not given.
-    #[arg(long, global = true, value_name = "FORM")]
-    pub form: Option<String>,
+    /// LiveGesture: form of the region eXperts (SPEC 14): auto (the bundle's form for the backend,
+    /// see `info`), canonical (one graph per region) or fused (one graph on a region axis).
+    #[arg(
+        long,
+        global = true,
+        value_name = "FORM",
+        env = "LIVEGESTURE_FORM",
+        default_value = "auto"
+    )]
+    pub form: FormChoice,
 }
 
 #[derive(Debug, Subcommand)]
@@ -71,21 +77,16 @@ pub enum Command {
 
 /// Runs the parsed command.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
-    if let Some(f) = &cli.form {
-        f.parse::<livegesture::model::livegesture::FormChoice>()
-            .map_err(|e| common::InputError(format!("--form: {e}")))?;
-        // read by every pipeline this process loads (set before any thread is started)
-        std::env::set_var(livegesture::model::livegesture::FORM_ENV, f);
-    }
+    let form = cli.form;
     match cli.command {
-        Command::Generate(a) => generate::run(a),
-        Command::Stream(a) => stream::run(a),
+        Command::Generate(a) => generate::run(a, form),
+        Command::Stream(a) => stream::run(a, form),
         Command::Info(a) => info::run(a),
         #[cfg(feature = "parity")]
-        Command::Parity(a) => parity::run(a),
+        Command::Parity(a) => parity::run(a, form),
         #[cfg(feature = "bench")]
-        Command::Bench(a) => bench::run(a),
+        Command::Bench(a) => bench::run(a, form),
         #[cfg(feature = "serve")]
-        Command::Serve(a) => serve::run(a),
+        Command::Serve(a) => serve::run(a, form),
     }
 }

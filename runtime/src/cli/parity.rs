@@ -12,6 +12,7 @@ use anyhow::{Context, Result};
 
 use livegesture::backend::{BackendKind, BackendOptions};
 use livegesture::bundle::default_bundle_dir;
+use livegesture::model::livegesture::FormChoice;
 use livegesture::parity::{self, Check, ParityOptions, ReferenceError};
 
 use super::common::{BackendArg, InputError};
@@ -56,7 +57,7 @@ pub struct ParityFailed {
     pub total: usize,
 }
 
-pub fn run(a: Args) -> Result<()> {
+pub fn run(a: Args, form: FormChoice) -> Result<()> {
     if !(a.chunk_seconds.is_finite() && a.chunk_seconds > 0.0) {
         return Err(InputError(format!(
             "--chunk-seconds must be > 0, got {}",
@@ -92,7 +93,11 @@ pub fn run(a: Args) -> Result<()> {
             a.checks.clone()
         },
         chunk_seconds: a.chunk_seconds,
+        form,
     };
+    if form != FormChoice::Auto {
+        super::common::check_form(&livegesture::bundle::Bundle::load(&dir)?, form)?;
+    }
     let quiet = a.quiet;
     let mut log = |m: &str| {
         if !quiet {

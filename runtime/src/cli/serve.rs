@@ -8,10 +8,10 @@ use sha2::{Digest, Sha256};
 
 use livegesture::backend;
 use livegesture::bundle::Family;
-use livegesture::model::livegesture::Pipeline;
+use livegesture::model::livegesture::{FormChoice, Pipeline};
 use livegesture::serve::{ModelInfo, ServeConfig, ServeModel, Server};
 
-use super::common::{InputError, ModelArgs};
+use super::common::{check_form, InputError, ModelArgs};
 
 #[derive(Debug, clap::Args)]
 #[command(
@@ -57,7 +57,7 @@ fn secs(name: &str, v: f64) -> Result<Duration> {
     }
 }
 
-pub fn run(a: Args) -> Result<()> {
+pub fn run(a: Args, form: FormChoice) -> Result<()> {
     if a.max_sessions == 0
         || a.max_message_bytes == 0
         || a.queue_frames == 0
@@ -78,6 +78,7 @@ pub fn run(a: Args) -> Result<()> {
         drain_timeout: secs("drain-timeout", a.drain_timeout)?,
     };
     let bundle = a.model.bundle()?;
+    check_form(&bundle, form)?;
     let backend_opts = a.model.backend_options()?;
     let manifest = std::fs::read(bundle.manifest_path())
         .with_context(|| format!("reading {}", bundle.manifest_path().display()))?;
@@ -95,7 +96,7 @@ pub fn run(a: Args) -> Result<()> {
         // one stream per session through the family-independent model API
         let (model, backend_name) = match family {
             Family::LiveGesture => {
-                let p = Pipeline::new(&bundle, be.as_ref()).with_context(loading)?;
+                let p = Pipeline::with_form(&bundle, be.as_ref(), form).with_context(loading)?;
                 let name = p.backend_name().to_string();
                 (ServeModel::Batched(p), name)
             }

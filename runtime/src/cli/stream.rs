@@ -8,6 +8,7 @@ use anyhow::Result;
 use clap::ValueEnum;
 
 use livegesture::audio::{RawFormat, RawPcmStream};
+use livegesture::model::livegesture::FormChoice;
 use livegesture::output::{BinaryFrameWriter, FrameSink, JsonLinesWriter};
 
 use super::common::{GenArgs, InputError, ModelArgs};
@@ -55,13 +56,13 @@ fn is_broken_pipe(e: &anyhow::Error) -> bool {
     })
 }
 
-pub fn run(a: Args) -> Result<()> {
+pub fn run(a: Args, form: FormChoice) -> Result<()> {
     let opts = a.gen.stream_options()?;
     if a.rate == 0 || a.channels == 0 {
         return Err(InputError("--rate and --channels must be at least 1".into()).into());
     }
     let bundle = a.model.bundle()?;
-    let model = a.model.model(&bundle)?;
+    let model = a.model.model(&bundle, form)?;
     let mut stream = super::common::new_stream(model.as_ref(), &opts)?;
     let stdin = std::io::stdin().lock();
     let mut input = RawPcmStream::new(stdin, a.format, a.rate, a.channels, "<stdin>")?;

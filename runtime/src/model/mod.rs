@@ -169,14 +169,39 @@ pub fn describe(bundle: &Bundle) -> Result<Description> {
     }
 }
 
+/// Choices made when a bundle is loaded, among what the bundle carries.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LoadOptions {
+    /// LiveGesture: the form of the region eXperts (SPEC 14; auto = the bundle's form for the
+    /// backend). DiffSHEG bundles carry one form: anything but auto is refused.
+    pub form: livegesture::FormChoice,
+}
+
+/// Loads the model of `bundle`'s family with `backend` and the default [`LoadOptions`].
+pub fn load(bundle: &Bundle, backend: &dyn Backend) -> Result<Box<dyn MotionModel>> {
+    load_with(bundle, backend, &LoadOptions::default())
+}
+
 /// Loads the model of `bundle`'s family with `backend`. With [`describe`], the only place that maps a
 /// family to its implementation.
-pub fn load(bundle: &Bundle, backend: &dyn Backend) -> Result<Box<dyn MotionModel>> {
+pub fn load_with(
+    bundle: &Bundle,
+    backend: &dyn Backend,
+    opts: &LoadOptions,
+) -> Result<Box<dyn MotionModel>> {
     match bundle.family() {
-        Family::LiveGesture => Ok(Box::new(livegesture::LiveGestureModel::load(
-            bundle, backend,
+        Family::LiveGesture => Ok(Box::new(livegesture::LiveGestureModel::load_with_form(
+            bundle, backend, opts.form,
         )?)),
-        Family::DiffSheg => Ok(Box::new(diffsheg::DiffshegModel::load(bundle, backend)?)),
+        Family::DiffSheg => {
+            anyhow::ensure!(
+                opts.form == livegesture::FormChoice::Auto,
+                "{}: a DiffSHEG bundle has one graph form; the form choice ({}) applies to LiveGesture's region eXperts",
+                bundle.dir().display(),
+                opts.form
+            );
+            Ok(Box::new(diffsheg::DiffshegModel::load(bundle, backend)?))
+        }
     }
 }
 

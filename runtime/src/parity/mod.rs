@@ -196,6 +196,8 @@ pub struct ParityOptions {
     pub checks: Vec<Check>,
     /// Seconds of the reference clip used by the chunk and batch checks.
     pub chunk_seconds: f64,
+    /// The form of the region eXperts the pipeline checks run (auto: the bundle's form per backend).
+    pub form: FormChoice,
 }
 
 impl Default for ParityOptions {
@@ -208,6 +210,7 @@ impl Default for ParityOptions {
             },
             checks: Check::ALL.to_vec(),
             chunk_seconds: 3.0,
+            form: FormChoice::Auto,
         }
     }
 }
@@ -369,7 +372,7 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
     let mut pipelines: Vec<(BackendKind, Pipeline)> = Vec::new();
     if need_pipeline {
         for (k, be) in &backends {
-            match Pipeline::new(&bundle, be.as_ref()) {
+            match Pipeline::with_form(&bundle, be.as_ref(), opts.form) {
                 Ok(p) => pipelines.push((*k, p)),
                 Err(e) => rows.push(Row::failed(
                     Check::Rollout,

@@ -87,11 +87,6 @@ use caches::{Caches, SeparateCaches, StackedCaches};
 use chain::Stage;
 use stream::StreamState;
 
-/// Environment variable choosing the form of the region eXperts (SPEC 14) when a pipeline is made
-/// with [`Pipeline::new`]: `auto` (the bundle's `backend_forms`), `canonical` or `fused`. The CLI's
-/// `--form` sets it.
-pub const FORM_ENV: &str = "LIVEGESTURE_FORM";
-
 /// Which form of the region eXperts a [`Pipeline`] runs (SPEC 14).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum FormChoice {
@@ -104,6 +99,16 @@ pub enum FormChoice {
     Fused,
 }
 
+impl std::fmt::Display for FormChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            FormChoice::Auto => "auto",
+            FormChoice::Canonical => "canonical",
+            FormChoice::Fused => "fused",
+        })
+    }
+}
+
 impl std::str::FromStr for FormChoice {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
@@ -114,18 +119,6 @@ impl std::str::FromStr for FormChoice {
             other => Err(format!(
                 "unknown form '{other}'; expected auto, canonical or fused"
             )),
-        }
-    }
-}
-
-impl FormChoice {
-    /// The choice in [`FORM_ENV`] (unset: auto); an unknown value is an error naming the variable.
-    pub fn from_env() -> Result<Self> {
-        match std::env::var(FORM_ENV) {
-            Ok(v) => v
-                .parse()
-                .map_err(|e: String| anyhow::anyhow!("{FORM_ENV}: {e}")),
-            Err(_) => Ok(FormChoice::Auto),
         }
     }
 }
@@ -162,10 +155,10 @@ impl std::fmt::Debug for Pipeline {
 }
 
 impl Pipeline {
-    /// Loads every graph of `bundle` with `backend`, the eXperts in the form [`FORM_ENV`] chooses
-    /// (by default the bundle's form for the backend).
+    /// Loads every graph of `bundle` with `backend`, the eXperts in the bundle's form for the
+    /// backend (`backend_forms`, else canonical).
     pub fn new(bundle: &Bundle, backend: &dyn Backend) -> Result<Self> {
-        Self::with_form(bundle, backend, FormChoice::from_env()?)
+        Self::with_form(bundle, backend, FormChoice::Auto)
     }
 
     /// Loads every graph of `bundle` with `backend`, the region eXperts in the form `form`. Asking
@@ -188,8 +181,7 @@ impl Pipeline {
                 .ok_or_else(|| crate::bundle::BundleError::Manifest {
                     path: bundle.dir().join("manifest.json"),
                     detail: format!(
-                        "forms: no '{form}' form of the region eXperts (the bundle has {:?}; \
-                     --form / ${FORM_ENV} asked for it)",
+                        "forms: no '{form}' form of the region eXperts was exported (the bundle has {:?})",
                         forms.keys().collect::<Vec<_>>()
                     ),
                 })?;

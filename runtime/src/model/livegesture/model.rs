@@ -10,7 +10,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 
 use anyhow::{anyhow, Result};
 
-use super::{Pipeline, Stream};
+use super::{FormChoice, Pipeline, Stream};
 use crate::audio::AudioSpan;
 use crate::backend::Backend;
 use crate::bundle::{Bundle, Family};
@@ -33,9 +33,19 @@ fn lock(p: &Mutex<Pipeline>) -> Result<MutexGuard<'_, Pipeline>> {
 }
 
 impl LiveGestureModel {
-    /// Loads every graph of `bundle` (family `livegesture`) with `backend`.
+    /// Loads every graph of `bundle` (family `livegesture`) with `backend`, the region eXperts in
+    /// the bundle's form for the backend.
     pub fn load(bundle: &Bundle, backend: &dyn Backend) -> Result<Self> {
-        let pipeline = Pipeline::new(bundle, backend)?;
+        Self::load_with_form(bundle, backend, FormChoice::Auto)
+    }
+
+    /// As [`Self::load`], the region eXperts in the form `form` (SPEC 14).
+    pub fn load_with_form(
+        bundle: &Bundle,
+        backend: &dyn Backend,
+        form: FormChoice,
+    ) -> Result<Self> {
+        let pipeline = Pipeline::with_form(bundle, backend, form)?;
         let f = bundle.frontend();
         Ok(Self {
             backend: pipeline.backend_name().to_string(),
