@@ -245,20 +245,26 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
     cfg = model.cfg
     (tmp / "reference").mkdir()
     files, graphs, checks = {}, [], {}
-    for graph, comp in model.components().items():
-        t0 = time.time()
-        e_off = check_step_vs_offline(model, graph)
+
+    def export_checked(graph, comp, entry: dict) -> float:
+        """Export one graph, check its structure and ort vs torch, write its reference vectors and its
+        manifest entry (``entry`` adds to it); returns the ort-vs-torch error."""
         path = tmp / f"{graph}.onnx"
         export_graph(model, graph, path)
         check_onnx_structure(str(path), graph, OPSET)
         e_ort = check_ort_vs_torch(model, graph, str(path))
-        ref = tmp / "reference" / f"{graph}.npz"
-        np.savez_compressed(ref, **graph_reference(model, graph, seed=len(graphs)))
+        np.savez_compressed(tmp / "reference" / f"{graph}.npz", **graph_reference(model, graph, seed=len(graphs)))
         ins, outs = data_io(model, graph)
-        graphs.append({"name": graph, "file": path.name, "component": type(comp).__name__,
-                       "region": graph.split("_", 1)[1] if "_" in graph and graph != "audio_encoder" else None,
+        graphs.append({"name": graph, "file": path.name, "component": type(comp).__name__, **entry,
                        "inputs": ins, "outputs": outs, "caches": cache_entries(comp),
                        "reference": f"reference/{graph}.npz"})
+        return e_ort
+
+    for graph, comp in model.components().items():
+        t0 = time.time()
+        e_off = check_step_vs_offline(model, graph)
+        region = graph.split("_", 1)[1] if "_" in graph and graph != "audio_encoder" else None
+        e_ort = export_checked(graph, comp, {"region": region})
         checks[graph] = {"torch_step_vs_offline_max_abs": e_off, "ort_vs_torch_max_abs": e_ort}
         log(f"  {graph:<16} step-vs-offline {e_off:.2e}  ort-vs-torch {e_ort:.2e}  ({time.time() - t0:.1f}s)")
 
@@ -269,16 +275,7 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
         e_can, out_name, step = check_fused_experts(model, steps=max(cfg.history, cfg.audio_window) + 5)
         if e_can > FUSED_VS_CANONICAL:
             fail(graph, out_name, step, e_can, FUSED_VS_CANONICAL, "torch fused form vs the canonical eXperts")
-        path = tmp / f"{graph}.onnx"
-        export_graph(model, graph, path)
-        check_onnx_structure(str(path), graph, OPSET)
-        e_ort = check_ort_vs_torch(model, graph, str(path))
-        ref = tmp / "reference" / f"{graph}.npz"
-        np.savez_compressed(ref, **graph_reference(model, graph, seed=len(graphs)))
-        ins, outs = data_io(model, graph)
-        graphs.append({"name": graph, "file": path.name, "component": type(comp).__name__, "region": None,
-                       "form": "fused", "inputs": ins, "outputs": outs, "caches": cache_entries(comp),
-                       "reference": f"reference/{graph}.npz"})
+        e_ort = export_checked(graph, comp, {"region": None, "form": "fused"})
         fused_graphs.append(graph)
         checks[graph] = {"torch_fused_vs_canonical_max_abs": e_can, "ort_vs_torch_max_abs": e_ort}
         log(f"  {graph:<16} fused-vs-canonical {e_can:.2e}  ort-vs-torch {e_ort:.2e}  ({time.time() - t0:.1f}s)")
