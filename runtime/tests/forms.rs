@@ -6,7 +6,7 @@
 use livegesture_parity_tests as common;
 
 use std::path::Path;
-use std::process::Command;
+use std::process::{Command, Output};
 
 use livegesture::audio::read_wav_16k_mono;
 use livegesture::backend::{self, BackendKind, BackendOptions};
@@ -203,42 +203,74 @@ fn parity_fails_on_a_perturbed_fused_weight_naming_the_fused_graph() {
     );
 }
 
+/// Runs `livegesture generate` on `bundle`'s reference clip into `out` with `args` (and
+/// `LIVEGESTURE_FORM` set to `form_env`, else unset).
+fn generate(bundle: &Path, args: &[&str], form_env: Option<&str>, out: &Path) -> Output {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_livegesture"));
+    c.env_remove("LIVEGESTURE_FORM");
+    if let Some(f) = form_env {
+        c.env("LIVEGESTURE_FORM", f);
+    }
+    c.arg("generate")
+        .args(args)
+        .arg("--bundle")
+        .arg(bundle)
+        .arg(bundle.join("reference/clip.wav"))
+        .arg("-o")
+        .arg(out)
+        .output()
+        .unwrap()
+}
+
+/// `livegesture info` on `bundle` with `args` before the subcommand and `LIVEGESTURE_FORM` as given.
+fn info(bundle: &Path, args: &[&str], form_env: Option<&str>) -> Output {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_livegesture"));
+    c.env_remove("LIVEGESTURE_FORM");
+    if let Some(f) = form_env {
+        c.env("LIVEGESTURE_FORM", f);
+    }
+    c.args(args)
+        .args(["info", "--bundle"])
+        .arg(bundle)
+        .output()
+        .unwrap()
+}
+
+fn assert_ok(o: &Output) {
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
 #[test]
 fn cli_form_flag_chooses_the_form_and_rejects_unknown_ones() {
-    let bin = Path::new(env!("CARGO_BIN_EXE_livegesture"));
     let bundle = common::tiny_bundle();
-    let out = Command::new(bin)
-        .args(["info", "--bundle"])
-        .arg(&bundle)
-        .output()
-        .unwrap();
+    let out = info(&bundle, &[], None);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("experts_fused"), "{text}");
-    let out = Command::new(bin)
-        .args(["--form", "sideways", "info", "--bundle"])
-        .arg(&bundle)
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("unknown form 'sideways'"));
+    // an unknown form is a usage error, from the flag or from the variable (read by the CLI only)
+    for (args, env) in [
+        (&["--form", "sideways"][..], None),
+        (&[][..], Some("sideways")),
+    ] {
+        let out = info(&bundle, args, env);
+        assert_eq!(out.status.code(), Some(2));
+        assert!(String::from_utf8_lossy(&out.stderr).contains("unknown form 'sideways'"));
+    }
+    // both forms, and the form from the flag or the variable, write the same motion
     let dir = tempfile::tempdir().unwrap();
+    let runs: [(&[&str], Option<&str>); 3] = [
+        (&["--form", "canonical", "--backend", "tract"], None),
+        (&["--form", "fused", "--backend", "tract"], None),
+        (&["--backend", "tract"], Some("fused")),
+    ];
     let mut npz = Vec::new();
-    for form in ["canonical", "fused"] {
-        let o = dir.path().join(format!("{form}.npz"));
-        let st = Command::new(bin)
-            .args(["generate", "--form", form, "--backend", "tract", "--bundle"])
-            .arg(&bundle)
-            .arg(bundle.join("reference/clip.wav"))
-            .arg("-o")
-            .arg(&o)
-            .status()
-            .unwrap();
-        assert!(st.success());
+    for (i, (args, env)) in runs.iter().enumerate() {
+        let o = dir.path().join(format!("{i}.npz"));
+        assert_ok(&generate(&bundle, args, *env, &o));
         npz.push(std::fs::read(&o).unwrap());
     }
     assert!(
-        npz[0] == npz[1],
-        "generate wrote different motion with --form canonical and --form fused"
+        npz[0] == npz[1] && npz[1] == npz[2],
+        "generate wrote different motion with --form canonical, --form fused and LIVEGESTURE_FORM=fused"
     );
 }
 
@@ -257,16 +289,8 @@ fn asking_for_a_form_the_bundle_lacks_is_bad_input_and_writes_nothing() {
     );
     obj.remove("backend_forms");
     std::fs::write(&path, serde_json::to_string_pretty(&m).unwrap()).unwrap();
-    let bin = Path::new(env!("CARGO_BIN_EXE_livegesture"));
     let o = dir.path().join("out.npz");
-    let out = Command::new(bin)
-        .args(["generate", "--form", "fused", "--bundle"])
-        .arg(&bundle)
-        .arg(bundle.join("reference/clip.wav"))
-        .arg("-o")
-        .arg(&o)
-        .output()
-        .unwrap();
+    let out = generate(&bundle, &["--form", "fused"], None, &o);
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(
@@ -275,70 +299,16 @@ fn asking_for_a_form_the_bundle_lacks_is_bad_input_and_writes_nothing() {
     );
     assert!(!o.exists(), "a refused run left {}", o.display());
     // the canonical form still runs from that bundle
-    let st = Command::new(bin)
-        .args(["generate", "--backend", "tract", "--bundle"])
-        .arg(&bundle)
-        .arg(bundle.join("reference/clip.wav"))
-        .arg("-o")
-        .arg(&o)
-        .status()
-        .unwrap();
-    assert!(st.success());
+    assert_ok(&generate(&bundle, &["--backend", "tract"], None, &o));
 }
 
 #[test]
-fn form_comes_from_the_flag_or_the_environment_and_is_refused_for_diffsheg() {
-    let bin = Path::new(env!("CARGO_BIN_EXE_livegesture"));
-    let bundle = common::tiny_bundle();
-    let dir = tempfile::tempdir().unwrap();
-    // LIVEGESTURE_FORM is read by the CLI (clap), not by the library: an unknown value is a usage error
-    let out = Command::new(bin)
-        .env("LIVEGESTURE_FORM", "sideways")
-        .args(["info", "--bundle"])
-        .arg(&bundle)
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("unknown form 'sideways'"));
-    // the same motion whether the form comes from the flag or the variable
-    let mut npz = Vec::new();
-    for (i, (flag, env)) in [(Some("fused"), None), (None, Some("fused"))]
-        .iter()
-        .enumerate()
-    {
-        let o = dir.path().join(format!("{i}.npz"));
-        let mut c = Command::new(bin);
-        c.env_remove("LIVEGESTURE_FORM");
-        if let Some(e) = env {
-            c.env("LIVEGESTURE_FORM", e);
-        }
-        c.arg("generate");
-        if let Some(f) = flag {
-            c.args(["--form", f]);
-        }
-        let st = c
-            .args(["--backend", "tract", "--bundle"])
-            .arg(&bundle)
-            .arg(bundle.join("reference/clip.wav"))
-            .arg("-o")
-            .arg(&o)
-            .status()
-            .unwrap();
-        assert!(st.success());
-        npz.push(std::fs::read(&o).unwrap());
-    }
-    assert!(npz[0] == npz[1]);
+fn form_is_refused_for_diffsheg_bundles() {
     // a DiffSHEG bundle has one form: asking for one is bad input, and nothing is written
     let ds = common::diffsheg_tiny_bundle();
+    let dir = tempfile::tempdir().unwrap();
     let o = dir.path().join("ds.npz");
-    let out = Command::new(bin)
-        .args(["generate", "--form", "canonical", "--bundle"])
-        .arg(&ds)
-        .arg(ds.join("reference/clip.wav"))
-        .arg("-o")
-        .arg(&o)
-        .output()
-        .unwrap();
+    let out = generate(&ds, &["--form", "canonical"], None, &o);
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(
