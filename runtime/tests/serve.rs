@@ -21,8 +21,9 @@ use livegesture::model::livegesture::{Pipeline, StreamOptions};
 use livegesture::output::{Frame, FPS};
 use livegesture::serve::{ServeConfig, Server};
 use serve_common::{
-    assert_equal, collect, connect, exited_ok, generate_input, model_info, pcm_bytes, read_frames,
-    session, spawn_serve, speech_of, tract_backend, url, within, write_wav, Outcome, Ws,
+    assert_equal, assert_matches_generate, collect, connect, exited_ok, generate_binary,
+    generate_input, model_info, pcm_bytes, read_frames, session, spawn_serve, speech_of,
+    tract_backend, url, within, Outcome, Ws,
 };
 use tokio_tungstenite::tungstenite::Message;
 
@@ -166,31 +167,7 @@ fn stereo_44k_f32_binary_equals_generate() {
 fn frames_equal_the_generate_binary() {
     let server = start(ServeConfig::default());
     let audio = speech(1.6);
-    let dir = tempfile::tempdir().unwrap();
-    let wav = dir.path().join("a.wav");
-    write_wav(&wav, 16000, 1, false, &audio);
-    let npz = dir.path().join("a.npz");
-    let st = std::process::Command::new(env!("CARGO_BIN_EXE_livegesture"))
-        .args([
-            "generate",
-            wav.to_str().unwrap(),
-            "-o",
-            npz.to_str().unwrap(),
-            "--seed",
-            "5",
-            "--backend",
-            "tract",
-            "--bundle",
-        ])
-        .arg(common::tiny_bundle())
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
-    let m = livegesture::output::read_beat2_npz(&npz).unwrap();
+    let m = generate_binary(&common::tiny_bundle(), &audio, 5);
     let got = within(
         60,
         session(server.addr(), "?seed=5", &pcm_bytes(&audio, false), &[640]),
@@ -200,18 +177,7 @@ fn frames_equal_the_generate_binary() {
         got.frames.len() as u64,
         AudioSpan::at_16k(audio.len() as u64).frames(30)
     );
-    assert_eq!(m.len(), got.frames.len());
-    for (t, f) in got.frames.iter().enumerate() {
-        for j in 0..165 {
-            assert!(
-                (f.poses[j] - m.poses[[t, j]]).abs() <= 1e-4,
-                "frame {t} pose {j}"
-            );
-        }
-        for j in 0..100 {
-            assert!((f.expressions[j] - m.expressions[[t, j]]).abs() <= 1e-4);
-        }
-    }
+    assert_matches_generate(&got.frames, &m, 1e-4);
     server.shutdown();
     server.join().unwrap();
 }

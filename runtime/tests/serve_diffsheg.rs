@@ -24,8 +24,9 @@ use livegesture::model::{self, MotionModel, StreamOptions};
 use livegesture::output::{Frame, FPS};
 use livegesture::serve::{ServeConfig, Server};
 use serve_common::{
-    assert_equal, collect, connect, exited_ok, generate_input, max_diff, model_info, pcm_bytes,
-    read_frames, session, spawn_serve, speech_of, tract_backend, within, write_wav, Outcome, Ws,
+    assert_equal, assert_matches_generate, collect, connect, exited_ok, generate_binary,
+    generate_input, max_diff, model_info, pcm_bytes, read_frames, session, spawn_serve, speech_of,
+    tract_backend, within, Outcome, Ws,
 };
 use tokio_tungstenite::tungstenite::Message;
 
@@ -179,51 +180,17 @@ fn stereo_44k_f32_binary_equals_generate() {
 fn frames_equal_the_generate_binary() {
     let server = start(ServeConfig::default());
     let audio = speech(2.5);
-    let dir = tempfile::tempdir().unwrap();
-    let wav = dir.path().join("a.wav");
-    write_wav(&wav, 16000, 1, false, &audio);
-    let npz = dir.path().join("a.npz");
-    let st = std::process::Command::new(env!("CARGO_BIN_EXE_livegesture"))
-        .env_remove("LIVEGESTURE_BUNDLE")
-        .args([
-            "generate",
-            wav.to_str().unwrap(),
-            "-o",
-            npz.to_str().unwrap(),
-            "--seed",
-            "5",
-            "--backend",
-            "tract",
-            "--bundle",
-        ])
-        .arg(bundle_dir())
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
-    let m = livegesture::output::read_beat2_npz(&npz).unwrap();
+    let m = generate_binary(&bundle_dir(), &audio, 5);
     let got = within(
         120,
         session(server.addr(), "?seed=5", &pcm_bytes(&audio, false), &[640]),
     );
+    // both cover the whole audio with the same frames (SPEC 8)
     assert_eq!(
         got.frames.len() as u64,
         AudioSpan::at_16k(audio.len() as u64).frames(30)
     );
-    assert_eq!(m.len(), got.frames.len());
-    let mut worst = 0f32;
-    for (t, f) in got.frames.iter().enumerate() {
-        for j in 0..165 {
-            worst = worst.max((f.poses[j] - m.poses[[t, j]]).abs());
-        }
-        for j in 0..100 {
-            worst = worst.max((f.expressions[j] - m.expressions[[t, j]]).abs());
-        }
-    }
-    assert!(worst <= 1e-4, "serve vs the generate binary: {worst}");
+    assert_matches_generate(&got.frames, &m, 1e-4);
     server.shutdown();
     server.join().unwrap();
 }

@@ -15,7 +15,7 @@ use futures_util::{SinkExt, StreamExt};
 use livegesture::audio::{read_wav_16k_mono, AudioSpan};
 use livegesture::backend::{self, Backend, BackendKind, BackendOptions};
 use livegesture::bundle::Bundle;
-use livegesture::output::Frame;
+use livegesture::output::{Beat2Motion, Frame};
 use livegesture::serve::ModelInfo;
 use tokio_tungstenite::tungstenite::Message;
 
@@ -104,6 +104,65 @@ pub fn generate_input(
         a16,
         AudioSpan::new((samples.len() / channels as usize) as u64, rate),
     )
+}
+
+/// Runs the `livegesture generate` binary on `audio` (16 kHz mono, written as a 16-bit WAV) with
+/// `bundle`, tract and `seed`, and reads back the npz it wrote.
+pub fn generate_binary(bundle: &Path, audio: &[f32], seed: u64) -> Beat2Motion {
+    let dir = tempfile::tempdir().unwrap();
+    let wav = dir.path().join("a.wav");
+    write_wav(&wav, 16000, 1, false, audio);
+    let npz = dir.path().join("a.npz");
+    let st = Command::new(env!("CARGO_BIN_EXE_livegesture"))
+        .env_remove("LIVEGESTURE_BUNDLE")
+        .arg("generate")
+        .arg(&wav)
+        .arg("-o")
+        .arg(&npz)
+        .args([
+            "--seed",
+            &seed.to_string(),
+            "--backend",
+            "tract",
+            "--bundle",
+        ])
+        .arg(bundle)
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    livegesture::output::read_beat2_npz(&npz).unwrap()
+}
+
+/// Asserts that a session's frames are the generate binary's (`m`): the same count, and every pose
+/// and expression value within `bound`; a failure names the worst frame and value.
+pub fn assert_matches_generate(got: &[Frame], m: &Beat2Motion, bound: f32) {
+    assert_eq!(m.len(), got.len(), "frame count: generate vs the session");
+    let mut worst = (0f32, 0, "");
+    for (t, f) in got.iter().enumerate() {
+        let poses = (0..165).map(|j| ((f.poses[j] - m.poses[[t, j]]).abs(), "poses"));
+        let expr = (0..100).map(|j| {
+            (
+                (f.expressions[j] - m.expressions[[t, j]]).abs(),
+                "expressions",
+            )
+        });
+        for (d, what) in poses.chain(expr) {
+            if d.is_nan() || d > worst.0 {
+                worst = (d, t, what);
+            }
+        }
+    }
+    assert!(
+        worst.0 <= bound,
+        "serve vs the generate binary: {} at frame {} ({}), bound {bound}",
+        worst.0,
+        worst.1,
+        worst.2
+    );
 }
 
 #[derive(Debug, Default)]
