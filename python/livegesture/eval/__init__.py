@@ -1,2 +1,3 @@
 """Evaluation: BEAT2-style metrics (``metrics``), the FGD feature encoder (``fgd_encoder``), BEAT2-layout
-readers (``corpus``) and the ``python -m livegesture.eval`` report (``__main__``)."""
+readers (``corpus``), strict-JSON report writing (``report``) and the ``python -m livegesture.eval`` report
+(``__main__``)."""

@@ -44,6 +44,7 @@ import numpy as np
 
 from . import corpus
 from . import metrics as M
+from .report import jsonable
 from ..regions import FPS, SAMPLE_RATE
 
 
@@ -227,23 +228,6 @@ def _table(report: dict) -> str:
     return "\n".join(lines)
 
 
-def _jsonable(o):
-    """numpy -> python, NaN/inf -> None (strict JSON)."""
-    if isinstance(o, dict):
-        return {str(k): _jsonable(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_jsonable(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return _jsonable(o.tolist())
-    if isinstance(o, np.generic):
-        o = o.item()
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    if isinstance(o, (str, int, float, bool)) or o is None:
-        return o
-    return str(o)
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m livegesture.eval", description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", required=True, help="BEAT2-layout corpus directory")
@@ -373,7 +357,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         with open(args.out, "w") as f:
-            json.dump(_jsonable(report), f, indent=2, allow_nan=False)
+            json.dump(jsonable(report), f, indent=2, allow_nan=False)
         _log(f"report written to {args.out}")
     return 0
 

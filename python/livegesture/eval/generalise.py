@@ -78,6 +78,7 @@ import numpy as np
 
 from . import corpus as C
 from . import metrics as M
+from .report import jsonable
 from ..regions import FPS, JAW_JOINT, SAMPLE_RATE, UPPER_JOINTS, frame_start_sample
 
 SPEED_SMOOTH_S = 0.2
@@ -583,18 +584,6 @@ def format_table(report: dict) -> str:
     return "\n".join(lines)
 
 
-def _jsonable(o):
-    if isinstance(o, dict):
-        return {str(k): _jsonable(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_jsonable(v) for v in o]
-    if isinstance(o, np.generic):
-        o = o.item()
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    return o
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m livegesture.eval.generalise", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -685,7 +674,7 @@ def main(argv: list[str] | None = None) -> int:
         out = Path(a.out)
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = out.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(_jsonable(report), indent=1))
+        tmp.write_text(json.dumps(jsonable(report), indent=1))
         tmp.replace(out)
         out.with_suffix(".txt").write_text(text + "\n")
     if a.require_targets and "real" in report:
