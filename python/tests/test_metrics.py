@@ -289,10 +289,15 @@ def test_cli_report(tmp_path, capsys):
                  str(tmp_path / "enc.pt"), "--fgd-steps", "5", "--out", str(out)]) == 0
     r = json.loads(out.read_text())
     gt, g = r["ground_truth"], r["generated"]
-    assert "BC (matched audio)" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "BC (matched audio)" in printed and "BC gap, motion swap" in printed
     assert gt["bc"] > 0.9 and gt["bc_gap"] > 0.1 and r["checks"]["ground_truth_follows_audio"]
     # the broken "generated" set (motion of another clip) fails the follows-the-audio check
     assert g["bc"] < gt["bc"] - 0.1 and g["bc_gap"] < 0 and not r["checks"]["generated_follows_audio"]
+    # motion swap (clip i's own audio, clip i+1's motion): the corpus motion beats it on every clip; the broken
+    # set's own motion (clip i+1's) follows clip i's clicks no better than its swap (clip i+2's)
+    assert gt["bc_gap_motion_swap"] > 0.1 and gt["bc_motion_swap_wins"] == 1.0
+    assert g["bc_gap_motion_swap"] < 0.05
     assert gt["face"]["face"] == 0.0 and g["face"]["face"] > 0
     assert g["fgd"] >= 0 and gt["fgd"] >= 0 and g["l1div_realisations"] is None
     assert (tmp_path / "enc.pt").exists()

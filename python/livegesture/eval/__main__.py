@@ -20,6 +20,10 @@ own motion of the split (the reference):
   another clip (a fixed derangement: clip i of the sorted ids gets the audio of clip i+1, cyclically) —
   motion that follows its audio scores clearly higher matched than mismatched; ``bc_gap`` is the
   difference and ``bc_matched_wins`` the fraction of clips whose matched BC beats their mismatched BC;
+- ``bc_mismatched_motion``, ``bc_gap_motion_swap``, ``bc_motion_swap_wins``: the motion swap, clip i's own
+  audio against the motion of clip i+1 over the frames both have. The onset track is the same on both sides,
+  so the gap is not the onset-density difference of two recordings (``livegesture.eval.generalise`` and
+  docs/eval/realspeech-metric-2026-11-25 explain why the audio swap has no power on dense real speech);
 - ``l1div_realisations`` (paper eq. 2, generated only, >= 2 realisations), ``l1div_beat2`` (the EMAGE
   code's L1div), ``l1div_across_clips``;
 - ``fgd`` (generated vs real motion of the split; for the reference, real split vs real train split)
@@ -162,9 +166,18 @@ def _motion_block(name, motions, joints, real, onsets, audio_frames, perm, ref, 
         pairs = [(a, b) for a, b in zip(bc_clips, bcm_clips) if not (math.isnan(a) or math.isnan(b))]
         out.update(bc_mismatched_audio=bcm, bc_gap=bc - bcm,
                    bc_matched_wins=float(np.mean([a > b for a, b in pairs])) if pairs else float("nan"))
+        # motion swap: clip i's OWN audio scored against the motion of clip perm[i], over the frames both have,
+        # so the onset track is the same on both sides of the gap (livegesture.eval.generalise, "motion swap")
+        bcs, bcs_clips = _bc_set([joints[p] for p in perm], onsets, audio_frames, ref, args)
+        own, own_clips = _bc_set([J[:len(joints[p])] for J, p in zip(joints, perm)], onsets, audio_frames, ref,
+                                 args)
+        pairs_s = [(a, b) for a, b in zip(own_clips, bcs_clips) if not (math.isnan(a) or math.isnan(b))]
+        out.update(bc_mismatched_motion=bcs, bc_gap_motion_swap=own - bcs,
+                   bc_motion_swap_wins=float(np.mean([a > b for a, b in pairs_s])) if pairs_s else float("nan"))
     else:
-        bcm_clips = [float("nan")] * n
-        out.update(bc_mismatched_audio=None, bc_gap=None, bc_matched_wins=None)
+        bcm_clips = bcs_clips = [float("nan")] * n
+        out.update(bc_mismatched_audio=None, bc_gap=None, bc_matched_wins=None, bc_mismatched_motion=None,
+                   bc_gap_motion_swap=None, bc_motion_swap_wins=None)
     if realisation_joints is not None:
         eq2 = [M.l1_diversity_realisations(r) for r in realisation_joints if len(r) >= 2]
         out["l1div_realisations"] = float(np.mean(eq2)) if eq2 else None
@@ -193,7 +206,8 @@ def _motion_block(name, motions, joints, real, onsets, audio_frames, perm, ref, 
     else:
         out["face"] = None
     out["face_vertex_mse"] = M.weighted_mean(vert, fw) if vert else None
-    out["per_clip"] = [{"bc": a, "bc_mismatched_audio": b} for a, b in zip(bc_clips, bcm_clips)]
+    out["per_clip"] = [{"bc": a, "bc_mismatched_audio": b, "bc_mismatched_motion": c}
+                       for a, b, c in zip(bc_clips, bcm_clips, bcs_clips)]
     return out
 
 
@@ -210,6 +224,8 @@ def _fmt(v, nd=4):
 def _table(report: dict) -> str:
     rows = [("BC (matched audio)", "bc"), ("BC (mismatched audio)", "bc_mismatched_audio"),
             ("BC gap (matched - mismatched)", "bc_gap"), ("clips with matched > mismatched", "bc_matched_wins"),
+            ("BC, own audio vs another clip's motion", "bc_mismatched_motion"),
+            ("BC gap, motion swap", "bc_gap_motion_swap"), ("clips winning the motion swap", "bc_motion_swap_wins"),
             ("L1 div, paper eq. 2 (realisations)", "l1div_realisations"), ("L1 div, BEAT2 L1div", "l1div_beat2"),
             ("L1 div, across clips", "l1div_across_clips"), ("FGD (gen vs real split | real split vs train)", "fgd"),
             ("FGD vs train split", "fgd_vs_train"), ("face MSE jaw+expr", ("face", "face")),
@@ -298,6 +314,8 @@ def main(argv: list[str] | None = None) -> int:
                 "bc_order": M.BEAT_ORDER, "bc_threshold": M.BEAT_THRESHOLD, "bc_rule": args.bc_rule,
                 "bc_mode": args.bc_mode, "bc_speed_ref": "train split" if speed_n else "evaluated split",
                 "bc_mismatch": "clip i gets the audio of clip (i + 1) mod n (sorted ids)",
+                "bc_motion_swap": "clip i's own audio against the motion of clip (i + 1) mod n, over the frames "
+                                  "both have (the onset track is the same on both sides of the gap)",
                 "onsets": "spectral flux on log-mel STFT (10 ms hop, 32 ms window), librosa-style peak picking",
                 "fgd_encoder": str(enc_path), "fgd_encoder_provenance": enc.provenance,
                 "skeleton": "livegesture.skeleton (project-defined), global translation removed"}
