@@ -4,7 +4,9 @@
     python -m livegesture.train --config default --data DIR --out runs/NAME --stage svq1 # one stage
 
 Stages (each writes ``OUT/<stage>.pt``; a finished stage is skipped on re-run, an interrupted one resumes
-from its last periodic save):
+from its last periodic save; the stages may run in different sittings with different ``--lr-*``: each stage
+checkpoint records its own learning rate, steps and time, and ``final.pt``'s provenance lists them under
+``stages``, while ``train_config`` is the last sitting's):
 
 1. ``svq1``: per-region streamable autoencoder (bidirectional encoder, causal decoder), L1, windows of 16
    frames;
@@ -465,11 +467,14 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
     builders = {"svq1": stage_svq1, "svq2": stage_svq2, "experts": stage_experts, "fuse": stage_fuse}
     steps = {"svq1": tcfg.steps_svq1, "svq2": tcfg.steps_svq2, "experts": tcfg.steps_experts, "fuse": tcfg.steps_fuse}
     summary = {}
+    stage_log = {}   # per stage, from its own checkpoint: a run may train its stages in different sittings
     for name in STAGES:
         path = out / f"{name}.pt"
         if path.exists():
-            model.load_state_dict(ckpt.load_payload(path)["state_dict"])
-            summary[name] = ckpt.load_payload(path)["extra"].get("final_loss")
+            payload = ckpt.load_payload(path)
+            model.load_state_dict(payload["state_dict"])
+            summary[name] = payload["extra"].get("final_loss")
+            stage_log[name] = {k: payload["extra"].get(k) for k in ("lr", "steps", "seconds", "final_loss")}
             prev = name
             if rank == 0:
                 print(f"[{name}] done already ({path})")
@@ -489,15 +494,19 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
         for p in model.parameters():
             p.requires_grad_(True)
         if rank == 0:
+            lr = tcfg.lr_svq if name.startswith("svq") else tcfg.lr_ar
+            extra = {"final_loss": final, "seconds": round(time.time() - t0, 1), "lr": lr, "steps": steps[name]}
+            stage_log[name] = {k: extra[k] for k in ("lr", "steps", "seconds", "final_loss")}
             ckpt.save(model, path, provenance={**info, "stages_done": STAGES[:STAGES.index(name) + 1]},
-                      extra={"final_loss": final, "seconds": round(time.time() - t0, 1)})
+                      extra=extra)
             print(f"[{name}] final loss {final:.4f} in {time.time() - t0:.0f}s -> {path}")
         prev = name
     if all((out / f"{s}.pt").exists() for s in STAGES) and rank == 0:
         if data.tokens is None:
             tokenize_clips(model, data, device)
         usage = {r: int(len(np.unique(np.concatenate([t[:, i] for t in data.tokens])))) for i, r in enumerate(REGION_NAMES)}
-        prov = {**info, "stages_done": list(STAGES), "final_losses": summary, "codebook_usage_train": usage,
+        prov = {**info, "stages_done": list(STAGES), "final_losses": summary, "stages": stage_log,
+                "codebook_usage_train": usage,
                 "training_data": f"{info['train_minutes']} minutes, {len(data.clips)} clips of "
                                  f"{' + '.join(Path(d).name for d in roots)}"}
         ckpt.save(model, out / "final.pt", provenance=prov)

@@ -37,7 +37,8 @@ def test_init_from_fine_tunes_audio_stages_and_resumes(tiny_corpus, source, tmp_
     train("tiny", str(tiny_corpus), str(out), stages=STAGES[:3], **kw)      # first sitting: up to experts
     assert (out / "experts.pt").exists() and not (out / "fuse.pt").exists()
     experts = ckpt.load(out / "experts.pt")
-    final = train("tiny", str(tiny_corpus), str(out), **kw)                  # second sitting: fuse
+    kw2 = dict(kw, overrides={**OV, "lr_ar": 5e-4, "augment": 1})
+    final = train("tiny", str(tiny_corpus), str(out), **kw2)                 # second sitting: fuse, another lr
     a, b = ckpt.load(source), ckpt.load(final)
     assert _same(a, b, "svq.") == set()                                      # tokenizer and motion stats kept
     assert torch.equal(a.audio_encoder.mel_mean, b.audio_encoder.mel_mean)
@@ -48,6 +49,10 @@ def test_init_from_fine_tunes_audio_stages_and_resumes(tiny_corpus, source, tmp_
     assert {k for k in _same(experts, b, "experts.") if ".classifier." not in k} == set()
     assert _same(experts, b, "fuse.")
     assert b.provenance["init_from"] == str(source) and b.provenance["stages_done"] == list(STAGES)
+    # each stage's learning rate is the one of the sitting that trained it (train_config is the last sitting's)
+    assert b.provenance["stages"]["experts"]["lr"] == 1e-3 and b.provenance["stages"]["fuse"]["lr"] == 5e-4
+    assert b.provenance["stages"]["experts"]["steps"] == OV["steps_experts"]
+    assert b.provenance["train_config"]["lr_ar"] == 5e-4
 
 
 def test_init_from_rejects_another_config(tiny_corpus, source, tmp_path):
