@@ -73,10 +73,7 @@ fn a_form_naming_a_missing_graph_or_an_unknown_form_is_refused() {
         v["forms"]["fused"]["decoders"] = serde_json::json!(["decoders_fused", "decoder_upper"]);
     });
     let e = load_err(&dir);
-    assert!(
-        e.contains("forms.fused.decoders lists 2 graphs"),
-        "{e}"
-    );
+    assert!(e.contains("forms.fused.decoders lists 2 graphs"), "{e}");
     edit_manifest(&dir, |v| {
         v["forms"]["fused"]["decoders"] = serde_json::json!(["decoders_fused"]);
         v["backend_forms"]["tract"] = serde_json::json!("sideways");

@@ -285,7 +285,10 @@ fn bundle_without_fused_decoders(dir: &Path) -> std::path::PathBuf {
         .as_object_mut()
         .unwrap()
         .remove("decoders_fused");
-    m["checks"].as_object_mut().unwrap().remove("decoders_fused");
+    m["checks"]
+        .as_object_mut()
+        .unwrap()
+        .remove("decoders_fused");
     for form in ["canonical", "fused"] {
         m["forms"][form].as_object_mut().unwrap().remove("decoders");
     }

@@ -200,7 +200,8 @@ pub struct ParityOptions {
     pub checks: Vec<Check>,
     /// Seconds of the reference clip used by the chunk and batch checks.
     pub chunk_seconds: f64,
-    /// The form of the region eXperts the pipeline checks run (auto: the bundle's form per backend).
+    /// The form of the region eXperts and decoders the pipeline checks run (auto: the bundle's form
+    /// per backend).
     pub form: FormChoice,
 }
 

@@ -88,7 +88,7 @@ use caches::{Caches, SeparateCaches, StackedCaches};
 use chain::Stage;
 use stream::StreamState;
 
-/// Which form of the region eXperts a [`Pipeline`] runs (SPEC 14).
+/// Which form of the region eXperts and decoders a [`Pipeline`] runs (SPEC 14).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum FormChoice {
     /// The form the bundle's manifest names for the backend (`backend_forms`), else canonical.
