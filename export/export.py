@@ -44,6 +44,7 @@ from livegesture.stream import generate_clip  # noqa: E402
 
 from graphs import StepGraph, call_step, component, data_io, fused_components, random_inputs  # noqa: E402
 from livegesture.models.fused import FUSED_EXPERTS, check_fused_experts  # noqa: E402
+from livegesture.models.fused_decoders import FUSED_DECODERS, check_fused_decoders  # noqa: E402
 from verify import (ExportCheckError, check_onnx_structure, check_ort_vs_torch, check_step_vs_offline,  # noqa: E402
                     fail)
 
@@ -52,7 +53,7 @@ OPSET = 17
 REFERENCE_STEPS = 10
 REFERENCE_BATCH = 2
 ROLLOUT_SEED = 1234
-FUSED_VS_CANONICAL = 1e-5    # torch fused form vs the canonical eXperts, every hidden state and cache
+FUSED_VS_CANONICAL = 1e-5    # torch fused form vs the canonical eXperts / decoders, every output and cache
 ROLLOUT_FRAMES = 1e-4        # SPEC 7, rollout frames
 FORMS = ("canonical", "fused")
 # The form each backend runs (SPEC 14). ort runs the fused eXperts: bit-identical to the canonical graphs on
@@ -270,11 +271,17 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
 
     # the fused forms (SPEC 14): checked against the canonical torch steps, then like every graph
     fused_graphs = []
+    against = {FUSED_EXPERTS: (check_fused_experts, max(cfg.history, cfg.audio_window) + 5, "eXperts"),
+               # past the longest conv cache (in frames; a token adds at least one frame to every cache)
+               FUSED_DECODERS: (check_fused_decoders, max(s.shape[0] for s in
+                                                          fused_components(model)[FUSED_DECODERS].cache_specs()) + 5,
+                                "SVQ decoders")}
     for graph, comp in (fused_components(model).items() if "fused" in forms else ()):
         t0 = time.time()
-        e_can, out_name, step = check_fused_experts(model, steps=max(cfg.history, cfg.audio_window) + 5)
+        check, n_steps, what = against[graph]
+        e_can, out_name, step = check(model, steps=n_steps)
         if e_can > FUSED_VS_CANONICAL:
-            fail(graph, out_name, step, e_can, FUSED_VS_CANONICAL, "torch fused form vs the canonical eXperts")
+            fail(graph, out_name, step, e_can, FUSED_VS_CANONICAL, f"torch fused form vs the canonical {what}")
         e_ort = export_checked(graph, comp, {"region": None, "form": "fused"})
         fused_graphs.append(graph)
         checks[graph] = {"torch_fused_vs_canonical_max_abs": e_can, "ort_vs_torch_max_abs": e_ort}
@@ -294,7 +301,8 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
                         trans=ro["trans"], expressions=ro["expressions"], foot_contact=ro["foot_contact"],
                         seed=np.array(ROLLOUT_SEED, dtype=np.uint64), clip_repeats=np.array(reps))
     log(f"  rollout          {len(ro['tokens'])} tokens in {time.time() - t0:.1f}s")
-    forms_manifest = {"canonical": {"experts": [f"expert_{r}" for r in REGION_NAMES]}}
+    forms_manifest = {"canonical": {"experts": [f"expert_{r}" for r in REGION_NAMES],
+                                    "decoders": [f"decoder_{r}" for r in REGION_NAMES]}}
     if fused_graphs:
         # the forms against each other on the seeded reference rollout (SPEC 14): identical tokens
         t0 = time.time()
@@ -302,25 +310,33 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
         same = rf["tokens"] == ro["tokens"]
         if rf["tokens"].shape != ro["tokens"].shape or not same.all():
             bad = int(np.argwhere(~same)[0][0]) if rf["tokens"].shape == ro["tokens"].shape else 0
-            raise ExportCheckError(f"torch rollout, fused form vs canonical: graph '{FUSED_EXPERTS}', output 'tokens', "
-                                   f"step {bad}: tokens differ (fused {rf['tokens'][bad].tolist()}, canonical "
+            raise ExportCheckError(f"torch rollout, fused form vs canonical: graphs "
+                                   f"{', '.join(map(repr, fused_graphs))}, output 'tokens', step {bad}: tokens differ (fused {rf['tokens'][bad].tolist()}, canonical "
                                    f"{ro['tokens'][bad].tolist()})")
         e_frames = max(float(np.abs(rf[k].astype(np.float64) - ro[k]).max()) for k in
                        ("poses", "trans", "expressions", "foot_contact"))
         if e_frames > ROLLOUT_FRAMES:
-            fail(FUSED_EXPERTS, "rollout frames", -1, e_frames, ROLLOUT_FRAMES, "torch rollout, fused form vs canonical")
+            fail(", ".join(fused_graphs), "rollout frames", -1, e_frames, ROLLOUT_FRAMES,
+                 "torch rollout, fused form vs canonical")
         checks["forms"] = {"rollout_tokens_identical": int(len(ro["tokens"])), "rollout_frames_max_abs": e_frames}
         log(f"  rollout fused    {len(rf['tokens'])} tokens identical, frames max abs {e_frames:.2e} "
             f"({time.time() - t0:.1f}s)")
         forms_manifest["fused"] = {
-            "experts": fused_graphs,
+            "experts": [FUSED_EXPERTS],
+            "decoders": [FUSED_DECODERS],
             "region_axis": 1,
             "regions": list(REGION_NAMES),
             "contract": "experts_fused runs the four region eXperts at once: prev_token (batch, regions) int64, "
                         "audio and cond as expert_<region>; hidden (batch, regions, d_model), row r = expert_<r>'s "
                         "hidden; caches: step (batch,) shared by the regions; every attention cache is "
                         "(batch, regions * heads, window - 1, head_dim) where rows r * heads .. (r + 1) * heads of "
-                        "axis 1 are expert_<r>'s cache of the same name (regions in region order)",
+                        "axis 1 are expert_<r>'s cache of the same name (regions in region order). "
+                        "decoders_fused runs the four region SVQ decoders at once: token (batch, regions) int64, "
+                        "column r = decoder_<r>'s token; motion (batch, frames_per_token, sum of the region dims), "
+                        "columns off_r .. off_r + dim_r = decoder_<r>'s motion (off_r: the dims of the regions "
+                        "before r); caches: decoder_<r>'s cache names, each (batch, frames, regions * channels) "
+                        "where channels r * channels .. (r + 1) * channels of the last axis are decoder_<r>'s "
+                        "cache of the same name",
         }
 
     files.update(file_table(tmp))
@@ -373,7 +389,7 @@ def main(argv=None):
                     help="diffsheg: FOPPAS windows of the reference rollout (>= 4; the last one is shorter)")
     ap.add_argument("--forms", default="canonical,fused",
                     help="graph forms to write (SPEC 14): canonical (always) and fused (the four eXperts as one "
-                         "graph on a region axis); default both")
+                         "graph on a region axis, the four SVQ decoders as one graph); default both")
     ap.add_argument("--backend-forms", default=",".join(f"{b}={f}" for b, f in DEFAULT_BACKEND_FORMS.items()),
                     help="the form each backend runs by default, e.g. ort=fused,tract=canonical (a form not "
                          "written falls back to canonical)")

@@ -4,7 +4,7 @@ Naming (the contract with the runtime, recorded in manifest.json):
   data inputs        audio_encoder: mel | expert_<r>: prev_token, audio, cond |
                      experts_fused (SPEC 14 fused form of the four eXperts): prev_token (B, R), audio, cond |
                      fusion: hidden_upper, hidden_hands, hidden_lower, hidden_face, audio, cond |
-                     decoder_<r>: token
+                     decoder_<r>: token | decoders_fused (SPEC 14 fused form of the four decoders): token (B, R)
   data outputs       audio | hidden | logits | motion
   caches             input ``cache.<name>``, output ``new_cache.<name>``, in the component's cache_specs order
 """
@@ -14,16 +14,19 @@ import torch
 import torch.nn as nn
 
 from livegesture.models.fused import FUSED_EXPERTS, FusedExperts
+from livegesture.models.fused_decoders import FUSED_DECODERS, FusedDecoders
 from livegesture.models.model import LiveGesture
 from livegesture.regions import REGION_NAMES
 
 
 def fused_components(model: LiveGesture) -> dict[str, nn.Module]:
-    """The fused forms (SPEC 14) by graph name: ``experts_fused``, the four eXperts on a region axis. Built
-    from the model's current weights (a copy); cached on the model so every export step sees one module."""
+    """The fused forms (SPEC 14) by graph name: ``experts_fused``, the four eXperts on a region axis, and
+    ``decoders_fused``, the four SVQ decoders side by side. Built from the model's current weights (a copy);
+    cached on the model so every export step sees one module."""
     cached = getattr(model, "_fused_components", None)
     if cached is None:
-        cached = {FUSED_EXPERTS: FusedExperts([model.experts[r] for r in REGION_NAMES]).eval()}
+        cached = {FUSED_EXPERTS: FusedExperts([model.experts[r] for r in REGION_NAMES]).eval(),
+                  FUSED_DECODERS: FusedDecoders([model.svq[r] for r in REGION_NAMES]).eval()}
         object.__setattr__(model, "_fused_components", cached)
     return cached
 
@@ -63,6 +66,10 @@ def data_io(model: LiveGesture, graph: str) -> tuple[list[dict], list[dict]]:
                 + [{"name": "audio", "dtype": f32, "shape": ["batch", Da]},
                    {"name": "cond", "dtype": f32, "shape": ["batch"]}],
                 [{"name": "logits", "dtype": f32, "shape": ["batch", len(REGION_NAMES), K]}])
+    if graph == FUSED_DECODERS:
+        return ([{"name": "token", "dtype": i64, "shape": ["batch", len(REGION_NAMES)]}],
+                [{"name": "motion", "dtype": f32, "shape": ["batch", cfg.frontend.frames_per_token,
+                                                           sum(model.svq[r].d_in for r in REGION_NAMES)]}])
     if graph.startswith("decoder_"):
         r = graph[len("decoder_"):]
         return ([{"name": "token", "dtype": i64, "shape": ["batch"]}],

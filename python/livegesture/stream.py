@@ -41,8 +41,10 @@ class LiveGestureStream:
     """One stream's state: frontend buffer, caches of every component, previous tokens, PRNG.
 
     ``push(chunk)`` accepts float samples at 16 kHz (any chunk size) and returns the frames completed.
-    ``form``: ``canonical`` runs the four region eXperts one by one, ``fused`` runs them as one step on a region
-    axis (:class:`livegesture.models.fused.FusedExperts`, SPEC 14); both give the same tokens.
+    ``form``: ``canonical`` runs the four region eXperts and SVQ decoders one by one, ``fused`` runs the eXperts as
+    one step on a region axis (:class:`livegesture.models.fused.FusedExperts`) and the decoders as one step with the
+    regions side by side (:class:`livegesture.models.fused_decoders.FusedDecoders`), SPEC 14; both give the same
+    tokens and frames.
     """
 
     def __init__(self, model: LiveGesture, seed: int = 0, guidance: float | None = None,
@@ -50,10 +52,12 @@ class LiveGestureStream:
         if form not in ("canonical", "fused"):
             raise ValueError(f"form must be 'canonical' or 'fused', got {form!r}")
         self.form = form
-        self.fused = None
+        self.fused = self.fused_decoders = None
         if form == "fused":
             from .models.fused import FusedExperts
+            from .models.fused_decoders import FusedDecoders
             self.fused = FusedExperts([model.experts[r] for r in REGION_NAMES]).eval()
+            self.fused_decoders = FusedDecoders([model.svq[r] for r in REGION_NAMES]).eval()
         self.model = model.eval()
         cfg = model.cfg
         self.cfg = cfg
@@ -74,9 +78,12 @@ class LiveGestureStream:
         for r in REGION_NAMES:
             if self.fused is None:
                 self.cache[f"expert_{r}"] = m.experts[r].init_cache(B)
-            self.cache[f"decoder_{r}"] = m.svq[r].init_cache(1)
+            if self.fused_decoders is None:
+                self.cache[f"decoder_{r}"] = m.svq[r].init_cache(1)
         if self.fused is not None:
             self.cache["experts_fused"] = self.fused.init_cache(B)
+        if self.fused_decoders is not None:
+            self.cache["decoders_fused"] = self.fused_decoders.init_cache(1)
         self.prev = {r: self.cfg.bos_token for r in REGION_NAMES}
         self.rng = SplitMix64(self.seed)
         self.t = 0
@@ -110,9 +117,15 @@ class LiveGestureStream:
             tokens[r] = sample_token(logits[0, i], logits[1, i] if self.guided else None, self.rng,
                                      self.gamma, self.temperature, self.top_k)
         feats = {}
-        for r in REGION_NAMES:
-            o, self.cache[f"decoder_{r}"] = m.svq[r].step(torch.tensor([tokens[r]]), self.cache[f"decoder_{r}"])
-            feats[r] = o["motion"][0].numpy()
+        if self.fused_decoders is not None:
+            tok = torch.tensor([[tokens[r] for r in REGION_NAMES]], dtype=torch.int64)
+            o, self.cache["decoders_fused"] = self.fused_decoders.step(tok, self.cache["decoders_fused"])
+            for r, f in zip(REGION_NAMES, self.fused_decoders.split_motion(o["motion"])):
+                feats[r] = f[0].numpy()
+        else:
+            for r in REGION_NAMES:
+                o, self.cache[f"decoder_{r}"] = m.svq[r].step(torch.tensor([tokens[r]]), self.cache[f"decoder_{r}"])
+                feats[r] = o["motion"][0].numpy()
         self.prev = tokens
         self.tokens.append(tokens)
         motion = features_to_motion(feats)

@@ -39,7 +39,7 @@ def test_manifest_validates_and_files_match(bundle):
     jsonschema.validate(on_disk, schema)
     for rel, info in on_disk["files"].items():
         assert exporter.sha256(out / rel) == info["sha256"], rel
-    assert {g["name"] for g in on_disk["graphs"]} == {"audio_encoder", "fusion", "experts_fused",
+    assert {g["name"] for g in on_disk["graphs"]} == {"audio_encoder", "fusion", "experts_fused", "decoders_fused",
                                                       *(f"{k}_{r}" for k in ("expert", "decoder")
                                                         for r in ("upper", "hands", "lower", "face"))}
     bad = dict(on_disk, schema_version=2)
@@ -134,6 +134,59 @@ def test_fused_form_is_listed_checked_and_equal_to_the_canonical_one(bundle):
     assert manifest["checks"]["forms"]["rollout_tokens_identical"] == manifest["reference"]["rollout_tokens"]
     err, _, _ = check_fused_experts(model, steps=12)
     assert err <= 1e-6
+
+
+def test_fused_decoders_are_listed_checked_and_equal_to_the_canonical_ones(bundle):
+    """SPEC 14: the fused SVQ decoders are in the fused form, checked against the four canonical torch decoder
+    steps, computed exactly as they are (every motion value and cache, bit-identical in torch), and their ONNX graph
+    has the documented contract: token (B, R), motion (B, frames, sum of the region dims), caches with the regions'
+    channels side by side."""
+    from livegesture.models.fused_decoders import FusedDecoders, check_fused_decoders
+    from livegesture.regions import REGION_NAMES
+    out, manifest, model = bundle
+    assert manifest["forms"]["canonical"]["decoders"] == [f"decoder_{r}" for r in REGION_NAMES]
+    assert manifest["forms"]["fused"]["decoders"] == ["decoders_fused"]
+    assert "decoders_fused" in manifest["forms"]["fused"]["contract"]
+    assert manifest["checks"]["decoders_fused"]["torch_fused_vs_canonical_max_abs"] == 0.0
+    assert manifest["checks"]["decoders_fused"]["ort_vs_torch_max_abs"] <= 1e-5
+    assert manifest["checks"]["forms"]["rollout_frames_max_abs"] == 0.0
+    err, _, _ = check_fused_decoders(model, steps=10, batch=3)
+    assert err == 0.0
+    spec = {g["name"]: g for g in manifest["graphs"]}
+    fused, canon = spec["decoders_fused"], [spec[f"decoder_{r}"] for r in REGION_NAMES]
+    assert fused["form"] == "fused"
+    assert fused["inputs"] == [{"name": "token", "dtype": "int64", "shape": ["batch", len(REGION_NAMES)]}]
+    fpt = model.cfg.frontend.frames_per_token
+    dims = [r["dim"] for r in manifest["regions"]]
+    assert fused["outputs"][0]["shape"] == ["batch", fpt, sum(dims)]
+    assert [c["name"] for c in fused["caches"]] == [c["name"] for c in canon[0]["caches"]]
+    for cf, cc in zip(fused["caches"], canon[0]["caches"]):
+        assert cf["shape"] == cc["shape"][:-1] + [len(REGION_NAMES) * cc["shape"][-1]]
+    # the regions' columns of motion are the canonical decoders' outputs, in region order
+    fd = FusedDecoders([model.svq[r] for r in REGION_NAMES]).eval()
+    tok = torch.randint(0, model.cfg.codebook_size, (2, len(REGION_NAMES)))
+    with torch.no_grad():
+        motion = fd.step(tok, fd.init_cache(2))[0]["motion"]
+        for r, name in enumerate(REGION_NAMES):
+            want = model.svq[name].step(tok[:, r], model.svq[name].init_cache(2))[0]["motion"]
+            off = sum(dims[:r])
+            assert torch.equal(motion[..., off:off + dims[r]], want), name
+
+
+def test_broken_fused_decoders_are_caught_naming_them(tmp_path, monkeypatch):
+    from livegesture.models.fused_decoders import FusedDecoders
+    orig = FusedDecoders.step
+
+    def broken(self, token, cache):
+        out, new = orig(self, token, cache)
+        m = out["motion"].clone()
+        off = sum(self.dims[:2])
+        m[..., off:off + self.dims[2]] *= 1.001                 # the lower region's columns drift
+        return {"motion": m}, new
+    monkeypatch.setattr(FusedDecoders, "step", broken)
+    with pytest.raises(ExportCheckError, match=r"graph 'decoders_fused', output 'motion\[\.\.\., lower\]', step \d+"):
+        build(scrambled_model("tiny"), tmp_path / "bad")
+    assert not (tmp_path / "bad").exists()
 
 
 def test_broken_fused_form_is_caught_naming_it(tmp_path, monkeypatch):

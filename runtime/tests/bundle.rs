@@ -29,9 +29,10 @@ fn test_bundle_loads_and_describes_itself() {
     assert_eq!(b.family(), livegesture::bundle::Family::LiveGesture);
     let lg = b.livegesture().unwrap();
     assert_eq!(lg.region_names(), ["upper", "hands", "lower", "face"]);
-    // 10 canonical graphs and the fused eXperts (SPEC 14)
-    assert_eq!(b.graphs().len(), 11);
+    // 10 canonical graphs, the fused eXperts and the fused decoders (SPEC 14)
+    assert_eq!(b.graphs().len(), 12);
     assert!(b.graph("experts_fused").is_ok());
+    assert!(b.graph("decoders_fused").is_ok());
     assert!(lg.vocab.bos_token >= lg.vocab.codebook_size as i64);
     assert!(lg.sampling.temperature > 0.0);
     // initial state comes from the manifest's cache shapes
@@ -61,6 +62,20 @@ fn a_form_naming_a_missing_graph_or_an_unknown_form_is_refused() {
     );
     edit_manifest(&dir, |v| {
         v["forms"]["fused"]["experts"] = serde_json::json!(["experts_fused"]);
+        v["forms"]["fused"]["decoders"] = serde_json::json!(["decoders_missing"]);
+    });
+    let e = load_err(&dir);
+    assert!(
+        e.contains("forms.fused.decoders") && e.contains("decoders_missing"),
+        "{e}"
+    );
+    edit_manifest(&dir, |v| {
+        v["forms"]["fused"]["decoders"] = serde_json::json!(["decoders_fused", "decoder_upper"]);
+    });
+    let e = load_err(&dir);
+    assert!(e.contains("forms.fused.decoders lists 2 graphs"), "{e}");
+    edit_manifest(&dir, |v| {
+        v["forms"]["fused"]["decoders"] = serde_json::json!(["decoders_fused"]);
         v["backend_forms"]["tract"] = serde_json::json!("sideways");
     });
     let e = load_err(&dir);

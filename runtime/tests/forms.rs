@@ -1,7 +1,9 @@
-//! Graph forms (SPEC 14): the tiny test bundle carries the canonical region eXperts (one graph per
-//! region) and the fused form (`experts_fused`, the four on a region axis). Both forms give identical
-//! tokens and frames on both backends, alone and in a [`StreamBatch`]; a bundle whose fused graph
-//! has one perturbed weight fails parity, naming the fused graph; `--form` chooses the form.
+//! Graph forms (SPEC 14): the tiny test bundle carries the canonical region eXperts and SVQ decoders
+//! (one graph per region) and the fused form (`experts_fused`, the four eXperts on a region axis;
+//! `decoders_fused`, the four decoders side by side). Both forms give identical tokens and frames on
+//! both backends, alone and in a [`StreamBatch`]; a bundle whose fused graph has one perturbed weight
+//! fails parity, naming the fused graph; a bundle exported before `decoders_fused` runs its fused
+//! form with the canonical decoders; `--form` chooses the form.
 
 use livegesture_parity_tests as common;
 
@@ -80,9 +82,17 @@ fn assert_same(a: &[TokenStep], b: &[TokenStep], bound: f32, what: &str) {
 fn the_tiny_bundle_carries_both_forms() {
     let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
     let lg = bundle.livegesture().unwrap();
-    let forms = lg.expert_forms();
-    assert_eq!(forms["fused"], vec!["experts_fused".to_string()]);
-    assert_eq!(forms["canonical"].len(), lg.regions.len());
+    let forms = lg.form_graphs();
+    assert_eq!(forms["fused"].experts, vec!["experts_fused".to_string()]);
+    assert_eq!(forms["fused"].decoders, vec!["decoders_fused".to_string()]);
+    assert_eq!(forms["canonical"].experts.len(), lg.regions.len());
+    assert_eq!(
+        forms["canonical"].decoders,
+        lg.region_names()
+            .iter()
+            .map(|r| format!("decoder_{r}"))
+            .collect::<Vec<_>>()
+    );
     let be = backend::create(&BackendOptions::default()).unwrap();
     for (choice, name) in [
         (FormChoice::Canonical, "canonical"),
@@ -201,6 +211,121 @@ fn parity_fails_on_a_perturbed_fused_weight_naming_the_fused_graph() {
         !row.pass,
         "the forms agree with a perturbed fused graph: {row:?}"
     );
+}
+
+#[test]
+fn parity_fails_on_a_perturbed_fused_decoder_weight_naming_the_fused_decoders() {
+    let dir = tempfile::tempdir().unwrap();
+    let broken = dir.path().join("broken");
+    common::break_bundle(
+        &common::tiny_bundle(),
+        &broken,
+        "decoders_fused",
+        &common::Breakage::PerturbWeight { delta: 0.05 },
+    );
+    let report = common::run_parity(&broken, &[Check::Graph]);
+    let failed: Vec<_> = report.rows.iter().filter(|r| !r.pass).collect();
+    assert!(
+        !failed.is_empty(),
+        "parity passed on a perturbed fused decoder graph"
+    );
+    assert!(
+        failed
+            .iter()
+            .all(|r| r.what == "decoders_fused" && r.comparison.contains("vs torch")),
+        "only the fused decoders vs torch fail: {failed:#?}"
+    );
+    assert!(
+        failed.iter().any(|r| r.output.contains("motion")),
+        "the perturbed decoders' motion is named: {failed:#?}"
+    );
+    // on the rollout the forms sample the same tokens (the decoders do not feed back) but their
+    // frames differ, on a backend that runs the fused form
+    let report = common::run_parity(&broken, &[Check::Rollout]);
+    let rows: Vec<_> = report
+        .rows
+        .iter()
+        .filter(|r| r.what == "rollout (fused form)")
+        .collect();
+    let tokens = rows
+        .iter()
+        .find(|r| r.output == "tokens")
+        .expect("the rollout compares the fused form with the canonical one");
+    assert!(tokens.pass, "{tokens:?}");
+    assert!(
+        rows.iter().any(|r| !r.pass && r.output != "tokens"),
+        "the forms' frames agree with a perturbed fused decoder graph: {rows:#?}"
+    );
+}
+
+/// A copy of the tiny bundle as exported before the fused decoders: its fused form lists the fused
+/// eXperts only, and `decoders_fused` (graph, reference vectors, manifest entries) is gone.
+fn bundle_without_fused_decoders(dir: &Path) -> std::path::PathBuf {
+    let bundle = common::copy_bundle(dir);
+    let path = bundle.join("manifest.json");
+    let mut m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let graph = m["graphs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|g| g["name"] == "decoders_fused")
+        .cloned()
+        .expect("the tiny bundle has decoders_fused");
+    m["graphs"]
+        .as_array_mut()
+        .unwrap()
+        .retain(|g| g["name"] != "decoders_fused");
+    for key in ["file", "reference"] {
+        let rel = graph[key].as_str().unwrap();
+        std::fs::remove_file(bundle.join(rel)).unwrap();
+        m["files"].as_object_mut().unwrap().remove(rel);
+    }
+    m["reference"]["graphs"]
+        .as_object_mut()
+        .unwrap()
+        .remove("decoders_fused");
+    m["checks"]
+        .as_object_mut()
+        .unwrap()
+        .remove("decoders_fused");
+    for form in ["canonical", "fused"] {
+        m["forms"][form].as_object_mut().unwrap().remove("decoders");
+    }
+    std::fs::write(&path, serde_json::to_string_pretty(&m).unwrap()).unwrap();
+    bundle
+}
+
+#[test]
+fn a_bundle_without_fused_decoders_runs_its_fused_form_with_the_canonical_decoders() {
+    let dir = tempfile::tempdir().unwrap();
+    let old = bundle_without_fused_decoders(dir.path());
+    let b = Bundle::load(&old).expect("a bundle without decoders_fused loads");
+    let lg = b.livegesture().unwrap();
+    let forms = lg.form_graphs();
+    assert_eq!(forms["fused"].experts, vec!["experts_fused".to_string()]);
+    assert_eq!(forms["fused"].decoders, forms["canonical"].decoders);
+    let full = Bundle::load(common::tiny_bundle()).unwrap();
+    let audio = audio(&full, 8.0);
+    let opts = StreamOptions {
+        seed: 3,
+        ..Default::default()
+    };
+    for kind in [BackendKind::Ort, BackendKind::Tract] {
+        let mut p = pipeline(&b, kind, FormChoice::Fused);
+        assert_eq!(p.form(), "fused");
+        let got = run(&mut p, &opts, &audio);
+        let want = run(&mut pipeline(&full, kind, FormChoice::Fused), &opts, &audio);
+        // the canonical decoders and decoders_fused are bit-identical on both backends at one stream
+        assert_same(&got, &want, 0.0, &format!("{kind}: without decoders_fused"));
+    }
+    // the parity suite passes on it, the fused form's rollout against the canonical one included
+    let report = common::run_parity(&old, &[Check::Graph, Check::Rollout]);
+    assert!(report.passed(), "{}", report.table(true));
+    assert!(report
+        .rows
+        .iter()
+        .any(|r| r.what == "rollout (fused form)" && r.output == "tokens"));
 }
 
 /// Runs `livegesture generate` on `bundle`'s reference clip into `out` with `args` (and

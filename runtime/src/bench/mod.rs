@@ -68,8 +68,8 @@ pub struct BenchConfig {
     pub batch_seconds: f64,
     /// Batched stepping with churn: at every step one stream leaves and a fresh one joins.
     pub churn: bool,
-    /// LiveGesture: the form of the region eXperts to measure (SPEC 14; auto = the bundle's form
-    /// for the backend).
+    /// LiveGesture: the form of the region eXperts and decoders to measure (SPEC 14; auto = the
+    /// bundle's form for the backend).
     pub form: crate::model::livegesture::FormChoice,
 }
 

@@ -60,15 +60,33 @@ pub struct SamplingDefaults {
     pub prng: Option<String>,
 }
 
-/// One form of the chain's components (SPEC 14): which graphs compute the region eXperts.
+/// One form of the chain's components (SPEC 14): which graphs compute the region eXperts and the
+/// region SVQ decoders.
 ///
-/// `canonical`: one `expert_<region>` graph per region, in region order. `fused`: one graph
-/// (`experts_fused`) computing all regions on a region axis: `prev_token` `(batch, regions)`,
-/// `hidden` `(batch, regions, d_model)`, caches of the canonical names stacked on axis 1.
+/// `canonical`: one `expert_<region>` and one `decoder_<region>` graph per region, in region order.
+/// `fused`: one graph (`experts_fused`) computing all eXperts on a region axis: `prev_token`
+/// `(batch, regions)`, `hidden` `(batch, regions, d_model)`, caches of the canonical names stacked
+/// on axis 1; and one graph (`decoders_fused`) computing all decoders with the regions side by side:
+/// `token` `(batch, regions)`, `motion` `(batch, frames_per_token, sum of the region dims)` (region
+/// `r` at the columns after the dims of the regions before it), caches of the canonical names with
+/// the regions' channels side by side on the last axis.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 pub struct FormSpec {
     /// The graphs running the region eXperts in this form.
     pub experts: Vec<String>,
+    /// The graphs running the region SVQ decoders in this form; empty (bundles exported before the
+    /// fused decoders): the canonical `decoder_<region>` graphs.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub decoders: Vec<String>,
+}
+
+/// The graphs of one form, resolved ([`LiveGestureManifest::form_graphs`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FormGraphs {
+    /// The region eXperts: one graph per region, or one for all.
+    pub experts: Vec<String>,
+    /// The region SVQ decoders: one graph per region, or one for all.
+    pub decoders: Vec<String>,
 }
 
 /// The form names the runtime knows.
@@ -109,16 +127,45 @@ impl LiveGestureManifest {
     /// The forms of the bundle's region eXperts: the manifest's `forms`, with `canonical` (the
     /// `expert_<region>` graphs) when it does not list it.
     pub fn expert_forms(&self) -> BTreeMap<String, Vec<String>> {
-        let mut out: BTreeMap<String, Vec<String>> = self
+        self.form_graphs()
+            .into_iter()
+            .map(|(k, f)| (k, f.experts))
+            .collect()
+    }
+
+    /// The canonical graphs of one kind (`expert`, `decoder`): `<kind>_<region>` in region order.
+    fn canonical_graphs(&self, kind: &str) -> Vec<String> {
+        self.regions
+            .iter()
+            .map(|r| format!("{kind}_{}", r.name))
+            .collect()
+    }
+
+    /// The bundle's forms with their graphs: the manifest's `forms`, with `canonical` when it does
+    /// not list it, and the canonical `decoder_<region>` graphs for a form that lists no decoders
+    /// (bundles exported before the fused decoders).
+    pub fn form_graphs(&self) -> BTreeMap<String, FormGraphs> {
+        let mut out: BTreeMap<String, FormGraphs> = self
             .forms
             .iter()
-            .map(|(k, f)| (k.clone(), f.experts.clone()))
+            .map(|(k, f)| {
+                let decoders = if f.decoders.is_empty() {
+                    self.canonical_graphs("decoder")
+                } else {
+                    f.decoders.clone()
+                };
+                (
+                    k.clone(),
+                    FormGraphs {
+                        experts: f.experts.clone(),
+                        decoders,
+                    },
+                )
+            })
             .collect();
-        out.entry("canonical".into()).or_insert_with(|| {
-            self.regions
-                .iter()
-                .map(|r| format!("expert_{}", r.name))
-                .collect()
+        out.entry("canonical".into()).or_insert_with(|| FormGraphs {
+            experts: self.canonical_graphs("expert"),
+            decoders: self.canonical_graphs("decoder"),
         });
         out
     }
@@ -183,15 +230,21 @@ impl LiveGestureManifest {
             } else {
                 self.regions.len()
             };
-            if f.experts.len() != want {
-                return Err(format!(
-                    "forms.{name}.experts lists {} graphs, expected {want}",
-                    f.experts.len()
-                ));
-            }
-            for g in &f.experts {
-                if !m.graphs.iter().any(|x| &x.name == g) {
-                    return Err(format!("forms.{name}.experts: no graph named '{g}'"));
+            // `decoders` may be absent (empty): the canonical decoders
+            for (field, graphs, allowed) in [
+                ("experts", &f.experts, &[want][..]),
+                ("decoders", &f.decoders, &[0, want][..]),
+            ] {
+                if !allowed.contains(&graphs.len()) {
+                    return Err(format!(
+                        "forms.{name}.{field} lists {} graphs, expected {want}",
+                        graphs.len()
+                    ));
+                }
+                for g in graphs {
+                    if !m.graphs.iter().any(|x| &x.name == g) {
+                        return Err(format!("forms.{name}.{field}: no graph named '{g}'"));
+                    }
                 }
             }
         }

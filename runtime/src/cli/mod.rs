@@ -42,8 +42,9 @@ pub use common::exit_code;
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
-    /// LiveGesture: form of the region eXperts (SPEC 14): auto (the bundle's form for the backend,
-    /// see `info`), canonical (one graph per region) or fused (one graph on a region axis).
+    /// LiveGesture: form of the region eXperts and decoders (SPEC 14): auto (the bundle's form for
+    /// the backend, see `info`), canonical (one graph per region) or fused (one graph for the four
+    /// regions).
     #[arg(
         long,
         global = true,

@@ -172,8 +172,8 @@ pub fn describe(bundle: &Bundle) -> Result<Description> {
 /// Choices made when a bundle is loaded, among what the bundle carries.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct LoadOptions {
-    /// LiveGesture: the form of the region eXperts (SPEC 14; auto = the bundle's form for the
-    /// backend). DiffSHEG bundles carry one form: anything but auto is refused.
+    /// LiveGesture: the form of the region eXperts and decoders (SPEC 14; auto = the bundle's
+    /// form for the backend). DiffSHEG bundles carry one form: anything but auto is refused.
     pub form: livegesture::FormChoice,
 }
 

@@ -91,6 +91,25 @@ pub(super) fn graph_rows(
             detail: Some("measured by export/export.py, read from manifest.json `checks`".into()),
         });
     }
+    // a fused form's graph (SPEC 14) against the canonical graphs it replaces, in torch: measured by
+    // the exporter too
+    if let Some(e) =
+        bundle.manifest().checks[&spec.name]["torch_fused_vs_canonical_max_abs"].as_f64()
+    {
+        rows.push(Row {
+            check: Check::Graph,
+            what: spec.name.clone(),
+            comparison: "torch fused vs canonical".into(),
+            output: "(all, recorded by export)".into(),
+            step: None,
+            metric: Metric::MaxAbs,
+            error: e,
+            compared: 0,
+            bound: TORCH_FUSED_VS_CANONICAL,
+            pass: e <= TORCH_FUSED_VS_CANONICAL,
+            detail: Some("measured by export/export.py, read from manifest.json `checks`".into()),
+        });
+    }
     let mut runs: Vec<(BackendKind, std::result::Result<StepOutputs, String>)> = Vec::new();
     for (kind, be) in backends {
         let r =

@@ -9,6 +9,7 @@
 //! | `graph` | the same, tract vs ort (same inputs, each backend chaining its own caches; every output and cache at every step) | [`TRACT_VS_ORT`] |
 //! | `graph` | the same, tract vs torch (implied by the two above) | [`TRACT_VS_TORCH`] |
 //! | `graph` | torch step-by-step vs torch offline: measured by the exporter (it needs PyTorch) and read from the manifest's `checks` | [`TORCH_STEP_VS_OFFLINE`] |
+//! | `graph` | a fused form's graph (`experts_fused`, `decoders_fused`) vs the canonical graphs in torch: measured by the exporter, read from `checks` | [`TORCH_FUSED_VS_CANONICAL`] |
 //! | `rollout` | the whole seeded rollout (`reference/clip.wav` repeated `clip_repeats` times, the manifest's seed and sampling defaults): tokens identical at every step, frames (poses, trans, expressions, foot contact) | [`ROLLOUT_FRAMES`] |
 //! | `rollout` | a bundle with several forms (SPEC 14): on each backend that runs a form other than canonical (the manifest's `backend_forms`, or `--form`), the canonical form's rollout vs that form's: identical tokens, frames | [`ROLLOUT_FRAMES`] |
 //! | `logmel` | the Rust log-mel frontend on `reference/clip.wav` vs `reference/logmel.npy` | [`LOGMEL`] |
@@ -75,6 +76,9 @@ use crate::sampling::{guide, Draw, SplitMix64, TokenDistribution};
 /// torch step-by-step vs torch offline causal forward (SPEC 7; measured at export, recorded in the
 /// manifest's `checks`).
 pub const TORCH_STEP_VS_OFFLINE: f64 = 1e-5;
+/// torch fused form vs the canonical graphs it replaces, every output and cache (SPEC 14; measured
+/// at export, recorded in the manifest's `checks`).
+pub const TORCH_FUSED_VS_CANONICAL: f64 = 1e-5;
 /// onnxruntime vs torch, every graph output (SPEC 7).
 pub const ORT_VS_TORCH: f64 = 1e-5;
 /// tract vs onnxruntime, every graph output (SPEC 7).
@@ -196,7 +200,8 @@ pub struct ParityOptions {
     pub checks: Vec<Check>,
     /// Seconds of the reference clip used by the chunk and batch checks.
     pub chunk_seconds: f64,
-    /// The form of the region eXperts the pipeline checks run (auto: the bundle's form per backend).
+    /// The form of the region eXperts and decoders the pipeline checks run (auto: the bundle's form
+    /// per backend).
     pub form: FormChoice,
 }
 

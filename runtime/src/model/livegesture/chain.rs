@@ -139,6 +139,38 @@ pub(super) fn check_fused_experts(stage: &Stage, regions: usize) -> Result<()> {
     Ok(())
 }
 
+/// Checks that `stage` has the fused decoders' contract for `regions` regions of `dims` features
+/// and `fpt` frames per token: `token` `(batch, regions)` and one output `motion`
+/// `(batch, fpt, sum of dims)`.
+pub(super) fn check_fused_decoders(stage: &Stage, dims: &[usize], fpt: usize) -> Result<()> {
+    let spec = &stage.spec;
+    let regions = dims.len();
+    let tok = spec
+        .inputs
+        .iter()
+        .find(|i| i.name == "token")
+        .with_context(|| format!("graph '{}' has no input 'token'", spec.name))?;
+    ensure!(
+        tok.row_len() == regions,
+        "graph '{}': input 'token' has {} values per row, expected one per region ({regions})",
+        spec.name,
+        tok.row_len()
+    );
+    let m = spec
+        .outputs
+        .first()
+        .with_context(|| format!("graph '{}' has no output", spec.name))?;
+    let width: usize = dims.iter().sum();
+    ensure!(
+        m.row_len() == fpt * width,
+        "graph '{}': output '{}' has {} values per stream, expected {fpt} frames x {width} dims (the regions' {dims:?} side by side)",
+        spec.name,
+        m.name,
+        m.row_len()
+    );
+    Ok(())
+}
+
 /// The guidance-branch inputs shared by the experts and fusion: the audio token of each stream
 /// repeated once per branch row, and the `cond` flag of each row (1 conditional, 0 unconditional).
 struct Branches {
@@ -338,12 +370,37 @@ impl Pipeline {
     }
 
     /// Step 6: every region's decoder on its sampled tokens (one row per stream); returns the region
-    /// features `(streams, frames_per_token, dim)` in region order.
+    /// features `(streams, frames_per_token, dim)` in region order, or in the fused form the one
+    /// output of `decoders_fused`, `(streams, frames_per_token, sum of the dims)` with the regions
+    /// side by side (see [`Pipeline::assemble_frames`]).
     fn run_decoders(
         &mut self,
         store: &mut impl CacheStore,
         tokens: &[Vec<i64>],
     ) -> Result<Vec<Tensor>> {
+        let n_regions = self.regions.len();
+        if self.decoders.len() == 1 && n_regions > 1 {
+            let mut tok = Vec::with_capacity(tokens.len() * n_regions);
+            for t in tokens {
+                tok.extend_from_slice(&t[..n_regions]);
+            }
+            let tok = Tensor::i64(vec![tokens.len(), n_regions], tok)?;
+            let stage = &mut self.decoders[0];
+            let name = stage.spec.name.clone();
+            let motion = stage.run_slot(Slot::Decoder(0), store, |role| match role {
+                Role::Token => Ok(tok.clone()),
+                other => bail!("{name}: unexpected input {other:?}"),
+            })?;
+            let width: usize = self.regions.iter().map(|l| l.dim).sum();
+            ensure!(
+                motion.shape == [tokens.len(), self.frames_per_token, width],
+                "{name}: motion has shape {:?}, expected [{}, {}, {width}]",
+                motion.shape,
+                tokens.len(),
+                self.frames_per_token
+            );
+            return Ok(vec![motion]);
+        }
         let mut feats = Vec::with_capacity(self.decoders.len());
         for (ri, stage) in self.decoders.iter_mut().enumerate() {
             let tok = Tensor::i64(vec![tokens.len()], tokens.iter().map(|t| t[ri]).collect())?;

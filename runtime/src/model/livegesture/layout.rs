@@ -18,12 +18,17 @@ fn is_branched(graph: &str) -> bool {
 
 /// The graphs of the forms other than canonical (SPEC 14): a stream holds the caches of one form.
 fn other_form_graphs(bundle: &Bundle) -> Result<Vec<String>> {
-    Ok(bundle
-        .livegesture()?
-        .expert_forms()
+    let forms = bundle.livegesture()?.form_graphs();
+    let canonical = forms.get("canonical").cloned();
+    Ok(forms
         .into_iter()
         .filter(|(k, _)| k != "canonical")
-        .flat_map(|(_, g)| g)
+        .flat_map(|(_, f)| f.experts.into_iter().chain(f.decoders))
+        .filter(|g| {
+            !canonical
+                .as_ref()
+                .is_some_and(|c| c.experts.contains(g) || c.decoders.contains(g))
+        })
         .collect())
 }
 
@@ -49,17 +54,38 @@ pub fn state_bytes(bundle: &Bundle, guided: bool) -> Result<usize> {
 }
 
 impl Pipeline {
-    /// Builds the frames of stream row `i` from the decoders' `(batch, frames_per_token, dim)` outputs.
+    /// Builds the frames of stream row `i` from the decoders' outputs: one `(batch,
+    /// frames_per_token, dim)` tensor per region (canonical form), or one `(batch,
+    /// frames_per_token, sum of the dims)` tensor with the regions side by side in region order
+    /// (`decoders_fused`).
     pub(super) fn assemble_frames(&self, feats: &[Tensor], i: usize, t: u64) -> Result<Vec<Frame>> {
         let fpt = self.frames_per_token;
         let values = feats
             .iter()
             .map(|f| f.as_f32("decoder output"))
             .collect::<Result<Vec<_>>>()?;
+        // (values, values per frame, offset of the region in a frame) of each region
+        let views: Vec<(&[f32], usize, usize)> = if values.len() == 1 {
+            let width: usize = self.regions.iter().map(|l| l.dim).sum();
+            let mut off = 0;
+            self.regions
+                .iter()
+                .map(|l| {
+                    off += l.dim;
+                    (values[0], width, off - l.dim)
+                })
+                .collect()
+        } else {
+            values
+                .iter()
+                .zip(&self.regions)
+                .map(|(v, l)| (*v, l.dim, 0))
+                .collect()
+        };
         Ok((0..fpt)
             .map(|j| {
-                let rows = self.regions.iter().zip(&values).map(|(l, v)| {
-                    let base = (i * fpt + j) * l.dim;
+                let rows = self.regions.iter().zip(&views).map(|(l, &(v, w, o))| {
+                    let base = (i * fpt + j) * w + o;
                     &v[base..base + l.dim]
                 });
                 assemble_frame(fpt as u64 * t + j as u64, &self.regions, rows)
@@ -80,7 +106,7 @@ pub fn describe(bundle: &Bundle) -> Result<Description> {
         .collect();
     let (with, without) = (state_bytes(bundle, true)?, state_bytes(bundle, false)?);
     let kib = |n: usize| format!("{:.1} KiB", n as f64 / 1024.0);
-    let forms = lg.expert_forms();
+    let forms = lg.form_graphs();
     let lines = vec![
         ("regions".to_string(), regions.join(", ")),
         (
@@ -120,7 +146,11 @@ pub fn describe(bundle: &Bundle) -> Result<Description> {
                 "{} (SPEC 14); runs ort: {}, tract: {} (--form or $LIVEGESTURE_FORM overrides)",
                 forms
                     .iter()
-                    .map(|(k, g)| format!("{k}: eXperts {}", g.join(" ")))
+                    .map(|(k, g)| format!(
+                        "{k}: eXperts {}, decoders {}",
+                        g.experts.join(" "),
+                        g.decoders.join(" ")
+                    ))
                     .collect::<Vec<_>>()
                     .join("; "),
                 lg.default_form("ort"),

@@ -5,13 +5,14 @@
 //!
 //! 1. the stream's [`StreamingLogMel`] yields the token's `mel_frames_per_token` log-mel frames;
 //! 2. `audio_encoder` turns them into the audio token `a_t` (once per stream);
-//! 3. every `expert_<region>` reads the previous token of its region (BOS at `t = 0`) and `a_t`; the
-//!    conditional (`cond = 1`) and unconditional (`cond = 0`) guidance branches are two rows on the
-//!    batch axis;
+//! 3. every `expert_<region>` (in the fused form `experts_fused`, all regions at once) reads the
+//!    previous token of its region (BOS at `t = 0`) and `a_t`; the conditional (`cond = 1`) and
+//!    unconditional (`cond = 0`) guidance branches are two rows on the batch axis;
 //! 4. `fusion` gives per-region logits for both branches;
 //! 5. classifier-free guidance and the seeded SplitMix64 sampler ([`crate::sampling`]) draw one token
 //!    per region, in region order;
-//! 6. `decoder_<region>` turns the token into frames `4t .. 4t+3` of region features;
+//! 6. `decoder_<region>` turns the token into frames `4t .. 4t+3` of region features (in the fused
+//!    form of a bundle that has it, `decoders_fused` does so for the four regions at once);
 //! 7. rot6d is converted to axis-angle and the region features are assembled into [`Frame`]s
 //!    (translation and expressions copied, foot contact from the lower region's contact dims, eyes at
 //!    rest), following the region layout in the manifest.
@@ -87,7 +88,7 @@ use caches::{Caches, SeparateCaches, StackedCaches};
 use chain::Stage;
 use stream::StreamState;
 
-/// Which form of the region eXperts a [`Pipeline`] runs (SPEC 14).
+/// Which form of the region eXperts and decoders a [`Pipeline`] runs (SPEC 14).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum FormChoice {
     /// The form the bundle's manifest names for the backend (`backend_forms`), else canonical.
@@ -95,7 +96,8 @@ pub enum FormChoice {
     Auto,
     /// One `expert_<region>` graph per region.
     Canonical,
-    /// The four eXperts as one graph on a region axis (`experts_fused`).
+    /// The four eXperts as one graph on a region axis (`experts_fused`) and, where the bundle has
+    /// it, the four SVQ decoders as one graph (`decoders_fused`).
     Fused,
 }
 
@@ -135,9 +137,11 @@ pub struct Pipeline {
     audio_encoder: Stage,
     /// The region eXperts: one stage per region (canonical form) or one for all (fused form).
     experts: Vec<Stage>,
-    /// The form of the eXperts (`canonical` or `fused`).
+    /// The form of the eXperts and decoders (`canonical` or `fused`).
     form: String,
     fusion: Stage,
+    /// The region SVQ decoders: one stage per region (canonical form, and the fused form of a bundle
+    /// without `decoders_fused`) or one for all (`decoders_fused`).
     decoders: Vec<Stage>,
 }
 
@@ -155,19 +159,21 @@ impl std::fmt::Debug for Pipeline {
 }
 
 impl Pipeline {
-    /// Loads every graph of `bundle` with `backend`, the eXperts in the bundle's form for the
-    /// backend (`backend_forms`, else canonical).
+    /// Loads every graph of `bundle` with `backend`, the eXperts and decoders in the bundle's form
+    /// for the backend (`backend_forms`, else canonical).
     pub fn new(bundle: &Bundle, backend: &dyn Backend) -> Result<Self> {
         Self::with_form(bundle, backend, FormChoice::Auto)
     }
 
-    /// Loads every graph of `bundle` with `backend`, the region eXperts in the form `form`. Asking
-    /// for a form the bundle does not carry is an error naming the forms it has.
+    /// Loads every graph of `bundle` with `backend`, the region eXperts and decoders in the form
+    /// `form` (a fused form without `decoders_fused`, from bundles exported before it, runs the
+    /// canonical decoders). Asking for a form the bundle does not carry is an error naming the forms
+    /// it has.
     pub fn with_form(bundle: &Bundle, backend: &dyn Backend, form: FormChoice) -> Result<Self> {
         let lg = bundle.livegesture()?;
         let names: Vec<String> = lg.region_names().iter().map(|s| s.to_string()).collect();
         let regions = resolve_layouts(&lg.regions)?;
-        let forms = lg.expert_forms();
+        let forms = lg.form_graphs();
         let form = match form {
             FormChoice::Auto => lg.default_form(backend.name()),
             FormChoice::Canonical => "canonical",
@@ -175,31 +181,41 @@ impl Pipeline {
         }
         .to_string();
         // a form the bundle does not carry is bad input (exit code 2), named in the manifest's terms
-        let expert_graphs =
-            forms
-                .get(&form)
-                .ok_or_else(|| crate::bundle::BundleError::Manifest {
-                    path: bundle.dir().join("manifest.json"),
-                    detail: format!(
-                        "forms: no '{form}' form of the region eXperts was exported (the bundle has {:?})",
-                        forms.keys().collect::<Vec<_>>()
-                    ),
-                })?;
+        let graphs = forms
+            .get(&form)
+            .ok_or_else(|| crate::bundle::BundleError::Manifest {
+                path: bundle.dir().join("manifest.json"),
+                detail: format!(
+                    "forms: no '{form}' form of the region eXperts and decoders was exported (the bundle has {:?})",
+                    forms.keys().collect::<Vec<_>>()
+                ),
+            })?;
         let audio_encoder = Stage::new(bundle, backend, "audio_encoder", &names)?;
         let fusion = Stage::new(bundle, backend, "fusion", &names)?;
-        let experts = expert_graphs
+        let experts = graphs
+            .experts
             .iter()
             .map(|g| Stage::new(bundle, backend, g, &names))
             .collect::<Result<Vec<_>>>()?;
         if experts.len() == 1 && names.len() > 1 {
             chain::check_fused_experts(&experts[0], names.len())?;
         }
-        let decoders = names
+        let decoders = graphs
+            .decoders
             .iter()
-            .map(|r| Stage::new(bundle, backend, &format!("decoder_{r}"), &names))
+            .map(|g| Stage::new(bundle, backend, g, &names))
             .collect::<Result<Vec<_>>>()?;
         let fpt = bundle.frontend().frames_per_token as usize;
-        for (d, l) in decoders.iter().zip(&regions) {
+        if decoders.len() == 1 && names.len() > 1 {
+            let dims: Vec<usize> = regions.iter().map(|l| l.dim).collect();
+            chain::check_fused_decoders(&decoders[0], &dims, fpt)?;
+        }
+        let per_region = if decoders.len() == names.len() {
+            &decoders[..]
+        } else {
+            &[]
+        };
+        for (d, l) in per_region.iter().zip(&regions) {
             let m = d
                 .spec
                 .outputs
@@ -231,7 +247,8 @@ impl Pipeline {
         })
     }
 
-    /// The form of the region eXperts this pipeline runs (`canonical` or `fused`, SPEC 14).
+    /// The form of the region eXperts and decoders this pipeline runs (`canonical` or `fused`,
+    /// SPEC 14).
     pub fn form(&self) -> &str {
         &self.form
     }
