@@ -164,7 +164,10 @@ def test_f16_bundle_stores_weights_in_float16_with_f32_arithmetic(tiny, tiny_f16
             assert casts[h.name].attribute[0].i == onnx.TensorProto.FLOAT
             w = onnx.numpy_helper.to_array(next(i for i in src.graph.initializer if i.name == casts[h.name].output[0]))
             assert np.array_equal(onnx.numpy_helper.to_array(h), w.astype(np.float16))
-        assert p["graphs"][g["name"]]["file_bytes"] < 0.6 * p["graphs"][g["name"]]["file_bytes_f32"]
+        # the weights take half the bytes (the tiny graphs' files are dominated by their node lists)
+        assert sum(len(i.raw_data) for i in halves) * 2 == sum(
+            len(i.raw_data) for i in src.graph.initializer if i.name in {casts[x.name].output[0] for x in halves})
+        assert p["graphs"][g["name"]]["file_bytes"] < p["graphs"][g["name"]]["file_bytes_f32"]
     err = p["error_vs_f32"]
     assert set(err["graphs_max_abs"]) == {g["name"] for g in f32["graphs"]}
     assert 0 < err["graphs_max_abs"]["fusion"]["logits"] < 0.05     # float16 rounding of the weights only
