@@ -79,9 +79,15 @@ fn f16_bundle_passes_parity_and_a_perturbed_one_fails() {
         let tokens = report
             .rows
             .iter()
-            .find(|r| r.check == Check::Rollout && r.comparison == comparison && r.output == "tokens")
+            .find(|r| {
+                r.check == Check::Rollout && r.comparison == comparison && r.output == "tokens"
+            })
             .unwrap_or_else(|| panic!("no rollout token row for {comparison}"));
-        assert!(tokens.compared >= 1000, "{comparison}: {} steps", tokens.compared);
+        assert!(
+            tokens.compared >= 1000,
+            "{comparison}: {} steps",
+            tokens.compared
+        );
     }
 
     // one float16 weight perturbed: that graph fails against the reference, on both backends

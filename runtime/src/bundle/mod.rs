@@ -704,7 +704,10 @@ mod tests {
         }
         for bad in ["int3", "f16", "fp16", "FLOAT16", ""] {
             let e = edited(|v| v["precision"] = serde_json::json!({"weights": bad})).unwrap_err();
-            assert!(e.contains("precision.weights") && e.contains(&format!("'{bad}'")), "{e}");
+            assert!(
+                e.contains("precision.weights") && e.contains(&format!("'{bad}'")),
+                "{e}"
+            );
         }
     }
 
