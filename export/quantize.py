@@ -29,7 +29,7 @@ The reduced bundle is a separate bundle (SPEC 14), never a change of the f32 one
 - its graphs are the quantized ones, its manifest the f32 manifest with ``precision`` added and the files
   table rewritten; ``model``, ``regions``, ``normalisation``, ``sampling`` and the reference clip are the f32
   bundle's;
-- its reference vectors are onnxruntime's on the reduced graphs (torch has no int8 form of the model): every
+- its reference vectors are onnxruntime's on the reduced graphs (torch does not run them): every
   graph chained over the f32 bundle's reference inputs (``reference/<graph>.npz``, same keys), and the
   reference rollout (same clip, repeats and seed) stepped with the reduced graphs by the Python chain of
   ``bench/ort_python_peer.py``. ``livegesture parity`` checks the runtime's ort against these and tract against
