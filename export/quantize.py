@@ -443,7 +443,7 @@ def record_metrics(bundle: Path, f32_eval: Path, reduced_eval: Path, command: st
             raise ValueError(f"{path}: not a livegesture.eval report (no 'generated' section)")
     m["precision"]["metrics"] = {
         "command": command,
-        "reports": {tag: str(Path(path).resolve()) for tag, path in (("float32", f32_eval),
+        "reports": {tag: str(path) for tag, path in (("float32", f32_eval),
                                                                    (m["precision"]["weights"], reduced_eval))},
         "generated": {tag: r["generated"] for tag, r in reports.items()},
         "ground_truth": next(iter(reports.values())).get("ground_truth"),
