@@ -1,8 +1,20 @@
 #!/usr/bin/env python
 """Derive a reduced-precision bundle from an f32 LiveGesture bundle (issue 15 deliverable 3, SPEC 14).
 
+    python export/quantize.py --bundle models/default --precision f16 --out /tmp/default-f16
     python export/quantize.py --bundle models/default --precision int8 --out /tmp/default-int8
     python export/quantize.py --bundle /tmp/paper-bundle --precision int8 --out /tmp/paper-int8
+    # after scripts/eval_bundle.sh on both bundles (same corpus, seeds, backend): the metrics beside f32
+    python export/quantize.py --record-metrics /tmp/default-f16 --metrics-f32 F32/eval.json \
+        --metrics-reduced F16/eval.json --metrics-command "scripts/eval_bundle.sh ..."
+
+`f16` / `bf16` (manifest ``float16`` / ``bfloat16``): weight storage only. Every float32 initializer and
+``Constant`` tensor of more than one element is stored in the reduced type (round to nearest even) and followed
+by a ``Cast`` to float32 under its original name; a tensor with a value outside the reduced type's finite range
+(an attention mask's -1e9, for example) stays float32. The arithmetic is the f32 graph's, in float32: both
+backends fold the ``Cast`` of a constant when they load the graph, so the gain is the size of the files, not
+speed. The error against the f32 model is the rounding of the weights alone. tract 0.23 has no bfloat16 type
+(tract-onnx maps ``FLOAT16`` only), so a bf16 bundle loads on onnxruntime only.
 
 `int8`: dynamic quantization of every MatMul/Gemm whose weight is an initializer
 (``onnxruntime.quantization.quantize_dynamic``, int8 weights, symmetric, per output channel with
@@ -17,7 +29,7 @@ The reduced bundle is a separate bundle (SPEC 14), never a change of the f32 one
 - its graphs are the quantized ones, its manifest the f32 manifest with ``precision`` added and the files
   table rewritten; ``model``, ``regions``, ``normalisation``, ``sampling`` and the reference clip are the f32
   bundle's;
-- its reference vectors are onnxruntime's on the reduced graphs (torch has no int8 form of the model): every
+- its reference vectors are onnxruntime's on the reduced graphs (torch does not run them): every
   graph chained over the f32 bundle's reference inputs (``reference/<graph>.npz``, same keys), and the
   reference rollout (same clip, repeats and seed) stepped with the reduced graphs by the Python chain of
   ``bench/ort_python_peer.py``. ``livegesture parity`` checks the runtime's ort against these and tract against
@@ -50,7 +62,84 @@ sys.path.insert(0, str(ROOT / "bench"))
 from livegesture.sampling import guide  # noqa: E402
 from ort_python_peer import Chain, Streams, reference, token_mels  # noqa: E402
 
-PRECISIONS = ("int8",)
+PRECISIONS = ("int8", "f16", "bf16", "float16", "bfloat16")
+# --precision -> the manifest's precision.weights (SPEC 14; the runtime's bundle::PRECISIONS)
+WEIGHTS = {"int8": "int8", "f16": "float16", "float16": "float16", "bf16": "bfloat16", "bfloat16": "bfloat16"}
+F16_MAX = float(np.finfo(np.float16).max)
+BF16_MAX = 3.3895313892515355e38
+
+
+def to_bf16_bits(a: np.ndarray) -> np.ndarray:
+    """float32 -> bfloat16 bit patterns (uint16), round to nearest even (finite values)."""
+    u = np.ascontiguousarray(a, dtype=np.float32).view(np.uint32).astype(np.uint64)
+    return ((u + 0x7FFF + ((u >> 16) & 1)) >> 16).astype(np.uint16)
+
+
+def bf16_bits_to_f32(b: np.ndarray) -> np.ndarray:
+    return (b.astype(np.uint32) << 16).view(np.float32)
+
+
+def reduced_tensor(a: np.ndarray, name: str, weights: str):
+    """(TensorProto of ``a`` in the reduced type, the float32 values it stands for), or None when ``a`` has a value
+    outside the reduced type's finite range (it then stays float32)."""
+    from onnx import TensorProto, numpy_helper
+    if not np.isfinite(a).all() or float(np.abs(a).max(initial=0.0)) > (F16_MAX if weights == "float16" else BF16_MAX):
+        return None
+    if weights == "float16":
+        h = a.astype(np.float16)
+        return numpy_helper.from_array(h, name), h.astype(np.float32)
+    bits = to_bf16_bits(a)
+    t = TensorProto()
+    t.name, t.data_type = name, TensorProto.BFLOAT16
+    t.dims.extend(a.shape)
+    t.raw_data = bits.astype("<u2").tobytes()
+    back = bf16_bits_to_f32(bits)
+    # round to nearest even can carry a value past the largest finite bfloat16
+    return (t, back) if np.isfinite(back).all() else None
+
+
+def cast_weights(m, weights: str) -> dict:
+    """Stores every float32 initializer and Constant tensor of more than one element as ``weights``
+    (float16/bfloat16) followed by a Cast to float32 under its original name, in place. Returns counts:
+    tensors reduced, tensors kept float32 (out of range), and the largest rounding error of a weight."""
+    from onnx import TensorProto, helper, numpy_helper
+    inits = list(m.graph.initializer)
+    new_inits, head, kept, reduced, max_round = [], [], 0, 0, 0.0
+    for i in inits:
+        a = numpy_helper.to_array(i) if i.data_type == TensorProto.FLOAT else None
+        r = reduced_tensor(a, i.name + "_" + weights, weights) if a is not None and a.size > 1 else None
+        if r is None:
+            kept += int(a is not None and a.size > 1)
+            new_inits.append(i)
+            continue
+        t, back = r
+        max_round = max(max_round, float(np.abs(back - a).max()))
+        new_inits.append(t)
+        head.append(helper.make_node("Cast", [t.name], [i.name], name=i.name + "_cast", to=TensorProto.FLOAT))
+        reduced += 1
+    nodes = []
+    for n in m.graph.node:
+        if n.op_type == "Constant" and len(n.attribute) == 1 and n.attribute[0].name == "value" \
+                and n.attribute[0].t.data_type == TensorProto.FLOAT:
+            a = numpy_helper.to_array(n.attribute[0].t)
+            r = reduced_tensor(a, n.output[0] + "_" + weights, weights) if a.size > 1 else None
+            if r is None:
+                kept += int(a.size > 1)
+            else:
+                t, back = r
+                max_round = max(max_round, float(np.abs(back - a).max()))
+                nodes.append(helper.make_node("Constant", [], [t.name], name=(n.name or n.output[0]) + "_" + weights,
+                                              value=t))
+                nodes.append(helper.make_node("Cast", [t.name], [n.output[0]], name=(n.name or n.output[0]) + "_cast",
+                                              to=TensorProto.FLOAT))
+                reduced += 1
+                continue
+        nodes.append(n)
+    del m.graph.initializer[:]
+    m.graph.initializer.extend(new_inits)
+    del m.graph.node[:]
+    m.graph.node.extend(head + nodes)
+    return {"reduced_tensors": reduced, "kept_float32_tensors": kept, "weight_rounding_max_abs": max_round}
 
 
 def weight_only_int8(m):
@@ -90,9 +179,23 @@ def quantize_graph(src: Path, dst: Path, precision: str, per_channel: bool, acti
     """Writes the reduced graph; returns what was quantized."""
     import onnx
     from onnxruntime.quantization import QuantType, quantize_dynamic
-    if precision != "int8":
+    if precision not in WEIGHTS:
         raise ValueError(f"--precision {precision}: supported are {', '.join(PRECISIONS)}")
     m = onnx.load(str(src))
+    if WEIGHTS[precision] in ("float16", "bfloat16"):
+        n_nodes = len(m.graph.node)
+        bytes_f32 = sum(int(np.prod(i.dims)) * 4 for i in m.graph.initializer if i.data_type == onnx.TensorProto.FLOAT)
+        counts = cast_weights(m, WEIGHTS[precision])
+        if counts["reduced_tensors"] == 0:
+            raise RuntimeError(f"{src.name}: no float32 weight to store as {WEIGHTS[precision]}")
+        p = m.metadata_props.add()
+        p.key, p.value = "livegesture.precision", WEIGHTS[precision]
+        m.producer_name = "livegesture-quantize"
+        onnx.checker.check_model(m)
+        onnx.save(m, str(dst))
+        return {**counts, "quantized_products": 0, "nodes_f32": n_nodes, "nodes": len(m.graph.node),
+                "file_bytes_f32": src.stat().st_size, "file_bytes": dst.stat().st_size,
+                "f32_initializer_bytes": bytes_f32}
     if activations not in ("dynamic", "f32"):
         raise ValueError(f"--activations {activations}: expected dynamic or f32")
     if activations == "f32":
@@ -206,6 +309,10 @@ class LoggingChain(Chain):
 def build(src: Path, out: Path, precision: str, per_channel: bool, log=print, activations: str = "dynamic") -> dict:
     import onnxruntime as ort
     from export import export_provenance, file_table, sha256, staged_folder
+    if precision not in WEIGHTS:
+        raise ValueError(f"--precision {precision}: supported are {', '.join(PRECISIONS)}")
+    weights = WEIGHTS[precision]
+    cast = weights in ("float16", "bfloat16")
     manifest = json.loads((src / "manifest.json").read_text())
     if manifest.get("family", "livegesture") != "livegesture":
         raise ValueError(f"{src}/manifest.json: family {manifest['family']}: only LiveGesture bundles are supported")
@@ -228,7 +335,9 @@ def build(src: Path, out: Path, precision: str, per_channel: bool, log=print, ac
             np.savez_compressed(tmp / rel, **new)
             per_graph[spec["name"]] = {k: err[k] for k in sorted(err)}
             graph_info[spec["name"]] = info
-            log(f"  {spec['name']:<16} {info['quantized_products']} products int8, nodes {info['nodes_f32']} -> "
+            what = (f"{info['reduced_tensors']} tensors {weights} ({info['kept_float32_tensors']} kept f32, weight "
+                    f"rounding {info['weight_rounding_max_abs']:.2g})" if cast else f"{info['quantized_products']} products int8")
+            log(f"  {spec['name']:<16} {what}, nodes {info['nodes_f32']} -> "
                 f"{info['nodes']}, file {info['file_bytes_f32'] / 1e6:.2f} -> {info['file_bytes'] / 1e6:.2f} MB, "
                 f"max abs vs f32 {max(err.values()):.3g} ({time.time() - t0:.1f}s)")
         for rel in ("reference/clip.wav", manifest["reference"].get("logmel", "reference/logmel.npy")):
@@ -267,16 +376,21 @@ def build(src: Path, out: Path, precision: str, per_channel: bool, log=print, ac
 
         m = json.loads(json.dumps(manifest))
         m["precision"] = {
-            "weights": precision,
-            "method": (("onnxruntime.quantization.quantize_dynamic: every MatMul/Gemm with an initializer weight as "
+            "weights": weights,
+            "method": ((f"weight storage only: every float32 initializer and Constant tensor of more than one element "
+                        f"stored as {weights} (round to nearest even) + Cast to float32 under its original name (a "
+                        f"tensor with a value outside the {weights} range stays float32); all arithmetic in float32, "
+                        "as in the f32 graphs (both backends fold the Cast of a constant at load: the gain is the size "
+                        "of the files, not speed)") if cast else
+                       ("onnxruntime.quantization.quantize_dynamic: every MatMul/Gemm with an initializer weight as "
                         "DynamicQuantizeLinear (uint8 activations, one scale per tensor per step, i.e. shared by all "
                         "batch rows) + MatMulInteger (int8 weights, "
                         f"symmetric, {'per output channel' if per_channel else 'per tensor'}) + f32 scale and bias")
                        if activations == "dynamic" else
                        "weight-only: every MatMul/Gemm initializer weight as int8 (symmetric, per output channel) + "
                        "DequantizeLinear to f32 in the graph; f32 products (row-independent)"),
-            "per_channel": per_channel,
-            "activations": activations,
+            "per_channel": per_channel if not cast else None,
+            "activations": "float32" if cast else activations,
             "source": {"bundle": str(src), "manifest_sha256": sha256(src / "manifest.json"),
                        "config": manifest["model"].get("config_name"),
                        "training": manifest.get("provenance", {}).get("training", "trained checkpoint")},
@@ -311,8 +425,53 @@ def _init_chain_from(chain: Chain, folder: Path, manifest: dict):
         folder.joinpath("manifest.json").unlink()
 
 
+def record_metrics(bundle: Path, f32_eval: Path, reduced_eval: Path, command: str) -> dict:
+    """Writes ``precision.metrics`` of a reduced bundle: the evaluation reports (``python -m livegesture.eval``
+    JSON, as ``scripts/eval_bundle.sh`` writes them) of the f32 bundle and of this one, side by side (SPEC 14).
+    The manifest is rewritten; the files table (graphs and reference vectors) is unchanged."""
+    mpath = bundle / "manifest.json"
+    m = json.loads(mpath.read_text())
+    if m.get("precision", {}).get("weights", "float32") == "float32":
+        raise ValueError(f"{mpath}: not a reduced-precision bundle (no precision.weights other than float32)")
+    reports = {}
+    for tag, path in (("float32", f32_eval), (m["precision"]["weights"], reduced_eval)):
+        try:
+            reports[tag] = json.loads(Path(path).read_text())
+        except (OSError, ValueError) as e:
+            raise ValueError(f"{path}: cannot read the evaluation report: {e}") from e
+        if not isinstance(reports[tag], dict) or "generated" not in reports[tag]:
+            raise ValueError(f"{path}: not a livegesture.eval report (no 'generated' section)")
+    m["precision"]["metrics"] = {
+        "command": command,
+        "reports": {tag: str(path) for tag, path in (("float32", f32_eval),
+                                                                   (m["precision"]["weights"], reduced_eval))},
+        "generated": {tag: r["generated"] for tag, r in reports.items()},
+        "ground_truth": next(iter(reports.values())).get("ground_truth"),
+    }
+    with open(mpath, "w") as f:
+        json.dump(m, f, indent=1)
+        f.write("\n")
+    return m["precision"]["metrics"]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    if argv is None:
+        argv = sys.argv[1:]
+    if "--record-metrics" in argv:
+        mp = argparse.ArgumentParser(description="record the evaluation metrics beside f32 in a reduced bundle")
+        mp.add_argument("--record-metrics", required=True, metavar="REDUCED_BUNDLE")
+        mp.add_argument("--metrics-f32", required=True, help="eval.json of the f32 bundle")
+        mp.add_argument("--metrics-reduced", required=True, help="eval.json of the reduced bundle")
+        mp.add_argument("--metrics-command", required=True, help="the commands that made both reports")
+        a = mp.parse_args(argv)
+        try:
+            met = record_metrics(Path(a.record_metrics), Path(a.metrics_f32), Path(a.metrics_reduced), a.metrics_command)
+        except ValueError as e:
+            print(f"quantize: {e}", file=sys.stderr)
+            return 1
+        print(json.dumps(met["generated"], indent=1))
+        return 0
     ap.add_argument("--bundle", required=True, help="the f32 bundle")
     ap.add_argument("--precision", default="int8", choices=PRECISIONS)
     ap.add_argument("--per-channel", action="store_true", help="one weight scale per output channel (dynamic)")

@@ -2,12 +2,13 @@
 # f32 vs reduced-precision bundle of one config (issue 15 deliverable 3), one pinned core, interleaved rounds:
 # every round runs `livegesture bench` on every (bundle, backend) once, bundles in alternating order, then the
 # onnxruntime-from-Python peer on each bundle. Writes one JSON per run and a summary (medians over rounds,
-# int8 / f32 ratios) to OUT/summary.json and OUT/summary.md.
+# reduced / f32 ratios; load time and peak RSS of one stream, and the bundles' sizes on disk) to OUT/summary.json
+# and OUT/summary.md.
 #
 #   scripts/bench_precision.sh F32_BUNDLE REDUCED_BUNDLE OUT_DIR
 #   ROUNDS=3 BACKENDS="ort tract" STREAMS=32 BENCH_CPU=1 scripts/bench_precision.sh models/default /tmp/default-int8 \
 #       bench/results/precision-default
-# REDUCED_BUNDLE comes from `python export/quantize.py --bundle F32_BUNDLE --precision int8 --per-channel --out ...`.
+# REDUCED_BUNDLE comes from `python export/quantize.py --bundle F32_BUNDLE --precision int8|f16 --out ...`.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
@@ -53,7 +54,7 @@ rows = []
 for be in backends + ["ort_python"]:
     d = {}
     for tag in ("f32", "reduced"):
-        chain, n32, graphs = [], [], {}
+        chain, n32, graphs, load, rss = [], [], {}, [], []
         for r in range(1, rounds + 1):
             if be == "ort_python":
                 j = json.loads((out / f"ort_python_{tag}_r{r}.json").read_text())
@@ -66,8 +67,11 @@ for be in backends + ["ort_python"]:
                 for g in j["single"]["graphs"]:
                     graphs.setdefault(g["graph"], []).append(g["ms"]["median"])
                 n32 += [x["step_ms"]["median"] for x in j["batched"]]
+                load.append(j["load_seconds"])
+                rss.append(j["peak_rss_single_bytes"])
         d[tag] = {"chain_ms_rounds": chain, "chain_ms": med(chain), "graphs_ms": {g: med(v) for g, v in graphs.items()},
-                  "batched_ms_rounds": n32, "batched_ms": med(n32) if n32 else None}
+                  "batched_ms_rounds": n32, "batched_ms": med(n32) if n32 else None,
+                  "load_seconds": med(load) if load else None, "peak_rss_single_bytes": med(rss) if rss else None}
     d["chain_ratio"] = d["reduced"]["chain_ms"] / d["f32"]["chain_ms"]
     d["batched_ratio"] = (d["reduced"]["batched_ms"] / d["f32"]["batched_ms"]) if d["f32"]["batched_ms"] else None
     summ["backends"][be] = d
@@ -79,6 +83,21 @@ for be in backends + ["ort_python"]:
                    if d["batched_ratio"] else "- | - | - |"))
 md = ["| backend | f32 chain ms (rounds) | " + summ["precision"] + " chain ms (rounds) | ratio | f32 N=32 ms (rounds) | "
       + summ["precision"] + " N=32 ms (rounds) | ratio |", "|---|---|---|---|---|---|---|", *rows]
+def du(folder):
+    return sum(f.stat().st_size for f in Path(folder).rglob("*") if f.is_file())
+def onnx_bytes(folder):
+    return sum(f.stat().st_size for f in Path(folder).glob("*.onnx"))
+summ["bytes_on_disk"] = {"f32": {"bundle": du(a), "graphs": onnx_bytes(a)},
+                         "reduced": {"bundle": du(b), "graphs": onnx_bytes(b)}}
+md += ["", "| backend | f32 load s | " + summ["precision"] + " load s | f32 peak RSS 1 stream MB | " + summ["precision"]
+       + " peak RSS 1 stream MB |", "|---|---|---|---|---|"]
+for be in backends:
+    d = summ["backends"][be]
+    md.append(f"| {be} | {d['f32']['load_seconds']:.2f} | {d['reduced']['load_seconds']:.2f} | "
+              f"{d['f32']['peak_rss_single_bytes'] / 1e6:.0f} | {d['reduced']['peak_rss_single_bytes'] / 1e6:.0f} |")
+bd = summ["bytes_on_disk"]
+md += ["", f"on disk: f32 bundle {bd['f32']['bundle'] / 1e6:.1f} MB (graphs {bd['f32']['graphs'] / 1e6:.1f} MB), "
+       f"{summ['precision']} bundle {bd['reduced']['bundle'] / 1e6:.1f} MB (graphs {bd['reduced']['graphs'] / 1e6:.1f} MB)"]
 (out / "summary.json").write_text(json.dumps(summ, indent=1) + "\n")
 (out / "summary.md").write_text("\n".join(md) + "\n")
 print("\n".join(md))

@@ -5,7 +5,8 @@
     break_bundle.py SRC DST --graph expert_hands --freeze-cache layer0.xattn.k
 
 --perturb-weight   adds --delta to one element (the first) of the weight initializer of the graph's first
-                   MatMul/Gemm whose weight is an initializer.
+                   MatMul/Gemm whose weight is an initializer (float32, or float16 behind a Cast as
+                   export/quantize.py --precision f16 writes it).
 --freeze-cache N   makes the graph return its input cache `cache.N` unchanged as `new_cache.N` (the node
                    that computed `new_cache.N` keeps computing it under another name for its other
                    consumers; an Identity node now produces the graph output from the input).
@@ -29,18 +30,21 @@ from onnx import helper, numpy_helper
 
 def perturb_weight(model: onnx.ModelProto, delta: float) -> dict:
     inits = {t.name: t for t in model.graph.initializer}
+    # a float16 bundle (export/quantize.py --precision f16) stores the weight as a float16 initializer + Cast
+    cast_from = {n.output[0]: n.input[0] for n in model.graph.node if n.op_type == "Cast" and n.input[0] in inits}
     for node in model.graph.node:
-        if node.op_type in ("MatMul", "Gemm") and len(node.input) > 1 and node.input[1] in inits:
-            t = inits[node.input[1]]
+        if node.op_type in ("MatMul", "Gemm") and len(node.input) > 1 and \
+                cast_from.get(node.input[1], node.input[1]) in inits:
+            t = inits[cast_from.get(node.input[1], node.input[1])]
             w = numpy_helper.to_array(t).copy()
-            if w.dtype != np.float32 or w.size == 0:
+            if w.dtype not in (np.float32, np.float16) or w.size == 0:
                 continue
             before = float(w.flat[0])
-            w.flat[0] += np.float32(delta)
+            w.flat[0] += w.dtype.type(delta)
             t.CopyFrom(numpy_helper.from_array(w, t.name))
             return {"change": "perturb-weight", "node": node.name, "op": node.op_type, "initializer": t.name,
                     "shape": list(w.shape), "index": 0, "before": before, "after": float(w.flat[0])}
-    raise SystemExit("break_bundle: no MatMul/Gemm with a float32 initializer weight in this graph")
+    raise SystemExit("break_bundle: no MatMul/Gemm with a float32 or float16 initializer weight in this graph")
 
 
 def freeze_cache(model: onnx.ModelProto, name: str) -> dict:

@@ -132,3 +132,94 @@ def test_int8_forms_and_batch_row_independence(tiny, tmp_path):
         rows[act] = float(np.abs(both[:1] - alone).max())
     assert rows["f32"] <= 1e-6
     assert rows["dynamic"] > 1e-4
+
+
+@pytest.fixture(scope="module")
+def tiny_f16(tiny, tmp_path_factory):
+    out = tmp_path_factory.mktemp("speed") / "tiny-f16"
+    quantize.build(tiny, out, "f16", per_channel=False, log=lambda *a: None)
+    return out
+
+
+def test_f16_bundle_stores_weights_in_float16_with_f32_arithmetic(tiny, tiny_f16, tmp_path):
+    m = json.loads((tiny_f16 / "manifest.json").read_text())
+    jsonschema.validate(m, json.loads((ROOT / "export" / "manifest.schema.json").read_text()))
+    f32 = json.loads((tiny / "manifest.json").read_text())
+    p = m["precision"]
+    assert p["weights"] == "float16" and p["activations"] == "float32" and "Cast" in p["method"]
+    assert p["source"]["manifest_sha256"] == exporter.sha256(tiny / "manifest.json")
+    for rel, info in m["files"].items():
+        assert exporter.sha256(tiny_f16 / rel) == info["sha256"], rel
+    # every form of the f32 bundle (the fused eXperts included) is reduced, with the same contract
+    assert [g["name"] for g in m["graphs"]] == [g["name"] for g in f32["graphs"]]
+    assert "experts_fused" in p["graphs"] and m["forms"] == f32["forms"] and m["backend_forms"] == f32["backend_forms"]
+    for g in m["graphs"]:
+        assert g == next(x for x in f32["graphs"] if x["name"] == g["name"])
+        q, src = onnx.load(tiny_f16 / g["file"]), onnx.load(tiny / g["file"])
+        n_big = sum(1 for i in src.graph.initializer if i.data_type == onnx.TensorProto.FLOAT and np.prod(i.dims) > 1)
+        halves = [i for i in q.graph.initializer if i.data_type == onnx.TensorProto.FLOAT16]
+        assert len(halves) == n_big > 0, g["name"]
+        casts = {n.input[0]: n for n in q.graph.node if n.op_type == "Cast"}
+        for h in halves:   # each float16 weight becomes float32 again, under its original name, before use
+            assert casts[h.name].attribute[0].i == onnx.TensorProto.FLOAT
+            w = onnx.numpy_helper.to_array(next(i for i in src.graph.initializer if i.name == casts[h.name].output[0]))
+            assert np.array_equal(onnx.numpy_helper.to_array(h), w.astype(np.float16))
+        # the weights take half the bytes (the tiny graphs' files are dominated by their node lists)
+        assert sum(len(i.raw_data) for i in halves) * 2 == sum(
+            len(i.raw_data) for i in src.graph.initializer if i.name in {casts[x.name].output[0] for x in halves})
+        assert p["graphs"][g["name"]]["file_bytes"] < p["graphs"][g["name"]]["file_bytes_f32"]
+    err = p["error_vs_f32"]
+    assert set(err["graphs_max_abs"]) == {g["name"] for g in f32["graphs"]}
+    assert 0 < err["graphs_max_abs"]["fusion"]["logits"] < 0.05     # float16 rounding of the weights only
+    assert err["rollout"]["tokens"] == len(np.load(tiny / "reference" / "rollout.npz")["tokens"])
+    assert p["metrics"] is None
+    # the reduced bundle's reference vectors are reproduced by onnxruntime, its rollout by the peer
+    rc, res = run_peer(tiny_f16, tmp_path, "--streams", "")
+    assert rc == 0 and res["precision"] == "float16"
+
+
+def test_bf16_rounding_and_out_of_range_tensors(tmp_path):
+    a = np.array([1.0, 1.00390625, 1.01171875, -3.5e-3, 65504.0, 1e5], np.float32)
+    bits = quantize.to_bf16_bits(a)
+    back = quantize.bf16_bits_to_f32(bits)
+    # round to nearest even on the 16 dropped bits; the relative error of bfloat16 is at most 2^-9
+    assert back[0] == 1.0 and back[1] == 1.0 and back[2] == 1.015625
+    assert np.all(np.abs(back - a) <= np.abs(a) * 2.0 ** -8)
+    assert quantize.reduced_tensor(a, "w", "float16") is None           # 1e5 is beyond float16
+    t, back16 = quantize.reduced_tensor(a[:5], "w", "float16")
+    assert t.data_type == onnx.TensorProto.FLOAT16 and back16[4] == 65504.0
+    t, back_bf = quantize.reduced_tensor(a, "w", "bfloat16")
+    assert t.data_type == onnx.TensorProto.BFLOAT16 and np.array_equal(back_bf, back)
+    assert quantize.reduced_tensor(np.array([1.0, -1e9], np.float32), "m", "float16") is None
+
+
+def test_bf16_graph_runs_on_onnxruntime(tiny, tmp_path):
+    """A bfloat16-weight graph loads on onnxruntime and computes with the rounded weights (tract 0.23 has no
+    bfloat16 type, see BENCHMARKS.md)."""
+    import onnxruntime as ort
+    spec = next(g for g in json.loads((tiny / "manifest.json").read_text())["graphs"] if g["name"] == "decoder_upper")
+    info = quantize.quantize_graph(tiny / spec["file"], tmp_path / "bf16.onnx", "bf16", False)
+    assert info["reduced_tensors"] > 0 and 0 < info["weight_rounding_max_abs"]
+    ref = dict(np.load(tiny / spec["reference"]))
+    sess = ort.InferenceSession(str(tmp_path / "bf16.onnx"), providers=["CPUExecutionProvider"])
+    _, e = quantize.graph_reference(sess, spec, ref)
+    assert 0 < e["motion"] < 0.5
+
+
+def test_record_metrics_puts_both_reports_in_the_manifest(tiny_f16, tiny, tmp_path):
+    work = tmp_path / "b"
+    shutil.copytree(tiny_f16, work)
+    a, b = tmp_path / "f32.json", tmp_path / "f16.json"
+    a.write_text(json.dumps({"generated": {"fgd": 2.0, "bc": 0.8}, "ground_truth": {"fgd": 0.5}}))
+    b.write_text(json.dumps({"generated": {"fgd": 2.1, "bc": 0.81}, "ground_truth": {"fgd": 0.5}}))
+    assert quantize.main(["--record-metrics", str(work), "--metrics-f32", str(a), "--metrics-reduced", str(b),
+                          "--metrics-command", "eval"]) == 0
+    met = json.loads((work / "manifest.json").read_text())["precision"]["metrics"]
+    assert met["generated"] == {"float32": {"fgd": 2.0, "bc": 0.8}, "float16": {"fgd": 2.1, "bc": 0.81}}
+    assert met["command"] == "eval" and met["ground_truth"] == {"fgd": 0.5}
+    # not a report, or not a reduced bundle: refused
+    (tmp_path / "bad.json").write_text("{}")
+    assert quantize.main(["--record-metrics", str(work), "--metrics-f32", str(a), "--metrics-reduced",
+                          str(tmp_path / "bad.json"), "--metrics-command", "eval"]) == 1
+    assert quantize.main(["--record-metrics", str(tiny), "--metrics-f32", str(a), "--metrics-reduced", str(b),
+                          "--metrics-command", "eval"]) == 1

@@ -250,6 +250,10 @@ pub struct Precision {
     /// The measured error against the f32 model (per graph max abs, rollout token agreement).
     #[serde(default)]
     pub error_vs_f32: Value,
+    /// The evaluation metrics of this bundle beside the f32 model's (`generated.<precision>` and
+    /// `generated.float32`, the command that made them); null until recorded.
+    #[serde(default)]
+    pub metrics: Value,
 }
 
 /// A file entry of the manifest.
@@ -695,8 +699,17 @@ mod tests {
         })
         .unwrap();
         assert_eq!(m.precision.as_ref().unwrap().weights, "int8");
-        let e = edited(|v| v["precision"] = serde_json::json!({"weights": "int3"})).unwrap_err();
-        assert!(e.contains("precision.weights") && e.contains("int3"), "{e}");
+        for w in ["float16", "bfloat16", "float32"] {
+            let m = edited(|v| v["precision"] = serde_json::json!({"weights": w})).unwrap();
+            assert_eq!(m.precision.as_ref().unwrap().weights, w);
+        }
+        for bad in ["int3", "f16", "fp16", "FLOAT16", ""] {
+            let e = edited(|v| v["precision"] = serde_json::json!({"weights": bad})).unwrap_err();
+            assert!(
+                e.contains("precision.weights") && e.contains(&format!("'{bad}'")),
+                "{e}"
+            );
+        }
     }
 
     #[test]

@@ -65,6 +65,24 @@ fn print_value(indent: usize, key: &str, v: &Value) {
     }
 }
 
+/// One line of a reduced bundle's evaluation metrics beside the f32 model's (`precision.metrics`, written
+/// by `export/quantize.py --record-metrics`): FGD, Beat Constancy, BEAT2 L1div.
+fn metrics_beside_f32(weights: &str, metrics: &Value) -> Option<String> {
+    let g = &metrics["generated"];
+    let (r, f) = (&g[weights], &g["float32"]);
+    let parts: Vec<String> = [("FGD", "fgd"), ("BC", "bc"), ("L1div", "l1div_beat2")]
+        .iter()
+        .filter_map(|(label, k)| {
+            Some(format!(
+                "{label} {:.4} (f32 {:.4})",
+                r[*k].as_f64()?,
+                f[*k].as_f64()?
+            ))
+        })
+        .collect();
+    (!parts.is_empty()).then(|| format!("metrics: {}", parts.join(", ")))
+}
+
 pub fn run(a: Args) -> Result<()> {
     let b: Bundle = a.model.bundle()?;
     let m = b.manifest();
@@ -87,6 +105,7 @@ pub fn run(a: Args) -> Result<()> {
             "bundle": b.dir(), "family": m.family, "config": m.model.config_name,
             "parameters": total_params, "graphs": graphs, "frontend": m.frontend,
             "provenance": m.provenance, "checks": m.checks, "precision": b.precision(),
+            "reduced_precision": m.precision,
         });
         if let Value::Object(o) = &mut v {
             o.extend(family.json);
@@ -113,6 +132,11 @@ pub fn run(a: Args) -> Result<()> {
             p.reference.as_deref().unwrap_or("producer not stated")
         ),
         _ => println!("precision     float32"),
+    }
+    if let Some(p) = m.precision.as_ref().filter(|_| b.is_reduced_precision()) {
+        if let Some(line) = metrics_beside_f32(&p.weights, &p.metrics) {
+            println!("              {line}");
+        }
     }
     if let Some(t) = m.provenance.get("training") {
         match t {

@@ -170,13 +170,14 @@ pub(super) fn rollout_rows(
         audio.extend_from_slice(clip);
     }
     notes.push(format!(
-        "rollout: reference/clip.wav x {} ({:.1} s), seed {seed}, guidance {}, temperature {}, top_k {}, {} torch tokens",
+        "rollout: reference/clip.wav x {} ({:.1} s), seed {seed}, guidance {}, temperature {}, top_k {}, {} {} tokens",
         reference.clip_repeats,
         audio.len() as f64 / 16000.0,
         s.guidance,
         s.temperature,
         s.top_k,
-        reference.tokens.len()
+        reference.tokens.len(),
+        bundle.reference_name()
     ));
     let opts = StreamOptions {
         seed,

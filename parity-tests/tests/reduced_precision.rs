@@ -1,0 +1,121 @@
+//! Reduced-precision bundles (SPEC 14): `export/quantize.py --precision f16` derives a float16-weight
+//! bundle from the tiny export (weights stored as float16 + Cast, float32 arithmetic; its reference
+//! vectors and rollout are onnxruntime's on the reduced graphs). That bundle passes every parity check
+//! against its own reference vectors on both backends, tract vs ort within 1e-4 included, both forms;
+//! the same bundle with one float16 weight perturbed fails, naming that graph.
+
+use std::path::Path;
+use std::process::Command;
+
+use livegesture::bundle::Bundle;
+use livegesture::parity::{Check, Report};
+use livegesture_parity_tests::{
+    break_bundle, python, repo_root, run_parity, tiny_bundle, Breakage,
+};
+
+const BROKEN: &str = "expert_hands";
+
+fn quantize(src: &Path, dst: &Path, precision: &str) {
+    let py = python("export/quantize.py");
+    let out = Command::new(&py)
+        .arg(repo_root().join("export").join("quantize.py"))
+        .arg("--bundle")
+        .arg(src)
+        .args(["--precision", precision, "--out"])
+        .arg(dst)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {}: {e}", py.display()));
+    assert!(
+        out.status.success(),
+        "quantize.py failed ({}):\n{}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+fn graph_comparisons(report: &Report, comparison: &str) -> std::collections::BTreeSet<String> {
+    report
+        .rows
+        .iter()
+        .filter(|r| r.check == Check::Graph && r.comparison == comparison)
+        .map(|r| r.what.clone())
+        .collect()
+}
+
+#[test]
+fn f16_bundle_passes_parity_and_a_perturbed_one_fails() {
+    let tmp = tempfile::tempdir().unwrap();
+    let f16 = tmp.path().join("tiny-f16");
+    quantize(&tiny_bundle(), &f16, "f16");
+    let bundle = Bundle::load(&f16).expect("the f16 bundle loads and its files match the manifest");
+    assert_eq!(bundle.precision(), "float16");
+    assert!(bundle.is_reduced_precision());
+    let names: std::collections::BTreeSet<String> =
+        bundle.graphs().iter().map(|g| g.name.clone()).collect();
+    assert!(
+        names.contains("experts_fused"),
+        "the tiny export carries the fused form: {names:?}"
+    );
+
+    let report = run_parity(&f16, &[]);
+    let failures: Vec<String> = report.failures().iter().map(|r| r.failure_line()).collect();
+    assert!(
+        failures.is_empty(),
+        "the f16 bundle fails parity:\n{}",
+        failures.join("\n")
+    );
+    assert!(report.passed());
+    // every graph (both forms) compared on both backends against the bundle's own reference, and
+    // tract against ort
+    for comparison in ["ort vs reference", "tract vs reference", "tract vs ort"] {
+        assert_eq!(
+            graph_comparisons(&report, comparison),
+            names,
+            "{comparison}: graphs compared"
+        );
+    }
+    for comparison in ["ort vs reference", "tract vs reference", "tract vs ort"] {
+        let tokens = report
+            .rows
+            .iter()
+            .find(|r| {
+                r.check == Check::Rollout && r.comparison == comparison && r.output == "tokens"
+            })
+            .unwrap_or_else(|| panic!("no rollout token row for {comparison}"));
+        assert!(
+            tokens.compared >= 1000,
+            "{comparison}: {} steps",
+            tokens.compared
+        );
+    }
+
+    // one float16 weight perturbed: that graph fails against the reference, on both backends
+    let broken = tmp.path().join("tiny-f16-perturbed");
+    let change = break_bundle(
+        &f16,
+        &broken,
+        BROKEN,
+        &Breakage::PerturbWeight { delta: 0.01 },
+    );
+    assert!(
+        change["initializer"]
+            .as_str()
+            .is_some_and(|s| s.ends_with("_float16")),
+        "break_bundle perturbed a float16 weight: {change}"
+    );
+    let report = run_parity(&broken, &[Check::Graph]);
+    let failed: std::collections::BTreeSet<&str> =
+        report.failures().iter().map(|r| r.what.as_str()).collect();
+    assert_eq!(failed, [BROKEN].into_iter().collect(), "graphs that failed");
+    for comparison in ["ort vs reference", "tract vs reference"] {
+        assert!(
+            report
+                .rows_for(Check::Graph, BROKEN)
+                .iter()
+                .any(|r| r.comparison == comparison && !r.pass),
+            "{comparison}: the perturbed weight was not caught"
+        );
+    }
+    assert!(!report.passed());
+}
