@@ -302,3 +302,13 @@ pub fn run_parity(dir: &Path, checks: &[Check]) -> Report {
     eprintln!("{}\n{}", report.table(false), report.summary());
     report
 }
+
+/// The rollout's `tokens` row of `report` for `comparison` (e.g. "tract vs ort"); panics naming
+/// the comparison when the report has none.
+pub fn rollout_tokens_row<'a>(report: &'a Report, comparison: &str) -> &'a parity::Row {
+    report
+        .rows
+        .iter()
+        .find(|r| r.check == Check::Rollout && r.comparison == comparison && r.output == "tokens")
+        .unwrap_or_else(|| panic!("no rollout token row for {comparison}"))
+}

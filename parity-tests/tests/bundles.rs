@@ -2,7 +2,7 @@
 //! backends, every check (SPEC section 7).
 
 use livegesture::parity::{Check, Metric, Report};
-use livegesture_parity_tests::{default_bundle, run_parity, tiny_bundle};
+use livegesture_parity_tests::{default_bundle, rollout_tokens_row, run_parity, tiny_bundle};
 
 /// Every check ran and produced rows for every graph and both backends, and all passed.
 fn assert_complete_and_passing(report: &Report, graphs: usize) {
@@ -26,13 +26,7 @@ fn assert_complete_and_passing(report: &Report, graphs: usize) {
         );
     }
     for comparison in ["ort vs torch", "tract vs torch", "tract vs ort"] {
-        let tokens = report
-            .rows
-            .iter()
-            .find(|r| {
-                r.check == Check::Rollout && r.comparison == comparison && r.output == "tokens"
-            })
-            .unwrap_or_else(|| panic!("no rollout token row for {comparison}"));
+        let tokens = rollout_tokens_row(&report, comparison);
         assert_eq!(tokens.metric, Metric::DifferingSteps);
         assert!(
             tokens.compared >= 1000,

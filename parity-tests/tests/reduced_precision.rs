@@ -10,7 +10,7 @@ use std::process::Command;
 use livegesture::bundle::Bundle;
 use livegesture::parity::{Check, Report};
 use livegesture_parity_tests::{
-    break_bundle, python, repo_root, run_parity, tiny_bundle, Breakage,
+    break_bundle, python, repo_root, rollout_tokens_row, run_parity, tiny_bundle, Breakage,
 };
 
 const BROKEN: &str = "expert_hands";
@@ -76,13 +76,7 @@ fn f16_bundle_passes_parity_and_a_perturbed_one_fails() {
         );
     }
     for comparison in ["ort vs reference", "tract vs reference", "tract vs ort"] {
-        let tokens = report
-            .rows
-            .iter()
-            .find(|r| {
-                r.check == Check::Rollout && r.comparison == comparison && r.output == "tokens"
-            })
-            .unwrap_or_else(|| panic!("no rollout token row for {comparison}"));
+        let tokens = rollout_tokens_row(&report, comparison);
         assert!(
             tokens.compared >= 1000,
             "{comparison}: {} steps",
