@@ -1,3 +1,8 @@
+"""Probe helper: two versions of one step graph (A B [RUNS]) on onnxruntime, 1 thread, random inputs, batch 2 and
+64: max abs difference of their outputs and interleaved median run times.
+
+    taskset -c 1 $LIVEGESTURE_PY bench/results/tractfuse-2026-11-25/ort_fusion_ab.py OLD/fusion.onnx NEW/fusion.onnx 200
+"""
 import sys, time, numpy as np, onnxruntime as ort
 a, b = sys.argv[1], sys.argv[2]
 so = ort.SessionOptions(); so.intra_op_num_threads = 1; so.inter_op_num_threads = 1
