@@ -60,7 +60,12 @@ fn main() -> TractResult<()> {
                 let ins: Vec<String> = node
                     .inputs
                     .iter()
-                    .map(|o| format!("{:?}", plan.model().outlet_fact(*o).map(|f| f.shape.to_tvec())))
+                    .map(|o| {
+                        format!(
+                            "{:?}",
+                            plan.model().outlet_fact(*o).map(|f| f.shape.to_tvec())
+                        )
+                    })
                     .collect();
                 format!(
                     "{} {} {:?} <- {}",
@@ -72,10 +77,7 @@ fn main() -> TractResult<()> {
             } else {
                 node.op().name().to_string()
             };
-            local.push((
-                key,
-                t.elapsed().as_secs_f64() * 1e3,
-            ));
+            local.push((key, t.elapsed().as_secs_f64() * 1e3));
             o
         })?;
         if r >= 10 {
