@@ -1,5 +1,6 @@
 //! Per-op time profile of one bundle graph on tract (random data inputs, caches fed back).
 //!   cargo run --release --example tract_profile -- models/default fusion 64
+//!   cargo run --release --example tract_profile -- models/default fusion 64 nodes   # per node, with shapes
 use std::collections::HashMap;
 use std::time::Instant;
 
@@ -46,6 +47,7 @@ fn main() -> TractResult<()> {
             }
         })
         .collect();
+    let by_node = a.get(4).map(|s| s == "nodes").unwrap_or(false);
     let mut per_op: HashMap<String, (f64, usize)> = HashMap::new();
     let runs = 60;
     let t_all = Instant::now();
@@ -54,10 +56,28 @@ fn main() -> TractResult<()> {
         let outs = state.run_plan_with_eval(inputs.clone(), |ctx, st, node, inp| {
             let t = Instant::now();
             let o = eval(ctx, st, node, inp);
-            local.push((
-                node.op().name().to_string(),
-                t.elapsed().as_secs_f64() * 1e3,
-            ));
+            let key = if by_node {
+                let ins: Vec<String> = node
+                    .inputs
+                    .iter()
+                    .map(|o| {
+                        format!(
+                            "{:?}",
+                            plan.model().outlet_fact(*o).map(|f| f.shape.to_tvec())
+                        )
+                    })
+                    .collect();
+                format!(
+                    "{} {} {:?} <- {}",
+                    node.op().name(),
+                    node.name,
+                    node.outputs[0].fact.shape.to_tvec(),
+                    ins.join(", ")
+                )
+            } else {
+                node.op().name().to_string()
+            };
+            local.push((key, t.elapsed().as_secs_f64() * 1e3));
             o
         })?;
         if r >= 10 {
@@ -75,7 +95,7 @@ fn main() -> TractResult<()> {
     let mut v: Vec<_> = per_op.into_iter().collect();
     v.sort_by(|x, y| y.1 .0.partial_cmp(&x.1 .0).unwrap());
     println!("{} batch {batch}: ~{total:.3} ms per run (profiled)", a[2]);
-    for (k, (ms, n)) in v.iter().take(18) {
+    for (k, (ms, n)) in v.iter().take(if by_node { 40 } else { 18 }) {
         println!(
             "  {k:<28} {:8.3} ms/run  ({} nodes)",
             ms / runs as f64,

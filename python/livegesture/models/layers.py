@@ -215,9 +215,9 @@ class WindowedAttention(nn.Module):
 
     def step(self, x: torch.Tensor, kv_in: torch.Tensor, bias: torch.Tensor, cache: dict, new_cache: dict,
              name: str, lead: tuple[int, ...] = ()) -> torch.Tensor:
-        """x (rows, d_model), or (rows, n_q, d_model) for several queries at the current time sharing the keys;
-        kv_in (rows, d_kv) the current key source; bias from :func:`window_bias`, (rows, 1, window) for one
-        query per row, (rows, 1, 1, window) for n_q queries.
+        """x (rows, d_model), or (rows, n_q, d_model) for several queries at the current time sharing the keys
+        (:meth:`_step_queries`); kv_in (rows, d_kv) the current key source; bias from :func:`window_bias`,
+        (rows, 1, window) for one query per row, (rows, 1, 1, window) for n_q queries.
         rows = B * prod(lead): the caches (:meth:`cache_spec`) have the ``lead`` axes after the batch.
 
         Keys and values are separate head-major caches, so the new key and value are appended with one
@@ -231,12 +231,11 @@ class WindowedAttention(nn.Module):
         tiny product per stream and head), no RoPE on the cached keys, and only constant-size reshapes
         (-1 on the batch axis)."""
         W, h, hd, d = self.w, self.h, self.hd, self.d
-        # one query per row (x 2-D) has no query axis at all, so the caches are used as they are and the output
-        # projection is a 2-D Gemm (fewer nodes: a single stream's step is bound by per-node dispatch);
-        # n_q queries get a query axis, and the keys a broadcast axis in its place
-        qa = () if x.dim() == 2 else (int(x.shape[1]),)
-        ka = () if x.dim() == 2 else (1,)
         lead = tuple(lead)
+        if x.dim() == 3:
+            return self._step_queries(x, kv_in, bias, cache, new_cache, name, lead)
+        # one query per row has no query axis at all, so the caches are used as they are and the output
+        # projection is a 2-D Gemm (fewer nodes: a single stream's step is bound by per-node dispatch)
         kv_new = self.kv(kv_in)                                   # (rows, 2d): [k | v]
         k_new = kv_new[:, :d].reshape((-1,) + lead + (h, 1, hd))
         v_new = kv_new[:, d:].reshape((-1,) + lead + (h, 1, hd))
@@ -244,13 +243,40 @@ class WindowedAttention(nn.Module):
         v_all = torch.cat([cache[f"{name}.v"], v_new], dim=-2)
         new_cache[f"{name}.k"] = k_all[..., 1:, :]
         new_cache[f"{name}.v"] = v_all[..., 1:, :]
-        k = k_all.reshape((-1,) + ka + (h, W, hd))                # (rows, [1,] h, W, hd)
-        v = v_all.reshape((-1,) + ka + (h, W, hd))
-        q = self.q(x).reshape((-1,) + qa + (h, hd))               # (rows, [n_q,] h, hd)
-        qr = (q @ self.qrot).reshape((-1,) + qa + (h, W, hd))     # (rows, [n_q,] h, W, hd): R_{W-1-j} q / sqrt(hd)
-        scores = (qr * k).sum(-1) + bias                          # (rows, [n_q,] h, W)
+        k = k_all.reshape((-1, h, W, hd))                         # (rows, h, W, hd)
+        v = v_all.reshape((-1, h, W, hd))
+        q = self.q(x).reshape((-1, h, hd))                        # (rows, h, hd)
+        qr = (q @ self.qrot).reshape((-1, h, W, hd))              # (rows, h, W, hd): R_{W-1-j} q / sqrt(hd)
+        scores = (qr * k).sum(-1) + bias                          # (rows, h, W)
         p = torch.softmax(scores, dim=-1)
-        y = (p[..., None] * v).sum(-2).reshape((-1,) + qa + (d,))  # (rows, [n_q,] d)
+        y = (p[..., None] * v).sum(-2).reshape((-1, d))           # (rows, d)
+        return self.o(y)
+
+    def _step_queries(self, x, kv_in, bias, cache, new_cache, name, lead):
+        """:meth:`step` with n_q queries per row sharing the keys (the fusion's audio cross-attention), laid
+        out query-major: the rotated queries are (n_q, rows, h, W, hd) and the keys (1, rows, h, W, hd), so
+        the score product broadcasts the keys over the LEADING axis only (tract runs that as one unicast
+        kernel; a broadcast over an inner axis takes its generic, index-per-element path, about 17x slower).
+        The weighted values are one batched MatMul (rows, h, n_q, W) @ (rows, h, W, hd) (a broadcast Mul of
+        p over the values' hd axis and v over the query axis has no fast path in tract either). Same math as
+        the rows-major form of the one-query path (float rounding of the value sum aside); measured in
+        BENCHMARKS.md, "tract and the fusion graph"."""
+        W, h, hd, d = self.w, self.h, self.hd, self.d
+        nq = int(x.shape[1])
+        kv_new = self.kv(kv_in)                                   # (rows, 2d): [k | v]
+        k_new = kv_new[:, :d].reshape((-1,) + lead + (h, 1, hd))
+        v_new = kv_new[:, d:].reshape((-1,) + lead + (h, 1, hd))
+        k_all = torch.cat([cache[f"{name}.k"], k_new], dim=-2)    # (B, *lead, h, W, hd), oldest first
+        v_all = torch.cat([cache[f"{name}.v"], v_new], dim=-2)
+        new_cache[f"{name}.k"] = k_all[..., 1:, :]
+        new_cache[f"{name}.v"] = v_all[..., 1:, :]
+        k = k_all.reshape((1, -1, h, W, hd))                      # (1, rows, h, W, hd)
+        v = v_all.reshape((-1, h, W, hd))                         # (rows, h, W, hd)
+        q = self.q(x.transpose(0, 1)).reshape((nq, -1, h, hd))    # (n_q, rows, h, hd)
+        qr = (q @ self.qrot).reshape((nq, -1, h, W, hd))          # R_{W-1-j} q / sqrt(hd)
+        scores = (qr * k).sum(-1) + bias.reshape((1, -1, 1, W))   # (n_q, rows, h, W)
+        p = torch.softmax(scores, dim=-1).permute(1, 2, 0, 3)     # (rows, h, n_q, W)
+        y = (p @ v).transpose(1, 2).reshape((-1, nq, d))          # (rows, n_q, d)
         return self.o(y)
 
 
