@@ -236,13 +236,7 @@ class WindowedAttention(nn.Module):
             return self._step_queries(x, kv_in, bias, cache, new_cache, name, lead)
         # one query per row has no query axis at all, so the caches are used as they are and the output
         # projection is a 2-D Gemm (fewer nodes: a single stream's step is bound by per-node dispatch)
-        kv_new = self.kv(kv_in)                                   # (rows, 2d): [k | v]
-        k_new = kv_new[:, :d].reshape((-1,) + lead + (h, 1, hd))
-        v_new = kv_new[:, d:].reshape((-1,) + lead + (h, 1, hd))
-        k_all = torch.cat([cache[f"{name}.k"], k_new], dim=-2)    # (B, *lead, h, W, hd), oldest first
-        v_all = torch.cat([cache[f"{name}.v"], v_new], dim=-2)
-        new_cache[f"{name}.k"] = k_all[..., 1:, :]
-        new_cache[f"{name}.v"] = v_all[..., 1:, :]
+        k_all, v_all = self._append_kv(kv_in, cache, new_cache, name, lead)
         k = k_all.reshape((-1, h, W, hd))                         # (rows, h, W, hd)
         v = v_all.reshape((-1, h, W, hd))
         q = self.q(x).reshape((-1, h, hd))                        # (rows, h, hd)
@@ -251,6 +245,20 @@ class WindowedAttention(nn.Module):
         p = torch.softmax(scores, dim=-1)
         y = (p[..., None] * v).sum(-2).reshape((-1, d))           # (rows, d)
         return self.o(y)
+
+    def _append_kv(self, kv_in, cache, new_cache, name, lead):
+        """The new token's key and value appended to the caches ``{name}.k`` / ``{name}.v`` (B, *lead, h, W-1, hd):
+        returns the W keys and values (B, *lead, h, W, hd), oldest first, and writes the last W - 1 of them to
+        ``new_cache``."""
+        h, hd, d = self.h, self.hd, self.d
+        kv_new = self.kv(kv_in)                                   # (rows, 2d): [k | v]
+        k_new = kv_new[:, :d].reshape((-1,) + lead + (h, 1, hd))
+        v_new = kv_new[:, d:].reshape((-1,) + lead + (h, 1, hd))
+        k_all = torch.cat([cache[f"{name}.k"], k_new], dim=-2)    # (B, *lead, h, W, hd), oldest first
+        v_all = torch.cat([cache[f"{name}.v"], v_new], dim=-2)
+        new_cache[f"{name}.k"] = k_all[..., 1:, :]
+        new_cache[f"{name}.v"] = v_all[..., 1:, :]
+        return k_all, v_all
 
     def _step_queries(self, x, kv_in, bias, cache, new_cache, name, lead):
         """:meth:`step` with n_q queries per row sharing the keys (the fusion's audio cross-attention), laid
@@ -263,13 +271,7 @@ class WindowedAttention(nn.Module):
         BENCHMARKS.md, "tract and the fusion graph"."""
         W, h, hd, d = self.w, self.h, self.hd, self.d
         nq = int(x.shape[1])
-        kv_new = self.kv(kv_in)                                   # (rows, 2d): [k | v]
-        k_new = kv_new[:, :d].reshape((-1,) + lead + (h, 1, hd))
-        v_new = kv_new[:, d:].reshape((-1,) + lead + (h, 1, hd))
-        k_all = torch.cat([cache[f"{name}.k"], k_new], dim=-2)    # (B, *lead, h, W, hd), oldest first
-        v_all = torch.cat([cache[f"{name}.v"], v_new], dim=-2)
-        new_cache[f"{name}.k"] = k_all[..., 1:, :]
-        new_cache[f"{name}.v"] = v_all[..., 1:, :]
+        k_all, v_all = self._append_kv(kv_in, cache, new_cache, name, lead)
         k = k_all.reshape((1, -1, h, W, hd))                      # (1, rows, h, W, hd)
         v = v_all.reshape((-1, h, W, hd))                         # (rows, h, W, hd)
         q = self.q(x.transpose(0, 1)).reshape((nq, -1, h, hd))    # (n_q, rows, h, hd)
