@@ -7,7 +7,7 @@ use super::caches::{CacheStore, Slot};
 use super::stream::StreamState;
 use super::{Pipeline, StepLogits, TokenStep};
 use crate::backend::{Backend, GraphRunner, Tensor};
-use crate::bundle::{Bundle, GraphSpec};
+use crate::bundle::{Bundle, GraphSpec, TensorSpec};
 use crate::sampling::sample_token;
 
 /// Role of a data input of a graph.
@@ -110,31 +110,57 @@ impl Stage {
     }
 }
 
+/// The first output of `stage`'s graph (its data output).
+fn first_output(stage: &Stage) -> Result<&TensorSpec> {
+    let spec = &stage.spec;
+    spec.outputs
+        .first()
+        .with_context(|| format!("graph '{}' has no output", spec.name))
+}
+
+/// Checks that `stage`'s input `name` holds one value per region per row: `(batch, regions)`.
+fn check_region_input(stage: &Stage, name: &str, regions: usize) -> Result<()> {
+    let spec = &stage.spec;
+    let input = spec
+        .inputs
+        .iter()
+        .find(|i| i.name == name)
+        .with_context(|| format!("graph '{}' has no input '{name}'", spec.name))?;
+    ensure!(
+        input.row_len() == regions,
+        "graph '{}': input '{name}' has {} values per row, expected one per region ({regions})",
+        spec.name,
+        input.row_len()
+    );
+    Ok(())
+}
+
 /// Checks that `stage` has the fused eXperts' contract for `regions` regions: `prev_token`
 /// `(batch, regions)` and one output `hidden` `(batch, regions, d)`.
 pub(super) fn check_fused_experts(stage: &Stage, regions: usize) -> Result<()> {
-    let spec = &stage.spec;
-    let prev = spec
-        .inputs
-        .iter()
-        .find(|i| i.name == "prev_token")
-        .with_context(|| format!("graph '{}' has no input 'prev_token'", spec.name))?;
-    ensure!(
-        prev.row_len() == regions,
-        "graph '{}': input 'prev_token' has {} values per row, expected one per region ({regions})",
-        spec.name,
-        prev.row_len()
-    );
-    let h = spec
-        .outputs
-        .first()
-        .with_context(|| format!("graph '{}' has no output", spec.name))?;
+    check_region_input(stage, "prev_token", regions)?;
+    let h = first_output(stage)?;
     ensure!(
         h.row_len() % regions == 0,
         "graph '{}': output '{}' has {} values per row, not a multiple of the {regions} regions",
-        spec.name,
+        stage.spec.name,
         h.name,
         h.row_len()
+    );
+    Ok(())
+}
+
+/// Checks that decoder `stage` outputs `fpt` frames per token of the regions `dims` side by side:
+/// `(batch, fpt, sum of dims)` (one region for a per-region decoder).
+pub(super) fn check_decoder_output(stage: &Stage, dims: &[usize], fpt: usize) -> Result<()> {
+    let m = first_output(stage)?;
+    let width: usize = dims.iter().sum();
+    ensure!(
+        m.row_len() == fpt * width,
+        "graph '{}': output '{}' has {} values per stream, expected {fpt} frames x {width} dims (the regions' {dims:?} side by side)",
+        stage.spec.name,
+        m.name,
+        m.row_len()
     );
     Ok(())
 }
@@ -143,32 +169,8 @@ pub(super) fn check_fused_experts(stage: &Stage, regions: usize) -> Result<()> {
 /// and `fpt` frames per token: `token` `(batch, regions)` and one output `motion`
 /// `(batch, fpt, sum of dims)`.
 pub(super) fn check_fused_decoders(stage: &Stage, dims: &[usize], fpt: usize) -> Result<()> {
-    let spec = &stage.spec;
-    let regions = dims.len();
-    let tok = spec
-        .inputs
-        .iter()
-        .find(|i| i.name == "token")
-        .with_context(|| format!("graph '{}' has no input 'token'", spec.name))?;
-    ensure!(
-        tok.row_len() == regions,
-        "graph '{}': input 'token' has {} values per row, expected one per region ({regions})",
-        spec.name,
-        tok.row_len()
-    );
-    let m = spec
-        .outputs
-        .first()
-        .with_context(|| format!("graph '{}' has no output", spec.name))?;
-    let width: usize = dims.iter().sum();
-    ensure!(
-        m.row_len() == fpt * width,
-        "graph '{}': output '{}' has {} values per stream, expected {fpt} frames x {width} dims (the regions' {dims:?} side by side)",
-        spec.name,
-        m.name,
-        m.row_len()
-    );
-    Ok(())
+    check_region_input(stage, "token", dims.len())?;
+    check_decoder_output(stage, dims, fpt)
 }
 
 /// The guidance-branch inputs shared by the experts and fusion: the audio token of each stream

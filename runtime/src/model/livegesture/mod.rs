@@ -216,19 +216,7 @@ impl Pipeline {
             &[]
         };
         for (d, l) in per_region.iter().zip(&regions) {
-            let m = d
-                .spec
-                .outputs
-                .first()
-                .with_context(|| format!("graph '{}' has no output", d.spec.name))?;
-            ensure!(
-                m.row_len() == fpt * l.dim,
-                "graph '{}': output '{}' has {} values per stream, expected {fpt} frames x {} dims",
-                d.spec.name,
-                m.name,
-                m.row_len(),
-                l.dim
-            );
+            chain::check_decoder_output(d, &[l.dim], fpt)?;
         }
         let s = &lg.sampling;
         Ok(Pipeline {
