@@ -28,23 +28,15 @@ canonical steps.
 from __future__ import annotations
 
 import torch
-import torch.nn as nn
 import torch.nn.functional as F
 
 from .expert import RegionExpert
-from .layers import CacheSpec, check_cache, check_shape, window_bias
+from .layers import CacheSpec, PerRegionWeights, check_cache, check_shape, window_bias
 
 FUSED_EXPERTS = "experts_fused"
 
 
-
-
-def _stack_ln(lns: list[nn.LayerNorm]) -> tuple[torch.Tensor, torch.Tensor]:
-    return (torch.stack([l.weight.detach() for l in lns])[:, None, :].contiguous(),
-            torch.stack([l.bias.detach() for l in lns])[:, None, :].contiguous())
-
-
-class FusedExperts(nn.Module):
+class FusedExperts(PerRegionWeights):
     """The region eXperts ``experts`` (in region order) as one step on a region axis (module docs)."""
 
     def __init__(self, experts: list[RegionExpert]):
@@ -56,30 +48,18 @@ class FusedExperts(nn.Module):
         self.R, self.d, self.eps = R, e0.cfg.d_model, e0.norm.eps
         n_emb = e0.embed.num_embeddings
 
-        # weights are (frozen) parameters, so the ONNX export writes them as initializers like the canonical
-        # graphs' (tools that edit or quantize weights find them there); index tables are buffers
-        def buf(n, t):
-            if t.is_floating_point():
-                self.register_parameter(n, nn.Parameter(t.detach().clone().contiguous(), requires_grad=False))
-            else:
-                self.register_buffer(n, t.contiguous(), persistent=False)
-
-        def linear(key, lins):   # per region: the canonical (d_out, d_in) weight and bias (one Gemm each)
-            for r, l in enumerate(lins):
-                buf(f"{key}_w{r}", l.weight)
-                buf(f"{key}_b{r}", l.bias)
-
-        def norm(key, lns):      # per region: the canonical (d,) scale and shift (one LayerNormalization each)
-            for r, l in enumerate(lns):
-                buf(f"{key}_w{r}", l.weight)
-                buf(f"{key}_b{r}", l.bias)
+        # per region: the canonical Linear's (d_out, d_in) weight and bias (one Gemm each), or LayerNorm's (d,)
+        # scale and shift (one LayerNormalization each)
+        def per_region(key, mods):
+            self._per_region(key, [(m.weight, m.bias) for m in mods])
+        buf = self._frozen
 
         # one flat embedding table: region r's token x is row r * n_emb + x
         buf("embed", torch.cat([e.embed.weight.detach() for e in experts], 0))
         buf("embed_offset", torch.arange(R, dtype=torch.int64) * n_emb)   # (R,)
         self.embed_dim = e0.embed.embedding_dim
         for i in (0, 2):
-            linear(f"mlp{i}", [e.embed_mlp[i] for e in experts])
+            per_region(f"mlp{i}", [e.embed_mlp[i] for e in experts])
         buf("null_audio", torch.stack([e.null_audio.detach() for e in experts]))   # (R, Da)
         self.layer_names = e0.layer_names()
         self.layer_meta = []
@@ -90,13 +70,13 @@ class FusedExperts(nn.Module):
             for key, lins in (("q", [l.attn.q for l in layers]), ("kv", [l.attn.kv for l in layers]),
                               ("o", [l.attn.o for l in layers]), ("fc1", [l.ffn.fc1 for l in layers]),
                               ("fc2", [l.ffn.fc2 for l in layers])):
-                linear(p + key, lins)
-            norm(p + "ln1", [l.ln1 for l in layers])
-            norm(p + "ln2", [l.ln2 for l in layers])
+                per_region(p + key, lins)
+            per_region(p + "ln1", [l.ln1 for l in layers])
+            per_region(p + "ln2", [l.ln2 for l in layers])
             self.register_buffer(p + "qrot", a0.qrot.detach().clone(), persistent=False)   # a constant
             self.layer_meta.append({"name": name, "cross": layers[0].is_cross, "w": a0.w, "h": a0.h, "hd": a0.hd,
                                     "ln_eps": layers[0].ln1.eps})
-        norm("norm", [e.norm for e in experts])
+        per_region("norm", [e.norm for e in experts])
 
     def cache_specs(self) -> list[CacheSpec]:
         specs = [CacheSpec("step", (), "int64")]
@@ -115,14 +95,6 @@ class FusedExperts(nn.Module):
         xs = self._split(x, self.d)
         return [F.layer_norm(xs[r], (self.d,), getattr(self, f"{key}_w{r}"), getattr(self, f"{key}_b{r}"), eps)
                 for r in range(self.R)]
-
-    def _lin(self, xs, key):
-        """xs: the R region blocks (B, d_in) -> (B, R*d_out): region r's block through region r's weights,
-        one Gemm each (the canonical Gemm), concatenated. A batched MatMul with (R, d_in, d_out) weights
-        would be one node, but onnxruntime packs a batched constant weight again at every run (measured 3x
-        slower than the canonical graphs), while a 2-D Gemm weight is packed once when the graph loads."""
-        return torch.cat([F.linear(xs[r], getattr(self, f"{key}_w{r}"), getattr(self, f"{key}_b{r}"))
-                          for r in range(self.R)], 1)
 
     def _split(self, x, width):
         return torch.split(x, width, dim=1)   # (B, R*width) -> R blocks (B, width): one Split

@@ -41,16 +41,15 @@ A different arrangement of the same arithmetic, not a different model: the weigh
 from __future__ import annotations
 
 import torch
-import torch.nn as nn
 import torch.nn.functional as F
 
-from .layers import CacheSpec, CausalConv1d, check_cache, check_shape, gemm_weight
+from .layers import CacheSpec, CausalConv1d, PerRegionWeights, check_cache, check_shape, gemm_weight
 from .svq import SVQ, upsample2_channels_last
 
 FUSED_DECODERS = "decoders_fused"
 
 
-class FusedDecoders(nn.Module):
+class FusedDecoders(PerRegionWeights):
     """The region SVQ decoders ``svqs`` (in region order) as one step, regions side by side (module docs)."""
 
     def __init__(self, svqs: list[SVQ]):
@@ -64,21 +63,14 @@ class FusedDecoders(nn.Module):
         K, D = s0.quantizer.codebook.shape
         self.code_dim = D
 
-        # weights are frozen parameters (ONNX initializers, like the canonical graphs'); index tables are buffers
-        def buf(n, t):
-            if t.is_floating_point():
-                self.register_parameter(n, nn.Parameter(t.detach().clone().contiguous(), requires_grad=False))
-            else:
-                self.register_buffer(n, t.contiguous(), persistent=False)
+        buf = self._frozen
 
         # one flat codebook: region r's token x is row r * K + x
         buf("codebook", torch.cat([s.quantizer.codebook for s in svqs], 0))
         buf("codebook_offset", torch.arange(R, dtype=torch.int64) * K)   # (R,)
         self.head_widths = (s0.head[0].out_features, s0.head[2].out_features)
         for i in (0, 2):
-            for r, s in enumerate(svqs):
-                buf(f"head{i}_w{r}", s.head[i].weight)
-                buf(f"head{i}_b{r}", s.head[i].bias)
+            self._per_region(f"head{i}", [(s.head[i].weight, s.head[i].bias) for s in svqs])
         # the causal convs, in the canonical cache order; per conv and region the canonical Gemm weight
         self.convs = []   # (name, kernel, dilation, C_in, [C_out per region]); a None name: a 1x1 mix, no cache
         for name, pick in self._conv_names(s0):
@@ -86,9 +78,8 @@ class FusedDecoders(nn.Module):
             c0 = convs[0]
             k, dil = c0.kernel_size[0], c0.dilation[0]
             key = name.replace(".", "_")
-            for r, c in enumerate(convs):
-                buf(f"{key}_w{r}", gemm_weight(c))               # (C_out, k * C_in), [o, i * C_in + c] = W[o, c, i]
-                buf(f"{key}_b{r}", c.bias)
+            # (C_out, k * C_in), [o, i * C_in + c] = W[o, c, i]
+            self._per_region(key, [(gemm_weight(c), c.bias) for c in convs])
             self.convs.append((name, key, k, dil, c0.in_channels, [c.out_channels for c in convs]))
         self.conv_meta = {c[0]: c for c in self.convs}
         buf("std", torch.cat([s.std for s in svqs]))
@@ -119,11 +110,6 @@ class FusedDecoders(nn.Module):
     def init_cache(self, batch: int, device=None) -> dict:
         return {s.name: s.zeros(batch, device) for s in self.cache_specs()}
 
-    def _lin(self, blocks, key, widths):
-        """the R region blocks (rows, d_in) -> (rows, sum of widths): block r through region r's Gemm, joined."""
-        return torch.cat([F.linear(blocks[r], getattr(self, f"{key}_w{r}"), getattr(self, f"{key}_b{r}"))
-                          for r in range(self.R)], 1)
-
     def _conv(self, x, name, cache, new_cache):
         """The causal conv ``name`` of every region on x (B, T, R * C_in) -> (B, T, sum of C_out): one cache
         Concat and Slice, one im2col Gather and one Split for the four regions, one Gemm per region."""
@@ -141,7 +127,7 @@ class FusedDecoders(nn.Module):
             idx = (torch.arange(T)[:, None] + dil * torch.arange(k)[None, :]).to(x.device)  # (T, k), constant
             cols = xx[:, idx]                                          # (B, T, k, R * C_in)
             blocks = [b.reshape(-1, k * c_in) for b in torch.split(cols, c_in, dim=-1)]  # R x (B * T, k * C_in)
-        return self._lin(blocks, key, c_out).reshape(-1, T, sum(c_out))
+        return self._lin(blocks, key).reshape(-1, T, sum(c_out))
 
     def _res(self, x, name, cache, new_cache):
         """x + Mix(ReLU(Conv(ReLU(x)))) of every region (a ResNet1D block, ``ResBlock1D.step``)."""
@@ -156,8 +142,8 @@ class FusedDecoders(nn.Module):
         new_cache: dict = {}
         c = F.embedding(token + self.codebook_offset, self.codebook).reshape(-1, R * D)   # (B, R * D)
         h1, h2 = self.head_widths
-        h = F.gelu(self._lin(torch.split(c, D, dim=1), "head0", [h1] * R))               # (B, R * hidden)
-        z = self._lin(torch.split(h, h1, dim=1), "head2", [h2] * R).reshape(-1, 1, R * h2)  # (B, 1, R * latent)
+        h = F.gelu(self._lin(torch.split(c, D, dim=1), "head0"))               # (B, R * hidden)
+        z = self._lin(torch.split(h, h1, dim=1), "head2").reshape(-1, 1, R * h2)  # (B, 1, R * latent)
         x = F.relu(self._conv(z, "inp", cache, new_cache))
         for s in range(2):
             x = upsample2_channels_last(x)

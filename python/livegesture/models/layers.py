@@ -111,6 +111,35 @@ def conv_as_gemm(conv: nn.Conv1d, x: torch.Tensor, cache: dict | None = None, ne
     return F.linear(cols, gemm_weight(conv), conv.bias).reshape(-1, T, conv.weight.shape[0])
 
 
+class PerRegionWeights(nn.Module):
+    """Base of the fused region forms (``FusedExperts``, ``FusedDecoders``): each region keeps its canonical
+    weights as ``<key>_w<r>`` / ``<key>_b<r>``, stored as frozen parameters (so the ONNX export writes them as
+    initializers like the canonical graphs', where tools that edit or quantize weights find them); index
+    tables are non-persistent buffers. ``R`` is the number of regions."""
+
+    R: int
+
+    def _frozen(self, name: str, t: torch.Tensor):
+        if t.is_floating_point():
+            self.register_parameter(name, nn.Parameter(t.detach().clone().contiguous(), requires_grad=False))
+        else:
+            self.register_buffer(name, t.contiguous(), persistent=False)
+
+    def _per_region(self, key: str, pairs):
+        """Registers region r's (weight, bias) of ``pairs`` (in region order) as ``<key>_w<r>``, ``<key>_b<r>``."""
+        for r, (w, b) in enumerate(pairs):
+            self._frozen(f"{key}_w{r}", w)
+            self._frozen(f"{key}_b{r}", b)
+
+    def _lin(self, blocks, key: str) -> torch.Tensor:
+        """The R region blocks (rows, d_in) -> (rows, sum of d_out): block r through region r's weights ``key``,
+        one Gemm each (the canonical Gemm), concatenated. A batched MatMul with (R, d_in, d_out) weights would be
+        one node, but onnxruntime packs a batched constant weight again at every run (measured 3x slower than
+        the canonical graphs), while a 2-D Gemm weight is packed once when the graph loads."""
+        return torch.cat([F.linear(blocks[r], getattr(self, f"{key}_w{r}"), getattr(self, f"{key}_b{r}"))
+                          for r in range(self.R)], 1)
+
+
 def rope_tables(n_pos: int, head_dim: int, base: float = 10000.0, offset: int = 0):
     """cos/sin tables (n_pos, head_dim) for positions offset .. offset + n_pos - 1, computed in float64."""
     inv = base ** (-torch.arange(0, head_dim, 2, dtype=torch.float64) / head_dim)
