@@ -182,57 +182,46 @@ def quantize_graph(src: Path, dst: Path, precision: str, per_channel: bool, acti
     if precision not in WEIGHTS:
         raise ValueError(f"--precision {precision}: supported are {', '.join(PRECISIONS)}")
     m = onnx.load(str(src))
-    if WEIGHTS[precision] in ("float16", "bfloat16"):
-        n_nodes = len(m.graph.node)
-        bytes_f32 = sum(int(np.prod(i.dims)) * 4 for i in m.graph.initializer if i.data_type == onnx.TensorProto.FLOAT)
-        counts = cast_weights(m, WEIGHTS[precision])
-        if counts["reduced_tensors"] == 0:
-            raise RuntimeError(f"{src.name}: no float32 weight to store as {WEIGHTS[precision]}")
-        p = m.metadata_props.add()
-        p.key, p.value = "livegesture.precision", WEIGHTS[precision]
-        m.producer_name = "livegesture-quantize"
-        onnx.checker.check_model(m)
-        onnx.save(m, str(dst))
-        return {**counts, "quantized_products": 0, "nodes_f32": n_nodes, "nodes": len(m.graph.node),
-                "file_bytes_f32": src.stat().st_size, "file_bytes": dst.stat().st_size,
-                "f32_initializer_bytes": bytes_f32}
-    if activations not in ("dynamic", "f32"):
-        raise ValueError(f"--activations {activations}: expected dynamic or f32")
-    if activations == "f32":
-        inits = {i.name for i in m.graph.initializer}
-        n_weights = sum(1 for n in m.graph.node if n.op_type in ("MatMul", "Gemm") and any(x in inits for x in n.input[1:2]))
-        q = weight_only_int8(onnx.load(str(src)))
+    inits = {i.name for i in m.graph.initializer}
+    n_weights = sum(1 for n in m.graph.node if n.op_type in ("MatMul", "Gemm") and any(x in inits for x in n.input[1:2]))
+    stats = {"nodes_f32": len(m.graph.node),
+             "f32_initializer_bytes": sum(int(np.prod(i.dims)) * 4 for i in m.graph.initializer
+                                          if i.data_type == onnx.TensorProto.FLOAT)}
+
+    def save(q, tag: str) -> None:
+        """The reduced graph keeps the f32 graph's metadata (livegesture.graph, ...) and says what it is."""
+        if q is not m:
+            del q.metadata_props[:]
+            for p in m.metadata_props:
+                q.metadata_props.add().CopyFrom(p)
         p = q.metadata_props.add()
-        p.key, p.value = "livegesture.precision", precision
+        p.key, p.value = "livegesture.precision", tag
         q.producer_name = "livegesture-quantize"
         onnx.checker.check_model(q)
         onnx.save(q, str(dst))
-        bytes_f32 = sum(int(np.prod(i.dims)) * 4 for i in m.graph.initializer if i.data_type == onnx.TensorProto.FLOAT)
-        return {"quantized_products": n_weights, "nodes_f32": len(m.graph.node), "nodes": len(q.graph.node),
-                "file_bytes_f32": src.stat().st_size, "file_bytes": dst.stat().st_size,
-                "f32_initializer_bytes": bytes_f32}
-    inits = {i.name for i in m.graph.initializer}
-    n_weights = sum(1 for n in m.graph.node if n.op_type in ("MatMul", "Gemm") and any(x in inits for x in n.input[1:2]))
+        stats.update(nodes=len(q.graph.node), file_bytes_f32=src.stat().st_size, file_bytes=dst.stat().st_size)
+
+    if WEIGHTS[precision] in ("float16", "bfloat16"):
+        counts = cast_weights(m, WEIGHTS[precision])
+        if counts["reduced_tensors"] == 0:
+            raise RuntimeError(f"{src.name}: no float32 weight to store as {WEIGHTS[precision]}")
+        save(m, WEIGHTS[precision])
+        return {**counts, "quantized_products": 0, **stats}
+    if activations not in ("dynamic", "f32"):
+        raise ValueError(f"--activations {activations}: expected dynamic or f32")
+    if activations == "f32":
+        save(weight_only_int8(onnx.load(str(src))), precision)
+        return {"quantized_products": n_weights, **stats}
     with tempfile.TemporaryDirectory() as td:
         quantize_dynamic(str(src), str(Path(td) / "q.onnx"), op_types_to_quantize=["MatMul", "Gemm"],
                          weight_type=QuantType.QInt8, per_channel=per_channel,
                          extra_options={"MatMulConstBOnly": True})
         q = onnx.load(str(Path(td) / "q.onnx"))
-    # keep the f32 graph's metadata (livegesture.graph, ...) and say what this graph is
-    del q.metadata_props[:]
-    for p in m.metadata_props:
-        q.metadata_props.add().CopyFrom(p)
-    p = q.metadata_props.add()
-    p.key, p.value = "livegesture.precision", precision
-    q.producer_name = "livegesture-quantize"
-    onnx.checker.check_model(q)
-    onnx.save(q, str(dst))
-    ops = [n.op_type for n in q.graph.node]
-    if ops.count("MatMulInteger") != n_weights:
-        raise RuntimeError(f"{src.name}: {n_weights} weight products, but {ops.count('MatMulInteger')} were quantized")
-    bytes_f32 = sum(int(np.prod(i.dims)) * 4 for i in m.graph.initializer if i.data_type == onnx.TensorProto.FLOAT)
-    return {"quantized_products": n_weights, "nodes_f32": len(m.graph.node), "nodes": len(ops),
-            "file_bytes_f32": src.stat().st_size, "file_bytes": dst.stat().st_size, "f32_initializer_bytes": bytes_f32}
+    save(q, precision)
+    n_int = [n.op_type for n in q.graph.node].count("MatMulInteger")
+    if n_int != n_weights:
+        raise RuntimeError(f"{src.name}: {n_weights} weight products, but {n_int} were quantized")
+    return {"quantized_products": n_weights, **stats}
 
 
 def graph_reference(sess, spec: dict, ref: dict) -> tuple[dict, dict]:
