@@ -20,6 +20,7 @@
 //! Both backends run: ort needs ONNX Runtime (`ORT_DYLIB_PATH`, set by `source scripts/env.sh`;
 //! [`require_ort`]).
 
+use std::ffi::{OsStr, OsString};
 use std::fs::File;
 use std::hash::{Hash, Hasher};
 use std::path::{Path, PathBuf};
@@ -74,6 +75,28 @@ pub fn python(why: &str) -> PathBuf {
     }
 }
 
+/// Runs the project's Python ([`python`]) on `script` with `args` in the repository root and returns
+/// its standard output; panics with the exit status, stdout and stderr when it fails (`why` says
+/// what needed it, for the message when the Python is missing).
+pub fn run_python<S: AsRef<OsStr>>(why: &str, script: &Path, args: &[S]) -> String {
+    let py = python(why);
+    let out = Command::new(&py)
+        .arg(script)
+        .args(args)
+        .current_dir(repo_root())
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {}: {e}", py.display()));
+    assert!(
+        out.status.success(),
+        "{} failed ({}):\n{}\n{}",
+        script.display(),
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
 fn hash_sources(h: &mut impl Hasher, dir: &Path) {
     let Ok(rd) = std::fs::read_dir(dir) else {
         return;
@@ -111,29 +134,21 @@ fn export_bundle(name: &str, args: &[&str]) -> PathBuf {
     let lock = File::create(base.join(".lock")).expect("create the export lock file");
     lock.lock().expect("lock the export lock file");
     if !dir.join("manifest.json").exists() {
-        let py = python(&format!(
-            "exporting the {name} test bundle (or set the variable to one exported with \
-             `$LIVEGESTURE_PY export/export.py {} --out DIR`)",
-            args.join(" ")
-        ));
         eprintln!(
             "exporting the {name} test bundle into {} ...",
             dir.display()
         );
-        let out = Command::new(&py)
-            .arg(root.join("export").join("export.py"))
-            .args(args)
-            .arg("--out")
-            .arg(&dir)
-            .current_dir(&root)
-            .output()
-            .unwrap_or_else(|e| panic!("cannot run {}: {e}", py.display()));
-        assert!(
-            out.status.success(),
-            "exporting the {name} test bundle failed ({}):\n{}\n{}",
-            out.status,
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
+        let mut a: Vec<OsString> = args.iter().map(OsString::from).collect();
+        a.push("--out".into());
+        a.push(dir.clone().into_os_string());
+        run_python(
+            &format!(
+                "exporting the {name} test bundle (or set the variable to one exported with \
+                 `$LIVEGESTURE_PY export/export.py {} --out DIR`)",
+                args.join(" ")
+            ),
+            &root.join("export").join("export.py"),
+            &a,
         );
     }
     let _ = lock.unlock();
@@ -255,31 +270,21 @@ pub enum Breakage {
 /// Copies `src` to `dst` with `graph` broken as `how` says (manifest sha256 rewritten so the copy
 /// loads); returns the script's JSON description of the change.
 pub fn break_bundle(src: &Path, dst: &Path, graph: &str, how: &Breakage) -> serde_json::Value {
-    let py = python("tools/break_bundle.py");
     let script = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tools")
         .join("break_bundle.py");
-    let mut cmd = Command::new(&py);
-    cmd.arg(&script).arg(src).arg(dst).args(["--graph", graph]);
+    let mut args: Vec<OsString> = vec![src.into(), dst.into(), "--graph".into(), graph.into()];
     match how {
         Breakage::PerturbWeight { delta } => {
-            cmd.arg("--perturb-weight").arg(format!("--delta={delta}"));
+            args.push("--perturb-weight".into());
+            args.push(format!("--delta={delta}").into());
         }
         Breakage::FreezeCache { name } => {
-            cmd.args(["--freeze-cache", name]);
+            args.push("--freeze-cache".into());
+            args.push(name.into());
         }
     }
-    let out = cmd
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run {}: {e}", py.display()));
-    assert!(
-        out.status.success(),
-        "break_bundle.py failed ({}):\n{}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let text = String::from_utf8_lossy(&out.stdout);
+    let text = run_python("tools/break_bundle.py", &script, &args);
     serde_json::from_str(text.trim())
         .unwrap_or_else(|e| panic!("break_bundle.py printed no JSON ({e}): {text}"))
 }

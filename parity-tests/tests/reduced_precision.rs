@@ -4,34 +4,28 @@
 //! against its own reference vectors on both backends, tract vs ort within 1e-4 included, both forms;
 //! the same bundle with one float16 weight perturbed fails, naming that graph.
 
+use std::ffi::OsStr;
 use std::path::Path;
-use std::process::Command;
 
 use livegesture::bundle::Bundle;
 use livegesture::parity::{Check, Report};
 use livegesture_parity_tests::{
-    break_bundle, python, repo_root, rollout_tokens_row, run_parity, tiny_bundle, Breakage,
+    break_bundle, repo_root, rollout_tokens_row, run_parity, run_python, tiny_bundle, Breakage,
 };
 
 const BROKEN: &str = "expert_hands";
 
 fn quantize(src: &Path, dst: &Path, precision: &str) {
-    let py = python("export/quantize.py");
-    let out = Command::new(&py)
-        .arg(repo_root().join("export").join("quantize.py"))
-        .arg("--bundle")
-        .arg(src)
-        .args(["--precision", precision, "--out"])
-        .arg(dst)
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run {}: {e}", py.display()));
-    assert!(
-        out.status.success(),
-        "quantize.py failed ({}):\n{}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let args: [&OsStr; 6] = [
+        "--bundle".as_ref(),
+        src.as_os_str(),
+        "--precision".as_ref(),
+        precision.as_ref(),
+        "--out".as_ref(),
+        dst.as_os_str(),
+    ];
+    let script = repo_root().join("export").join("quantize.py");
+    run_python("export/quantize.py", &script, &args);
 }
 
 fn graph_comparisons(report: &Report, comparison: &str) -> std::collections::BTreeSet<String> {
