@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# usage: eval_real.sh NAME CKPT  -> real-speech validation split, Python reference, seeds 7-9 and 10-12
+# (the confirmation's eval_real.sh with this worktree's paths)
+set -euo pipefail
+name=$1 ckpt=$2
+cd /work/wt-scratch16
+source scripts/env.sh >/dev/null 2>&1
+export PYTHONPATH=$PWD/python OMP_NUM_THREADS=1
+D=docs/eval/realspeech-scratch-2026-11-25/real
+mkdir -p $D
+for s in 7 10; do
+  t0=$(date +%s)
+  nice -n 10 $LIVEGESTURE_PY -m livegesture.eval.generalise --checkpoint $ckpt --n-realisations 3 --seed $s \
+    --out $D/${name}_real_seeds$s-$((s+2)).json > /dev/null
+  echo "$name real seed $s: $(( $(date +%s) - t0 )) s ($(date -u +%H:%M:%S))"
+done
