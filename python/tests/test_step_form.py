@@ -138,7 +138,7 @@ def test_ring_export_writes_scatter_caches_with_w_slots(bundles):
         if not attn:
             assert g["caches"] == shift[g["name"]]["caches"], g["name"]
             continue
-        assert ops.count("ScatterElements") == len(attn), g["name"]
+        assert ops.count("ScatterND") == len(attn), g["name"]
         assert "Range" not in ops and "Where" not in ops, g["name"]
         for c, cs in zip(attn, [c for c in shift[g["name"]]["caches"] if c["name"].endswith((".k", ".v"))]):
             assert c["shape"][-2] == cs["shape"][-2] + 1, (g["name"], c["name"])

@@ -31,8 +31,8 @@ import torch
 import torch.nn.functional as F
 
 from .expert import RegionExpert
-from .layers import (CacheSpec, PerRegionWeights, StepTables, check_cache, check_shape, query_ext_params,
-                     ring_write)
+from .layers import (CacheSpec, PerRegionWeights, StepTables, check_cache, check_shape, ring_rotate,
+                     ring_write, rotate_half_params)
 
 FUSED_EXPERTS = "experts_fused"
 
@@ -73,8 +73,8 @@ class FusedExperts(PerRegionWeights):
                               ("o", [l.attn.o for l in layers]), ("fc1", [l.ffn.fc1 for l in layers]),
                               ("fc2", [l.ffn.fc2 for l in layers])):
                 per_region(p + key, lins)
-            if self.step_form.ring:   # [q | rotate_half(q)] per head (layers.query_ext_params)
-                self._per_region(p + "qe", [query_ext_params(l.attn.q, l.attn.h) for l in layers])
+            if self.step_form.ring:   # rotate_half of every head's query (layers.rotate_half_params)
+                self._per_region(p + "qh", [rotate_half_params(l.attn.q, l.attn.h) for l in layers])
             per_region(p + "ln1", [l.ln1 for l in layers])
             per_region(p + "ln2", [l.ln2 for l in layers])
             self.register_buffer(p + "qrot", a0.qrot.detach().clone(), persistent=False)   # a constant
@@ -132,9 +132,10 @@ class FusedExperts(PerRegionWeights):
             k_new = kv[..., :d].reshape(-1, R * h, 1, hd)                            # region-major heads
             v_new = kv[..., d:].reshape(-1, R * h, 1, hd)
             if ring:   # layers.WindowedAttention.step, ring layout
-                k_all, v_all = ring_write(cache, new_cache, name, k_new, v_new, tables, W, (R * h, 1, hd))
-                qe = self._lin(hx, p + "qe").reshape(-1, R * h, 2, 1, hd)
-                qr = (qe * tables.rotation(W, hd, m["rope"]).reshape(-1, 1, 2, W, hd)).sum(-3)
+                k_all, v_all = ring_write(cache, new_cache, name, k_new, v_new, tables, W, (R * h,), hd)
+                rot = [t.reshape(-1, 1, W, hd) for t in tables.rotation(W, hd, m["rope"])]
+                qr = ring_rotate(self._lin(hx, p + "q").reshape(-1, R * h, 1, hd),
+                                 self._lin(hx, p + "qh").reshape(-1, R * h, 1, hd), rot)
             else:
                 k_all = torch.cat([cache[f"{name}.k"], k_new], dim=-2)                # (B, R*h, W, hd)
                 v_all = torch.cat([cache[f"{name}.v"], v_new], dim=-2)

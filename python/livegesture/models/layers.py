@@ -202,7 +202,7 @@ class StepForm:
 
     ``cache_layout``: ``shift`` (canonical) keeps the previous W - 1 keys and values oldest first; a step
     appends the new ones with a Concat and its new cache is the Slice of the last W - 1. ``ring`` keeps W slots;
-    step t writes its key and value at slot ``t mod W`` (one ScatterElements each, its output is the new cache),
+    step t writes its key and value at slot ``t mod W`` (one ScatterND each, its output is the new cache),
     and the query rotations and the mask are rows of constant tables gathered by ``t mod W`` and
     ``min(t, W - 1)`` (:class:`StepTables`).
 
@@ -286,19 +286,34 @@ class StepTables:
             return mask_table(window, self.form.ring).to(self.step.device)[self.filled(window)]
         return self._get(("bias", window), make)
 
-    def rotation(self, window: int, head_dim: int, rope: bool) -> torch.Tensor:
-        """(B, 2, window, head_dim): row ``step mod window`` of :func:`ring_rotation_table`."""
-        return self._get(("rot", window, head_dim, rope), lambda: ring_rotation_table(
-            window, head_dim, rope).to(self.step.device)[self.slot(window)])
-
-    def slot_index(self, window: int, shape: tuple[int, ...]) -> torch.Tensor:
-        """(B, *shape) int64 filled with step mod window: the ScatterElements index that writes one token into
-        the slot axis of a ring cache (``shape`` = the cache's shape without batch, slot axis of size 1)."""
+    def rotation(self, window: int, head_dim: int, rope: bool) -> tuple[torch.Tensor, torch.Tensor]:
+        """(cos, sin), each (B, window, head_dim): row ``step mod window`` of :func:`ring_rotation_table`."""
         def make():
-            table = torch.arange(window, dtype=torch.int64).reshape((window,) + (1,) * len(shape)).expand(
-                (window,) + tuple(shape)).contiguous()
-            return table.to(self.step.device)[self.slot(window)]
-        return self._get(("index", window, tuple(shape)), make)
+            table = ring_rotation_table(window, head_dim, rope).to(self.step.device)
+            s = self.slot(window)
+            return table[:, 0][s], table[:, 1][s]
+        return self._get(("rot", window, head_dim, rope), make)
+
+    def row(self) -> torch.Tensor:
+        """0, 1, ..., B - 1 (B,) int64, without shape arithmetic (a CumSum of ones)."""
+        return self._get("row", lambda: torch.cumsum(self.step * 0 + 1, 0) - 1)
+
+    def write_index(self, window: int, mid: tuple[int, ...]) -> torch.Tensor:
+        """(B, *mid, len(mid) + 2) int64: the ScatterND index that writes one token (B, *mid, hd) into slot
+        ``step mod window`` of a ring cache (B, *mid, window, hd): entry [b, *m] = (b, *m, step[b] mod window)."""
+        def make():
+            k = len(mid) + 2
+            grid = torch.stack(torch.meshgrid(*[torch.arange(n) for n in mid], indexing="ij"), -1) if mid else \
+                torch.zeros((0,), dtype=torch.int64)
+            mid_coords = torch.cat([torch.zeros(tuple(mid) + (1,), dtype=torch.int64), grid.reshape(tuple(mid) + (-1,)),
+                                    torch.zeros(tuple(mid) + (1,), dtype=torch.int64)], -1).to(self.step.device)
+            first = torch.tensor([1] + [0] * (k - 1), dtype=torch.int64, device=self.step.device)
+            last = torch.tensor([0] * (k - 1) + [1], dtype=torch.int64, device=self.step.device)
+            ones = (1,) * len(mid)
+            b = self.row().reshape((-1,) + ones + (1,))
+            s = self.slot(window).reshape((-1,) + ones + (1,))
+            return b * first + s * last + mid_coords
+        return self._get(("index", window, tuple(mid)), make)
 
 
 def rotate_half_rows(w: torch.Tensor, heads: int) -> torch.Tensor:
@@ -312,16 +327,16 @@ def rotate_half_rows(w: torch.Tensor, heads: int) -> torch.Tensor:
     return (wr[:, perm] * sign.reshape((1, hd) + (1,) * (w.dim() - 1))).reshape(w.shape)
 
 
-def query_ext_params(q: nn.Linear, heads: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """The ring layout's query projection: (2 * d, d_in) weight and (2 * d,) bias whose output is, per head,
-    [q_h | rotate_half(q_h)] (layout (heads, 2, hd)), both halves exact copies of the query projection's rows."""
-    hd = q.weight.shape[0] // heads
+def rotate_half_params(q: nn.Linear, heads: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Weight and bias of the projection whose output is rotate_half of every head of ``q``'s output (its rows,
+    permuted and negated: exact), so the ring layout gets rotate_half(q) from a Gemm beside q's."""
+    return rotate_half_rows(q.weight, heads), rotate_half_rows(q.bias, heads)
 
-    def ext(t):
-        a = t.reshape((heads, 1, hd) + tuple(t.shape[1:]))
-        b = rotate_half_rows(t, heads).reshape(a.shape)
-        return torch.cat([a, b], 1).reshape((2 * t.shape[0],) + tuple(t.shape[1:]))
-    return ext(q.weight), ext(q.bias)
+
+def ring_rotate(q: torch.Tensor, q_half: torch.Tensor, rot: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
+    """R_m q / sqrt(hd) for every ring slot: q * cos + rotate_half(q) * sin (:func:`ring_rotation_table`), q and
+    q_half (..., 1, hd) against the gathered (cos, sin) rows (..., W, hd)."""
+    return q * rot[0] + q_half * rot[1]
 
 
 class WindowedAttention(nn.Module):
@@ -400,7 +415,7 @@ class WindowedAttention(nn.Module):
         Ring layout (``tables`` required): the caches have W slots and already hold the current key after
         the write, and the key in slot j is m = (s - j) mod W tokens old (s = step mod W), so the rotated query
         of slot j is q * C[s, j] + rotate_half(q) * S[s, j] with (C, S) the rows gathered from the constant
-        :func:`ring_rotation_table`; rotate_half(q) comes from the same Gemm as q (:func:`query_ext_params`)."""
+        :func:`ring_rotation_table`; rotate_half(q) from a second Gemm of permuted rows (:func:`rotate_half_params`)."""
         W, h, hd, d = self.w, self.h, self.hd, self.d
         lead = tuple(lead)
         if self.step_form.ring and tables is None:
@@ -413,9 +428,10 @@ class WindowedAttention(nn.Module):
         k = k_all.reshape((-1, h, W, hd))                         # (rows, h, W, hd)
         v = v_all.reshape((-1, h, W, hd))
         if self.step_form.ring:
-            qe = F.linear(x, *query_ext_params(self.q, h)).reshape((-1,) + lead + (h, 2, 1, hd))
-            rot = tables.rotation(W, hd, self.rope).reshape((-1,) + (1,) * (len(lead) + 1) + (2, W, hd))
-            qr = (qe * rot).sum(-3).reshape((-1, h, W, hd))       # (rows, h, W, hd)
+            shape = (-1,) + lead + (h, 1, hd)
+            rot = [t.reshape((-1,) + (1,) * (len(lead) + 1) + (W, hd)) for t in tables.rotation(W, hd, self.rope)]
+            qr = ring_rotate(self.q(x).reshape(shape), F.linear(x, *rotate_half_params(self.q, h)).reshape(shape),
+                             rot).reshape((-1, h, W, hd))         # (rows, h, W, hd), ring slot order
         else:
             q = self.q(x).reshape((-1, h, hd))                    # (rows, h, hd)
             qr = (q @ self.qrot).reshape((-1, h, W, hd))          # (rows, h, W, hd): R_{W-1-j} q / sqrt(hd)
@@ -428,13 +444,13 @@ class WindowedAttention(nn.Module):
         """The new token's key and value appended to the caches ``{name}.k`` / ``{name}.v`` (B, *lead, h, W-1, hd):
         returns the W keys and values (B, *lead, h, W, hd), oldest first, and writes the last W - 1 of them to
         ``new_cache``. Ring layout: written into slot step mod W of the (B, *lead, h, W, hd) caches (one
-        ScatterElements each), which are both the returned keys and values (ring order) and the new caches."""
+        ScatterND each), which are both the returned keys and values (ring order) and the new caches."""
         h, hd, d = self.h, self.hd, self.d
         kv_new = self.kv(kv_in)                                   # (rows, 2d): [k | v]
         k_new = kv_new[:, :d].reshape((-1,) + lead + (h, 1, hd))
         v_new = kv_new[:, d:].reshape((-1,) + lead + (h, 1, hd))
         if self.step_form.ring:
-            return ring_write(cache, new_cache, name, k_new, v_new, tables, self.w, lead + (h, 1, hd))
+            return ring_write(cache, new_cache, name, k_new, v_new, tables, self.w, lead + (h,), hd)
         k_all = torch.cat([cache[f"{name}.k"], k_new], dim=-2)    # (B, *lead, h, W, hd), oldest first
         v_all = torch.cat([cache[f"{name}.v"], v_new], dim=-2)
         new_cache[f"{name}.k"] = k_all[..., 1:, :]
@@ -456,9 +472,11 @@ class WindowedAttention(nn.Module):
         k = k_all.reshape((1, -1, h, W, hd))                      # (1, rows, h, W, hd)
         v = v_all.reshape((-1, h, W, hd))                         # (rows, h, W, hd)
         if self.step_form.ring:
-            qe = F.linear(x.transpose(0, 1), *query_ext_params(self.q, h)).reshape((nq, -1, h, 2, 1, hd))
-            rot = tables.rotation(W, hd, self.rope).reshape((1, -1, 1, 2, W, hd))
-            qr = (qe * rot).sum(-3)                               # (n_q, rows, h, W, hd), ring slot order
+            xt = x.transpose(0, 1)
+            rot = [t.reshape((1, -1, 1, W, hd)) for t in tables.rotation(W, hd, self.rope)]
+            qr = ring_rotate(self.q(xt).reshape((nq, -1, h, 1, hd)),
+                             F.linear(xt, *rotate_half_params(self.q, h)).reshape((nq, -1, h, 1, hd)),
+                             rot)                                 # (n_q, rows, h, W, hd), ring slot order
         else:
             q = self.q(x.transpose(0, 1)).reshape((nq, -1, h, hd))    # (n_q, rows, h, hd)
             qr = (q @ self.qrot).reshape((nq, -1, h, W, hd))          # R_{W-1-j} q / sqrt(hd)
@@ -468,15 +486,30 @@ class WindowedAttention(nn.Module):
         return self.o(y)
 
 
-def ring_write(cache, new_cache, name, k_new, v_new, tables: StepTables, window: int, shape: tuple[int, ...]):
-    """Ring layout: the new key and value (B, *shape), shape = (..., 1, hd), written into slot step mod ``window`` of the caches
-    ``{name}.k`` / ``{name}.v`` (B, ..., window, hd) with one ScatterElements each on the slot axis; the results
-    are the new caches and the step's keys and values (ring slot order)."""
-    ck = cache[f"{name}.k"]
-    axis = ck.dim() - 2
-    idx = tables.slot_index(window, shape)
-    k_all = torch.scatter(ck, axis, idx, k_new)
-    v_all = torch.scatter(cache[f"{name}.v"], axis, idx, v_new)
+class _ScatterND(torch.autograd.Function):
+    """ONNX ScatterND (copies of ``data`` with the slices ``updates[i...]`` at ``data[indices[i...]]``); the
+    eager forward is the same indexed assignment."""
+
+    @staticmethod
+    def forward(ctx, data, indices, updates):
+        out = data.clone()
+        out[indices.unbind(-1)] = updates
+        return out
+
+    @staticmethod
+    def symbolic(g, data, indices, updates):
+        return g.op("ScatterND", data, indices, updates)
+
+
+def ring_write(cache, new_cache, name, k_new, v_new, tables: StepTables, window: int, mid: tuple[int, ...],
+               hd: int):
+    """Ring layout: the new key and value (B, *mid, 1, hd) written into slot step mod ``window`` of the caches
+    ``{name}.k`` / ``{name}.v`` (B, *mid, window, hd) with one ScatterND each (an index per (stream, *mid):
+    one contiguous hd-vector each); the results are the new caches and the step's keys and values (ring slot
+    order)."""
+    idx = tables.write_index(window, tuple(mid))
+    k_all = _ScatterND.apply(cache[f"{name}.k"], idx, k_new.reshape((-1,) + tuple(mid) + (hd,)))
+    v_all = _ScatterND.apply(cache[f"{name}.v"], idx, v_new.reshape((-1,) + tuple(mid) + (hd,)))
     new_cache[f"{name}.k"] = k_all
     new_cache[f"{name}.v"] = v_all
     return k_all, v_all
