@@ -94,8 +94,9 @@ class RegionExpert(nn.Module):
         x = self.embed_mlp(self.embed(prev_token))
         a = self._audio(audio, cond)
         tables = StepTables(step, self.step_form)   # one mask (and ring table) per window size
+        bias = {w: tables.bias(w) for w in {l.attn.w for l in self.layers}}
         for name, layer in zip(self.layer_names(), self.layers):
-            x = layer.step(x, a, tables.bias(layer.attn.w), cache, new_cache, name, tables)
+            x = layer.step(x, a, bias[layer.attn.w], cache, new_cache, name, tables)
         new_cache["step"] = step + 1
         return {"hidden": self.norm(x)}, new_cache
 

@@ -123,6 +123,7 @@ class FusedExperts(PerRegionWeights):
         a = (c * audio[:, None, :] + (1 - c) * self.null_audio).reshape(-1, R * Da)   # (B, R*Da)
         a_blocks = self._split(a, Da)
         tables = StepTables(step, self.step_form)   # masks (B, 1, W) and ring tables, one per window
+        bias = {w: tables.bias(w) for w in {m["w"] for m in self.layer_meta}}   # (B, 1, W)
         ring = self.step_form.ring
         for li, m in enumerate(self.layer_meta):
             p = f"l{li}_"
@@ -143,7 +144,7 @@ class FusedExperts(PerRegionWeights):
                 new_cache[f"{name}.v"] = v_all[..., 1:, :]
                 q = self._lin(hx, p + "q").reshape(-1, R * h, hd)
                 qr = (q @ getattr(self, p + "qrot")).reshape(-1, R * h, W, hd)
-            scores = (qr * k_all).sum(-1) + tables.bias(W)                            # (B, R*h, W)
+            scores = (qr * k_all).sum(-1) + bias[W]                                   # (B, R*h, W)
             pr = torch.softmax(scores, dim=-1)
             y = (pr[..., None] * v_all).sum(-2).reshape(-1, R * d)
             x = x + self._lin(self._split(y, d), p + "o")
