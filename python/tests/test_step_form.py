@@ -159,3 +159,21 @@ def test_forms_roll_out_the_same_tokens(bundles):
         got = np.load(bundles[name][0] / "reference" / "rollout.npz")
         assert np.array_equal(ref["tokens"], got["tokens"]), name
         assert np.abs(ref["poses"] - got["poses"]).max() <= 1e-4, name
+
+
+def test_cli_options_export_the_form_and_refuse_other_families(tmp_path, capsys):
+    import json
+    import jsonschema
+    out = tmp_path / "ring"
+    assert exporter.main(["--config", "tiny", "--out", str(out), "--cache-layout", "ring", "--step-masks", "table",
+                          "--rollout-tokens", "6", "--reference-seconds", "1"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    jsonschema.validate(manifest, json.loads((ROOT / "export" / "manifest.schema.json").read_text()))
+    assert manifest["provenance"]["export"]["step_form"] == {"cache_layout": "ring", "masks": "table"}
+    k = next(c for g in manifest["graphs"] if g["name"] == "expert_upper" for c in g["caches"]
+             if c["name"] == "layer0.xattn.k")
+    assert k["shape"][-2] == 5   # tiny audio_window: W slots
+    assert exporter.main(["--family", "diffsheg", "--config", "tiny", "--out", str(tmp_path / "d"),
+                          "--cache-layout", "ring"]) == 2
+    assert "LiveGesture step graphs" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
