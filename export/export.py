@@ -43,7 +43,6 @@ from livegesture.sampling import __doc__ as SAMPLER_DOC  # noqa: E402
 from livegesture.stream import generate_clip  # noqa: E402
 
 from graphs import StepGraph, call_step, component, data_io, fused_components, random_inputs  # noqa: E402
-from livegesture.models.layers import CACHE_LAYOUTS, MASK_FORMS, StepForm, set_step_form  # noqa: E402
 from livegesture.models.fused import FUSED_EXPERTS, check_fused_experts  # noqa: E402
 from livegesture.models.fused_decoders import FUSED_DECODERS, check_fused_decoders  # noqa: E402
 from verify import (ExportCheckError, check_onnx_structure, check_ort_vs_torch, check_step_vs_offline,  # noqa: E402
@@ -231,12 +230,6 @@ def export_provenance(extra: dict | None = None) -> dict:
             "livegesture": livegesture.__version__, **(extra or {})}
 
 
-def step_form_record(model) -> dict:
-    """The step graphs' form (``layers.StepForm``: attention cache layout, mask form), for the provenance."""
-    form = model.experts[REGION_NAMES[0]].step_form
-    return {"cache_layout": form.cache_layout, "masks": form.masks}
-
-
 def build_bundle(model, out: Path, *, provenance: dict, reference_wav: str | None, ref_seconds: float,
                  rollout_tokens: int, log=print, builder=None, **kw) -> dict:
     """Write the bundle into a temporary folder beside ``out``, then move it into place (atomic).
@@ -374,7 +367,7 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
                       "rollout_tokens": int(len(ro["tokens"])), "rollout_guidance": cfg.guidance},
         "checks": checks,
         "files": files,
-        "provenance": {**provenance, "export": export_provenance({"step_form": step_form_record(model)})},
+        "provenance": {**provenance, "export": export_provenance()},
     }
     write_manifest(tmp, manifest)
     return manifest
@@ -400,12 +393,6 @@ def main(argv=None):
     ap.add_argument("--backend-forms", default=",".join(f"{b}={f}" for b, f in DEFAULT_BACKEND_FORMS.items()),
                     help="the form each backend runs by default, e.g. ort=fused,tract=canonical (a form not "
                          "written falls back to canonical)")
-    ap.add_argument("--cache-layout", choices=CACHE_LAYOUTS, default="shift",
-                    help="attention caches of the step graphs: shift (canonical: W-1 slots oldest first, Concat + "
-                         "Slice) or ring (W slots written at step mod W; export/BUNDLE.md)")
-    ap.add_argument("--step-masks", choices=MASK_FORMS, default="compute",
-                    help="attention masks from cache.step: compute (Range/Add/Compare/Where) or table (one Gather "
-                         "from a constant table by min(step, W-1)); the ring layout always uses tables")
     ap.add_argument("--guidance", type=float, default=None,
                     help="diffsheg: the bundle's default classifier-free guidance scale (manifest "
                          "diffusion.guidance.scale; default: the checkpoint config's)")
@@ -480,12 +467,6 @@ def main(argv=None):
               f"(backends ort, tract; forms {', '.join(FORMS)})", file=sys.stderr)
         return 2
     kw = {"forms": tuple(forms), "backend_forms": backend_forms}
-    if (args.cache_layout, args.step_masks) != ("shift", "compute"):
-        if family != "livegesture":
-            print(f"export failed: --cache-layout / --step-masks shape LiveGesture step graphs; this is a {family} "
-                  "model", file=sys.stderr)
-            return 2
-        set_step_form(model, StepForm(args.cache_layout, args.step_masks))
     if family == "diffsheg":
         import diffsheg_export
         kw = {"builder": diffsheg_export.build, "rollout_windows": args.rollout_windows}

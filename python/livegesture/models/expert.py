@@ -21,12 +21,10 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from ..config import LiveGestureConfig
-from .layers import AttnLayer, CacheSpec, StepForm, StepTables, check_cache, check_shape
+from .layers import AttnLayer, CacheSpec, check_cache, check_shape, window_bias
 
 
 class RegionExpert(nn.Module):
-    step_form = StepForm()   # the step graph's form (layers.set_step_form)
-
     def __init__(self, region: str, cfg: LiveGestureConfig):
         super().__init__()
         self.region, self.cfg = region, cfg
@@ -93,10 +91,9 @@ class RegionExpert(nn.Module):
         step = cache["step"]
         x = self.embed_mlp(self.embed(prev_token))
         a = self._audio(audio, cond)
-        tables = StepTables(step, self.step_form)   # one mask (and ring table) per window size
-        bias = {w: tables.bias(w) for w in {l.attn.w for l in self.layers}}
+        bias = {w: window_bias(step, w) for w in {l.attn.w for l in self.layers}}   # one mask per window size
         for name, layer in zip(self.layer_names(), self.layers):
-            x = layer.step(x, a, bias[layer.attn.w], cache, new_cache, name, tables)
+            x = layer.step(x, a, bias[layer.attn.w], cache, new_cache, name)
         new_cache["step"] = step + 1
         return {"hidden": self.norm(x)}, new_cache
 

@@ -21,7 +21,7 @@ import torch.nn as nn
 
 from ..config import LiveGestureConfig
 from ..regions import REGION_NAMES
-from .layers import (CacheSpec, FeedForward, StepForm, StepTables, WindowedAttention, check_cache, check_shape)
+from .layers import CacheSpec, FeedForward, WindowedAttention, check_cache, check_shape, window_bias
 
 
 class SpatialAttention(nn.Module):
@@ -59,7 +59,6 @@ class FuseBlock(nn.Module):
 
 class XARFuse(nn.Module):
     name = "fusion"
-    step_form = StepForm()   # the step graph's form (layers.set_step_form)
 
     def __init__(self, cfg: LiveGestureConfig, classifiers: nn.ModuleList | None = None):
         super().__init__()
@@ -137,9 +136,8 @@ class XARFuse(nn.Module):
         a = self._audio(audio, cond)
         # one additive mask per window, shared by the blocks; the temporal attention runs on B * R rows
         # (stream-major, region-minor), so its mask is repeated per region with a broadcast, not an Expand
-        tables = StepTables(step, self.step_form)
-        bias_a = tables.bias(self.cfg.audio_window)[:, None]     # (B, 1, 1, W): R queries per stream
-        bias_t = tables.bias(self.cfg.fuse_window)
+        bias_a = window_bias(step, self.cfg.audio_window)[:, None]     # (B, 1, 1, W): R queries per stream
+        bias_t = window_bias(step, self.cfg.fuse_window)
         bias_t = (bias_t[:, None] + torch.zeros((1, R, 1, 1), device=bias_t.device)).reshape(
             -1, 1, self.cfg.fuse_window)
         for i, blk in enumerate(self.blocks):
@@ -147,8 +145,8 @@ class XARFuse(nn.Module):
             # temporal attention on B * R rows (stream-major, region-minor); its caches keep the region axis
             xt = blk.ln_t(x).reshape(-1, d)
             x = x + blk.temporal.step(xt, xt, bias_t, cache, new_cache, f"block{i}.tattn",
-                                      lead=(R,), tables=tables).reshape(-1, R, d)
-            x = x + blk.cross.step(blk.ln_a(x), a, bias_a, cache, new_cache, f"block{i}.xattn", tables=tables)
+                                      lead=(R,)).reshape(-1, R, d)
+            x = x + blk.cross.step(blk.ln_a(x), a, bias_a, cache, new_cache, f"block{i}.xattn")
             x = x + blk.ffn(blk.ln_f(x))
         new_cache["step"] = step + 1
         return {"logits": self._classify(x)}, new_cache

@@ -31,8 +31,7 @@ import torch
 import torch.nn.functional as F
 
 from .expert import RegionExpert
-from .layers import (CacheSpec, PerRegionWeights, StepTables, check_cache, check_shape, ring_rotate,
-                     ring_write, rotate_half_params)
+from .layers import CacheSpec, PerRegionWeights, check_cache, check_shape, window_bias
 
 FUSED_EXPERTS = "experts_fused"
 
@@ -45,7 +44,6 @@ class FusedExperts(PerRegionWeights):
         e0 = experts[0]
         self.cfg, self.regions = e0.cfg, [e.region for e in experts]
         self.name = FUSED_EXPERTS
-        self.step_form = e0.step_form   # the canonical eXperts' step form (layers.StepForm)
         R = len(experts)
         self.R, self.d, self.eps = R, e0.cfg.d_model, e0.norm.eps
         n_emb = e0.embed.num_embeddings
@@ -73,20 +71,17 @@ class FusedExperts(PerRegionWeights):
                               ("o", [l.attn.o for l in layers]), ("fc1", [l.ffn.fc1 for l in layers]),
                               ("fc2", [l.ffn.fc2 for l in layers])):
                 per_region(p + key, lins)
-            if self.step_form.ring:   # rotate_half of every head's query (layers.rotate_half_params)
-                self._per_region(p + "qh", [rotate_half_params(l.attn.q, l.attn.h) for l in layers])
             per_region(p + "ln1", [l.ln1 for l in layers])
             per_region(p + "ln2", [l.ln2 for l in layers])
             self.register_buffer(p + "qrot", a0.qrot.detach().clone(), persistent=False)   # a constant
-            self.layer_meta.append({"name": name, "cross": layers[0].is_cross, "w": a0.w, "h": a0.h, "hd": a0.hd, "rope": a0.rope,
+            self.layer_meta.append({"name": name, "cross": layers[0].is_cross, "w": a0.w, "h": a0.h, "hd": a0.hd,
                                     "ln_eps": layers[0].ln1.eps})
         per_region("norm", [e.norm for e in experts])
 
     def cache_specs(self) -> list[CacheSpec]:
         specs = [CacheSpec("step", (), "int64")]
         for m in self.layer_meta:
-            slots = m["w"] if self.step_form.ring else m["w"] - 1
-            shape = (self.R * m["h"], slots, m["hd"])
+            shape = (self.R * m["h"], m["w"] - 1, m["hd"])
             specs += [CacheSpec(f"{m['name']}.k", shape), CacheSpec(f"{m['name']}.v", shape)]
         return specs
 
@@ -122,9 +117,7 @@ class FusedExperts(PerRegionWeights):
         c = cond.to(audio.dtype)[:, None, None]                                       # (B, 1, 1)
         a = (c * audio[:, None, :] + (1 - c) * self.null_audio).reshape(-1, R * Da)   # (B, R*Da)
         a_blocks = self._split(a, Da)
-        tables = StepTables(step, self.step_form)   # masks (B, 1, W) and ring tables, one per window
-        bias = {w: tables.bias(w) for w in {m["w"] for m in self.layer_meta}}   # (B, 1, W)
-        ring = self.step_form.ring
+        bias = {w: window_bias(step, w) for w in {m["w"] for m in self.layer_meta}}   # (B, 1, W)
         for li, m in enumerate(self.layer_meta):
             p = f"l{li}_"
             W, h, hd, name = m["w"], m["h"], m["hd"], m["name"]
@@ -132,18 +125,12 @@ class FusedExperts(PerRegionWeights):
             kv = self._lin(a_blocks if m["cross"] else hx, p + "kv").reshape(-1, R, 2 * d)
             k_new = kv[..., :d].reshape(-1, R * h, 1, hd)                            # region-major heads
             v_new = kv[..., d:].reshape(-1, R * h, 1, hd)
-            if ring:   # layers.WindowedAttention.step, ring layout
-                k_all, v_all = ring_write(cache, new_cache, name, k_new, v_new, tables, W, (R * h,), hd)
-                rot = [t.reshape(-1, 1, W, hd) for t in tables.rotation(W, hd, m["rope"])]
-                qr = ring_rotate(self._lin(hx, p + "q").reshape(-1, R * h, 1, hd),
-                                 self._lin(hx, p + "qh").reshape(-1, R * h, 1, hd), rot)
-            else:
-                k_all = torch.cat([cache[f"{name}.k"], k_new], dim=-2)                # (B, R*h, W, hd)
-                v_all = torch.cat([cache[f"{name}.v"], v_new], dim=-2)
-                new_cache[f"{name}.k"] = k_all[..., 1:, :]
-                new_cache[f"{name}.v"] = v_all[..., 1:, :]
-                q = self._lin(hx, p + "q").reshape(-1, R * h, hd)
-                qr = (q @ getattr(self, p + "qrot")).reshape(-1, R * h, W, hd)
+            k_all = torch.cat([cache[f"{name}.k"], k_new], dim=-2)                    # (B, R*h, W, hd)
+            v_all = torch.cat([cache[f"{name}.v"], v_new], dim=-2)
+            new_cache[f"{name}.k"] = k_all[..., 1:, :]
+            new_cache[f"{name}.v"] = v_all[..., 1:, :]
+            q = self._lin(hx, p + "q").reshape(-1, R * h, hd)
+            qr = (q @ getattr(self, p + "qrot")).reshape(-1, R * h, W, hd)
             scores = (qr * k_all).sum(-1) + bias[W]                                   # (B, R*h, W)
             pr = torch.softmax(scores, dim=-1)
             y = (pr[..., None] * v_all).sum(-2).reshape(-1, R * d)

@@ -191,154 +191,6 @@ def window_bias(step: torch.Tensor, window: int) -> torch.Tensor:
     return torch.where(valid, zero, torch.full_like(zero, float("-inf")))[:, None, :]
 
 
-CACHE_LAYOUTS = ("shift", "ring")
-MASK_FORMS = ("compute", "table")
-
-
-@dataclass(frozen=True)
-class StepForm:
-    """How a step graph carries and indexes its attention state (export options; the offline forward, the
-    weights and the arithmetic are the same in every form).
-
-    ``cache_layout``: ``shift`` (canonical) keeps the previous W - 1 keys and values oldest first; a step
-    appends the new ones with a Concat and its new cache is the Slice of the last W - 1. ``ring`` keeps W slots;
-    step t writes its key and value at slot ``t mod W`` (one ScatterND each, its output is the new cache),
-    and the query rotations and the mask are rows of constant tables gathered by ``t mod W`` and
-    ``min(t, W - 1)`` (:class:`StepTables`).
-
-    ``masks``: ``compute`` builds the mask of not-yet-filled slots from ``cache.step`` (Range/Add/Compare/Where,
-    :func:`window_bias`); ``table`` gathers it from a constant (W, 1, W) table by ``min(step, W - 1)``, one Min
-    and one Gather. The ring layout always uses tables."""
-    cache_layout: str = "shift"
-    masks: str = "compute"
-
-    def __post_init__(self):
-        if self.cache_layout not in CACHE_LAYOUTS:
-            raise ValueError(f"cache layout '{self.cache_layout}': expected one of {', '.join(CACHE_LAYOUTS)}")
-        if self.masks not in MASK_FORMS:
-            raise ValueError(f"mask form '{self.masks}': expected one of {', '.join(MASK_FORMS)}")
-
-    @property
-    def ring(self) -> bool:
-        return self.cache_layout == "ring"
-
-
-def set_step_form(module: nn.Module, form: StepForm) -> nn.Module:
-    """Sets ``form`` on every submodule with a ``step_form`` (attention layers, eXperts, fusion, fused eXperts)."""
-    for m in module.modules():
-        if hasattr(m, "step_form"):
-            m.step_form = form
-    return module
-
-
-def mask_table(window: int, ring: bool) -> torch.Tensor:
-    """(window, 1, window) float32 additive masks, row c for c = min(step, window - 1) steps taken: shift
-    layout, slot j (oldest first, the current key at window - 1) is valid iff j >= window - 1 - c; ring layout,
-    slot j was written iff j <= c (slots fill in order 0, 1, ... from the cold start)."""
-    c = torch.arange(window)[:, None]
-    j = torch.arange(window)[None, :]
-    valid = (j <= c) if ring else (j >= window - 1 - c)
-    return torch.where(valid, 0.0, float("-inf")).float()[:, None, :]
-
-
-def ring_rotation_table(window: int, head_dim: int, rope: bool = True) -> torch.Tensor:
-    """(window, 2, window, head_dim) float32: row s (the current slot, step mod window), [0, j] = cos(m theta),
-    [1, j] = sin(m theta), both / sqrt(head_dim), with m = (s - j) mod window the age of the key in ring slot j,
-    so that R_m q / sqrt(head_dim) = q * [0, j] + rotate_half(q) * [1, j] (:func:`step_query_rotations` in
-    the ring's slot order; cos 1, sin 0 without RoPE). Built in float64 from the same angles."""
-    inv = 10000.0 ** (-torch.arange(0, head_dim, 2, dtype=torch.float64) / head_dim)
-    inv = torch.cat([inv, inv])
-    s = torch.arange(window)[:, None]
-    j = torch.arange(window)[None, :]
-    m = ((s - j) % window).to(torch.float64)                                  # (W, W)
-    ang = m[:, :, None] * inv[None, None, :]                                  # (W, W, hd)
-    cos, sin = (torch.cos(ang), torch.sin(ang)) if rope else (torch.ones_like(ang), torch.zeros_like(ang))
-    return (torch.stack([cos, sin], 1) / math.sqrt(head_dim)).float()
-
-
-class StepTables:
-    """Everything a step graph derives from ``cache.step`` alone, built once per graph (memoised per window
-    and shape, so the exported graph has one node per table however many layers use it)."""
-
-    def __init__(self, step: torch.Tensor, form: StepForm):
-        self.step, self.form, self._memo = step, form, {}
-
-    def _get(self, key, make):
-        if key not in self._memo:
-            self._memo[key] = make()
-        return self._memo[key]
-
-    def filled(self, window: int) -> torch.Tensor:
-        """min(step, window - 1), (B,) int64: the mask table's row."""
-        return self._get(("filled", window), lambda: torch.minimum(
-            self.step, torch.tensor(window - 1, dtype=torch.int64, device=self.step.device)))
-
-    def slot(self, window: int) -> torch.Tensor:
-        """step mod window, (B,) int64: the ring slot of this step's key and value."""
-        return self._get(("slot", window), lambda: torch.remainder(self.step, window))
-
-    def bias(self, window: int) -> torch.Tensor:
-        """Additive mask (B, 1, window) of the form's cache layout (:func:`window_bias` for ``shift`` with
-        computed masks)."""
-        def make():
-            if not self.form.ring and self.form.masks == "compute":
-                return window_bias(self.step, window)
-            return mask_table(window, self.form.ring).to(self.step.device)[self.filled(window)]
-        return self._get(("bias", window), make)
-
-    def rotation(self, window: int, head_dim: int, rope: bool) -> tuple[torch.Tensor, torch.Tensor]:
-        """(cos, sin), each (B, window, head_dim): row ``step mod window`` of :func:`ring_rotation_table`."""
-        def make():
-            table = ring_rotation_table(window, head_dim, rope).to(self.step.device)
-            s = self.slot(window)
-            return table[:, 0][s], table[:, 1][s]
-        return self._get(("rot", window, head_dim, rope), make)
-
-    def row(self) -> torch.Tensor:
-        """0, 1, ..., B - 1 (B,) int64, without shape arithmetic (a CumSum of ones)."""
-        return self._get("row", lambda: torch.cumsum(self.step * 0 + 1, 0) - 1)
-
-    def write_index(self, window: int, mid: tuple[int, ...]) -> torch.Tensor:
-        """(B, *mid, len(mid) + 2) int64: the ScatterND index that writes one token (B, *mid, hd) into slot
-        ``step mod window`` of a ring cache (B, *mid, window, hd): entry [b, *m] = (b, *m, step[b] mod window)."""
-        def make():
-            k = len(mid) + 2
-            grid = torch.stack(torch.meshgrid(*[torch.arange(n) for n in mid], indexing="ij"), -1) if mid else \
-                torch.zeros((0,), dtype=torch.int64)
-            mid_coords = torch.cat([torch.zeros(tuple(mid) + (1,), dtype=torch.int64), grid.reshape(tuple(mid) + (-1,)),
-                                    torch.zeros(tuple(mid) + (1,), dtype=torch.int64)], -1).to(self.step.device)
-            first = torch.tensor([1] + [0] * (k - 1), dtype=torch.int64, device=self.step.device)
-            last = torch.tensor([0] * (k - 1) + [1], dtype=torch.int64, device=self.step.device)
-            ones = (1,) * len(mid)
-            b = self.row().reshape((-1,) + ones + (1,))
-            s = self.slot(window).reshape((-1,) + ones + (1,))
-            return b * first + s * last + mid_coords
-        return self._get(("index", window, tuple(mid)), make)
-
-
-def rotate_half_rows(w: torch.Tensor, heads: int) -> torch.Tensor:
-    """The rows of a query projection's weight (heads * hd, ...) or bias (heads * hd,) that give rotate_half of
-    every head's query (``[-q[h:], q[:h]]`` per head), exact (a signed permutation)."""
-    hd = w.shape[0] // heads
-    half = hd // 2
-    perm = torch.cat([torch.arange(half, hd), torch.arange(half)])
-    sign = torch.cat([-torch.ones(half), torch.ones(half)]).to(w.dtype)
-    wr = w.reshape((heads, hd) + tuple(w.shape[1:]))
-    return (wr[:, perm] * sign.reshape((1, hd) + (1,) * (w.dim() - 1))).reshape(w.shape)
-
-
-def rotate_half_params(q: nn.Linear, heads: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Weight and bias of the projection whose output is rotate_half of every head of ``q``'s output (its rows,
-    permuted and negated: exact), so the ring layout gets rotate_half(q) from a Gemm beside q's."""
-    return rotate_half_rows(q.weight, heads), rotate_half_rows(q.bias, heads)
-
-
-def ring_rotate(q: torch.Tensor, q_half: torch.Tensor, rot: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
-    """R_m q / sqrt(hd) for every ring slot: q * cos + rotate_half(q) * sin (:func:`ring_rotation_table`), q and
-    q_half (..., 1, hd) against the gathered (cos, sin) rows (..., W, hd)."""
-    return q * rot[0] + q_half * rot[1]
-
-
 class WindowedAttention(nn.Module):
     """Multi-head attention where the query at time t sees keys at times (t - window, t].
 
@@ -348,8 +200,6 @@ class WindowedAttention(nn.Module):
     ``window - 1``), so attention depends only on the time difference and positions stay bounded on
     arbitrarily long streams.
     """
-
-    step_form = StepForm()   # the step graph's form (:func:`set_step_form`); the offline forward ignores it
 
     def __init__(self, d_model: int, n_heads: int, window: int, d_kv: int | None = None, rope: bool = True):
         super().__init__()
@@ -388,14 +238,12 @@ class WindowedAttention(nn.Module):
     def cache_spec(self, name: str, lead: tuple[int, ...] = ()) -> list[CacheSpec]:
         """Keys (before rotation) ``<name>.k`` and values ``<name>.v`` of the previous window - 1 positions,
         per head, oldest first: (*lead, h, W - 1, hd) each (``lead``: extra row axes per stream, e.g. the
-        fusion's regions). The ring layout (:class:`StepForm`) keeps W slots, (*lead, h, W, hd), the key of
-        step t in slot t mod W."""
-        slots = self.w if self.step_form.ring else self.w - 1
-        shape = tuple(lead) + (self.h, slots, self.hd)
+        fusion's regions)."""
+        shape = tuple(lead) + (self.h, self.w - 1, self.hd)
         return [CacheSpec(f"{name}.k", shape), CacheSpec(f"{name}.v", shape)]
 
     def step(self, x: torch.Tensor, kv_in: torch.Tensor, bias: torch.Tensor, cache: dict, new_cache: dict,
-             name: str, lead: tuple[int, ...] = (), tables: StepTables | None = None) -> torch.Tensor:
+             name: str, lead: tuple[int, ...] = ()) -> torch.Tensor:
         """x (rows, d_model), or (rows, n_q, d_model) for several queries at the current time sharing the keys
         (:meth:`_step_queries`); kv_in (rows, d_kv) the current key source; bias from :func:`window_bias`,
         (rows, 1, window) for one query per row, (rows, 1, 1, window) for n_q queries.
@@ -410,54 +258,38 @@ class WindowedAttention(nn.Module):
         MatMul by the constant ``qrot`` (hd, W * hd), and the scores and the weighted values as Mul +
         ReduceSum of tensors of the keys' shape: no per-head batched MatMul (runtimes run those as one
         tiny product per stream and head), no RoPE on the cached keys, and only constant-size reshapes
-        (-1 on the batch axis).
-
-        Ring layout (``tables`` required): the caches have W slots and already hold the current key after
-        the write, and the key in slot j is m = (s - j) mod W tokens old (s = step mod W), so the rotated query
-        of slot j is q * C[s, j] + rotate_half(q) * S[s, j] with (C, S) the rows gathered from the constant
-        :func:`ring_rotation_table`; rotate_half(q) from a second Gemm of permuted rows (:func:`rotate_half_params`)."""
+        (-1 on the batch axis)."""
         W, h, hd, d = self.w, self.h, self.hd, self.d
         lead = tuple(lead)
-        if self.step_form.ring and tables is None:
-            raise ValueError("WindowedAttention.step: the ring cache layout needs the graph's StepTables")
         if x.dim() == 3:
-            return self._step_queries(x, kv_in, bias, cache, new_cache, name, lead, tables)
+            return self._step_queries(x, kv_in, bias, cache, new_cache, name, lead)
         # one query per row has no query axis at all, so the caches are used as they are and the output
         # projection is a 2-D Gemm (fewer nodes: a single stream's step is bound by per-node dispatch)
-        k_all, v_all = self._append_kv(kv_in, cache, new_cache, name, lead, tables)
+        k_all, v_all = self._append_kv(kv_in, cache, new_cache, name, lead)
         k = k_all.reshape((-1, h, W, hd))                         # (rows, h, W, hd)
         v = v_all.reshape((-1, h, W, hd))
-        if self.step_form.ring:
-            shape = (-1,) + lead + (h, 1, hd)
-            rot = [t.reshape((-1,) + (1,) * (len(lead) + 1) + (W, hd)) for t in tables.rotation(W, hd, self.rope)]
-            qr = ring_rotate(self.q(x).reshape(shape), F.linear(x, *rotate_half_params(self.q, h)).reshape(shape),
-                             rot).reshape((-1, h, W, hd))         # (rows, h, W, hd), ring slot order
-        else:
-            q = self.q(x).reshape((-1, h, hd))                    # (rows, h, hd)
-            qr = (q @ self.qrot).reshape((-1, h, W, hd))          # (rows, h, W, hd): R_{W-1-j} q / sqrt(hd)
+        q = self.q(x).reshape((-1, h, hd))                        # (rows, h, hd)
+        qr = (q @ self.qrot).reshape((-1, h, W, hd))              # (rows, h, W, hd): R_{W-1-j} q / sqrt(hd)
         scores = (qr * k).sum(-1) + bias                          # (rows, h, W)
         p = torch.softmax(scores, dim=-1)
         y = (p[..., None] * v).sum(-2).reshape((-1, d))           # (rows, d)
         return self.o(y)
 
-    def _append_kv(self, kv_in, cache, new_cache, name, lead, tables=None):
+    def _append_kv(self, kv_in, cache, new_cache, name, lead):
         """The new token's key and value appended to the caches ``{name}.k`` / ``{name}.v`` (B, *lead, h, W-1, hd):
         returns the W keys and values (B, *lead, h, W, hd), oldest first, and writes the last W - 1 of them to
-        ``new_cache``. Ring layout: written into slot step mod W of the (B, *lead, h, W, hd) caches (one
-        ScatterND each), which are both the returned keys and values (ring order) and the new caches."""
+        ``new_cache``."""
         h, hd, d = self.h, self.hd, self.d
         kv_new = self.kv(kv_in)                                   # (rows, 2d): [k | v]
         k_new = kv_new[:, :d].reshape((-1,) + lead + (h, 1, hd))
         v_new = kv_new[:, d:].reshape((-1,) + lead + (h, 1, hd))
-        if self.step_form.ring:
-            return ring_write(cache, new_cache, name, k_new, v_new, tables, self.w, lead + (h,), hd)
         k_all = torch.cat([cache[f"{name}.k"], k_new], dim=-2)    # (B, *lead, h, W, hd), oldest first
         v_all = torch.cat([cache[f"{name}.v"], v_new], dim=-2)
         new_cache[f"{name}.k"] = k_all[..., 1:, :]
         new_cache[f"{name}.v"] = v_all[..., 1:, :]
         return k_all, v_all
 
-    def _step_queries(self, x, kv_in, bias, cache, new_cache, name, lead, tables=None):
+    def _step_queries(self, x, kv_in, bias, cache, new_cache, name, lead):
         """:meth:`step` with n_q queries per row sharing the keys (the fusion's audio cross-attention), laid
         out query-major: the rotated queries are (n_q, rows, h, W, hd) and the keys (1, rows, h, W, hd), so
         the score product broadcasts the keys over the LEADING axis only (tract runs that as one unicast
@@ -468,51 +300,15 @@ class WindowedAttention(nn.Module):
         BENCHMARKS.md, "tract and the fusion graph"."""
         W, h, hd, d = self.w, self.h, self.hd, self.d
         nq = int(x.shape[1])
-        k_all, v_all = self._append_kv(kv_in, cache, new_cache, name, lead, tables)
+        k_all, v_all = self._append_kv(kv_in, cache, new_cache, name, lead)
         k = k_all.reshape((1, -1, h, W, hd))                      # (1, rows, h, W, hd)
         v = v_all.reshape((-1, h, W, hd))                         # (rows, h, W, hd)
-        if self.step_form.ring:
-            xt = x.transpose(0, 1)
-            rot = [t.reshape((1, -1, 1, W, hd)) for t in tables.rotation(W, hd, self.rope)]
-            qr = ring_rotate(self.q(xt).reshape((nq, -1, h, 1, hd)),
-                             F.linear(xt, *rotate_half_params(self.q, h)).reshape((nq, -1, h, 1, hd)),
-                             rot)                                 # (n_q, rows, h, W, hd), ring slot order
-        else:
-            q = self.q(x.transpose(0, 1)).reshape((nq, -1, h, hd))    # (n_q, rows, h, hd)
-            qr = (q @ self.qrot).reshape((nq, -1, h, W, hd))          # R_{W-1-j} q / sqrt(hd)
+        q = self.q(x.transpose(0, 1)).reshape((nq, -1, h, hd))    # (n_q, rows, h, hd)
+        qr = (q @ self.qrot).reshape((nq, -1, h, W, hd))          # R_{W-1-j} q / sqrt(hd)
         scores = (qr * k).sum(-1) + bias.reshape((1, -1, 1, W))   # (n_q, rows, h, W)
         p = torch.softmax(scores, dim=-1).permute(1, 2, 0, 3)     # (rows, h, n_q, W)
         y = (p @ v).transpose(1, 2).reshape((-1, nq, d))          # (rows, n_q, d)
         return self.o(y)
-
-
-class _ScatterND(torch.autograd.Function):
-    """ONNX ScatterND (copies of ``data`` with the slices ``updates[i...]`` at ``data[indices[i...]]``); the
-    eager forward is the same indexed assignment."""
-
-    @staticmethod
-    def forward(ctx, data, indices, updates):
-        out = data.clone()
-        out[indices.unbind(-1)] = updates
-        return out
-
-    @staticmethod
-    def symbolic(g, data, indices, updates):
-        return g.op("ScatterND", data, indices, updates)
-
-
-def ring_write(cache, new_cache, name, k_new, v_new, tables: StepTables, window: int, mid: tuple[int, ...],
-               hd: int):
-    """Ring layout: the new key and value (B, *mid, 1, hd) written into slot step mod ``window`` of the caches
-    ``{name}.k`` / ``{name}.v`` (B, *mid, window, hd) with one ScatterND each (an index per (stream, *mid):
-    one contiguous hd-vector each); the results are the new caches and the step's keys and values (ring slot
-    order)."""
-    idx = tables.write_index(window, tuple(mid))
-    k_all = _ScatterND.apply(cache[f"{name}.k"], idx, k_new.reshape((-1,) + tuple(mid) + (hd,)))
-    v_all = _ScatterND.apply(cache[f"{name}.v"], idx, v_new.reshape((-1,) + tuple(mid) + (hd,)))
-    new_cache[f"{name}.k"] = k_all
-    new_cache[f"{name}.v"] = v_all
-    return k_all, v_all
 
 
 class FeedForward(nn.Module):
@@ -541,7 +337,7 @@ class AttnLayer(nn.Module):
         x = x + self.attn(h, kv_src if self.is_cross else h)
         return x + self.ffn(self.ln2(x))
 
-    def step(self, x, kv_src, bias, cache, new_cache, name, tables: StepTables | None = None):
+    def step(self, x, kv_src, bias, cache, new_cache, name):
         h = self.ln1(x)
-        x = x + self.attn.step(h, kv_src if self.is_cross else h, bias, cache, new_cache, name, tables=tables)
+        x = x + self.attn.step(h, kv_src if self.is_cross else h, bias, cache, new_cache, name)
         return x + self.ffn(self.ln2(x))
