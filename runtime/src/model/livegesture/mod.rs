@@ -99,6 +99,9 @@ pub enum FormChoice {
     /// The four eXperts as one graph on a region axis (`experts_fused`) and, where the bundle has
     /// it, the four SVQ decoders as one graph (`decoders_fused`).
     Fused,
+    /// The canonical eXperts and decoders and the fusion with its attention cores as the ONNX
+    /// `Attention` op (`fusion_attention`).
+    Attention,
 }
 
 impl std::fmt::Display for FormChoice {
@@ -107,6 +110,7 @@ impl std::fmt::Display for FormChoice {
             FormChoice::Auto => "auto",
             FormChoice::Canonical => "canonical",
             FormChoice::Fused => "fused",
+            FormChoice::Attention => "attention",
         })
     }
 }
@@ -118,8 +122,9 @@ impl std::str::FromStr for FormChoice {
             "auto" | "" => Ok(FormChoice::Auto),
             "canonical" => Ok(FormChoice::Canonical),
             "fused" => Ok(FormChoice::Fused),
+            "attention" => Ok(FormChoice::Attention),
             other => Err(format!(
-                "unknown form '{other}'; expected auto, canonical or fused"
+                "unknown form '{other}'; expected auto, canonical, fused or attention"
             )),
         }
     }
@@ -178,6 +183,7 @@ impl Pipeline {
             FormChoice::Auto => lg.default_form(backend.name()),
             FormChoice::Canonical => "canonical",
             FormChoice::Fused => "fused",
+            FormChoice::Attention => "attention",
         }
         .to_string();
         // a form the bundle does not carry is bad input (exit code 2), named in the manifest's terms
@@ -186,12 +192,12 @@ impl Pipeline {
             .ok_or_else(|| crate::bundle::BundleError::Manifest {
                 path: bundle.dir().join("manifest.json"),
                 detail: format!(
-                    "forms: no '{form}' form of the region eXperts and decoders was exported (the bundle has {:?})",
+                    "forms: no '{form}' form of the region eXperts, fusion and decoders was exported (the bundle has {:?})",
                     forms.keys().collect::<Vec<_>>()
                 ),
             })?;
         let audio_encoder = Stage::new(bundle, backend, "audio_encoder", &names)?;
-        let fusion = Stage::new(bundle, backend, "fusion", &names)?;
+        let fusion = Stage::new(bundle, backend, &graphs.fusion, &names)?;
         let experts = graphs
             .experts
             .iter()
