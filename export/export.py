@@ -60,11 +60,13 @@ FUSED_VS_CANONICAL = 1e-5    # torch fused form vs the canonical eXperts / decod
 ROLLOUT_FRAMES = 1e-4        # SPEC 7, rollout frames
 FORMS = ("canonical", "fused", "attention")
 # The form each backend runs (SPEC 14). ort runs the fused eXperts: bit-identical to the canonical graphs on
-# ort and faster. tract keeps the canonical ones: its kernels round differently for another head count (like
+# ort and faster. tract runs the canonical eXperts: its kernels round differently for another head count (like
 # for another batch size), so the fused form's logits differ from the canonical form's by ~1e-7 on tract, which
 # flips numerical near-ties of the sampler (the tiny test bundle's rollout has one at step 1044); see
-# BENCHMARKS.md "Fused region forms".
-DEFAULT_BACKEND_FORMS = {"ort": "fused", "tract": "canonical"}
+# BENCHMARKS.md "Fused region forms". tract runs them in the attention form, with the fusion whose attention
+# cores are the opset-23 Attention op (tract's fused kernel; slower on ort): BENCHMARKS.md "A tract form of the
+# fusion".
+DEFAULT_BACKEND_FORMS = {"ort": "fused", "tract": "attention"}
 
 
 def sha256(path: Path) -> str:
@@ -285,7 +287,18 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
                FUSED_DECODERS: (check_fused_decoders, max(s.shape[0] for s in
                                                           fused_components(model)[FUSED_DECODERS].cache_specs()) + 5,
                                 "SVQ decoders")}
-    attention_graphs = []
+    for graph, comp in (fused_components(model).items() if "fused" in forms else ()):
+        t0 = time.time()
+        check, n_steps, what = against[graph]
+        e_can, out_name, step = check(model, steps=n_steps)
+        if e_can > FUSED_VS_CANONICAL:
+            fail(graph, out_name, step, e_can, FUSED_VS_CANONICAL, f"torch fused form vs the canonical {what}")
+        e_ort = export_checked(graph, comp, {"region": None, "form": "fused"})
+        fused_graphs.append(graph)
+        checks[graph] = {"torch_fused_vs_canonical_max_abs": e_can, "ort_vs_torch_max_abs": e_ort}
+        log(f"  {graph:<16} fused-vs-canonical {e_can:.2e}  ort-vs-torch {e_ort:.2e}  ({time.time() - t0:.1f}s)")
+
+    attention_graphs = []   # after the fused forms: the earlier graphs' reference seeds stay as they were
     for graph, comp in (attention_components(model).items() if ATTENTION_FORM in forms else ()):
         # the attention form's fusion (SPEC 14): checked against the canonical torch fusion step, then like
         # every graph (its file is opset 23)
@@ -298,16 +311,6 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
         checks[graph] = {"torch_form_vs_canonical_max_abs": e_can, "ort_vs_torch_max_abs": e_ort}
         log(f"  {graph:<16} form-vs-canonical {e_can:.2e}  ort-vs-torch {e_ort:.2e}  ({time.time() - t0:.1f}s)")
 
-    for graph, comp in (fused_components(model).items() if "fused" in forms else ()):
-        t0 = time.time()
-        check, n_steps, what = against[graph]
-        e_can, out_name, step = check(model, steps=n_steps)
-        if e_can > FUSED_VS_CANONICAL:
-            fail(graph, out_name, step, e_can, FUSED_VS_CANONICAL, f"torch fused form vs the canonical {what}")
-        e_ort = export_checked(graph, comp, {"region": None, "form": "fused"})
-        fused_graphs.append(graph)
-        checks[graph] = {"torch_fused_vs_canonical_max_abs": e_can, "ort_vs_torch_max_abs": e_ort}
-        log(f"  {graph:<16} fused-vs-canonical {e_can:.2e}  ort-vs-torch {e_ort:.2e}  ({time.time() - t0:.1f}s)")
 
     # reference clip, its log-mel frames, and a whole seeded rollout of >= rollout_tokens steps
     clip, clip_desc = reference_audio(reference_wav, ref_seconds)
