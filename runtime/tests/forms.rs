@@ -381,8 +381,17 @@ fn a_bundle_without_the_attention_form_runs_the_canonical_fusion() {
     for kind in [BackendKind::Ort, BackendKind::Tract] {
         let mut p = pipeline(&b, kind, FormChoice::Auto);
         let got = run(&mut p, &opts, &audio);
-        let want = run(&mut pipeline(&full, kind, FormChoice::Canonical), &opts, &audio);
-        assert_same(&got, &want, 0.0, &format!("{kind}: without the attention form"));
+        let want = run(
+            &mut pipeline(&full, kind, FormChoice::Canonical),
+            &opts,
+            &audio,
+        );
+        assert_same(
+            &got,
+            &want,
+            0.0,
+            &format!("{kind}: without the attention form"),
+        );
         let be = backend::create(&BackendOptions {
             kind,
             ..Default::default()

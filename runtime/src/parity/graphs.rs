@@ -96,7 +96,10 @@ pub(super) fn graph_rows(
     // `torch_form_vs_canonical_max_abs` for the others)
     let checks = &bundle.manifest().checks[&spec.name];
     let recorded = [
-        ("torch_fused_vs_canonical_max_abs", "torch fused vs canonical"),
+        (
+            "torch_fused_vs_canonical_max_abs",
+            "torch fused vs canonical",
+        ),
         ("torch_form_vs_canonical_max_abs", "torch form vs canonical"),
     ]
     .into_iter()

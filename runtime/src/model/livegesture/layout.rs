@@ -30,9 +30,9 @@ fn other_form_graphs(bundle: &Bundle) -> Result<Vec<String>> {
                 .chain(std::iter::once(f.fusion))
         })
         .filter(|g| {
-            !canonical.as_ref().is_some_and(|c| {
-                c.experts.contains(g) || c.decoders.contains(g) || &c.fusion == g
-            })
+            !canonical
+                .as_ref()
+                .is_some_and(|c| c.experts.contains(g) || c.decoders.contains(g) || &c.fusion == g)
         })
         .collect())
 }
