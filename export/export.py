@@ -311,7 +311,6 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
         checks[graph] = {"torch_form_vs_canonical_max_abs": e_can, "ort_vs_torch_max_abs": e_ort}
         log(f"  {graph:<16} form-vs-canonical {e_can:.2e}  ort-vs-torch {e_ort:.2e}  ({time.time() - t0:.1f}s)")
 
-
     # reference clip, its log-mel frames, and a whole seeded rollout of >= rollout_tokens steps
     clip, clip_desc = reference_audio(reference_wav, ref_seconds)
     write_wav(tmp / "reference" / "clip.wav", clip)
