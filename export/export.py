@@ -42,7 +42,10 @@ from livegesture.regions import REGION_NAMES, region_layout  # noqa: E402
 from livegesture.sampling import __doc__ as SAMPLER_DOC  # noqa: E402
 from livegesture.stream import generate_clip  # noqa: E402
 
-from graphs import StepGraph, call_step, component, data_io, fused_components, random_inputs  # noqa: E402
+from graphs import (ATTENTION_OPSET, StepGraph, attention_components, call_step, component, data_io,  # noqa: E402
+                    fused_components, random_inputs, to_attention_opset)
+from livegesture.models.fusion_attention import ATTENTION_FORM, FUSION_ATTENTION, check_fusion_attention  # noqa: E402
+from livegesture.models.layers import ATTENTION_DOMAIN  # noqa: E402
 from livegesture.models.fused import FUSED_EXPERTS, check_fused_experts  # noqa: E402
 from livegesture.models.fused_decoders import FUSED_DECODERS, check_fused_decoders  # noqa: E402
 from verify import (ExportCheckError, check_onnx_structure, check_ort_vs_torch, check_step_vs_offline,  # noqa: E402
@@ -55,13 +58,15 @@ REFERENCE_BATCH = 2
 ROLLOUT_SEED = 1234
 FUSED_VS_CANONICAL = 1e-5    # torch fused form vs the canonical eXperts / decoders, every output and cache
 ROLLOUT_FRAMES = 1e-4        # SPEC 7, rollout frames
-FORMS = ("canonical", "fused")
+FORMS = ("canonical", "fused", "attention")
 # The form each backend runs (SPEC 14). ort runs the fused eXperts: bit-identical to the canonical graphs on
-# ort and faster. tract keeps the canonical ones: its kernels round differently for another head count (like
+# ort and faster. tract runs the canonical eXperts: its kernels round differently for another head count (like
 # for another batch size), so the fused form's logits differ from the canonical form's by ~1e-7 on tract, which
 # flips numerical near-ties of the sampler (the tiny test bundle's rollout has one at step 1044); see
-# BENCHMARKS.md "Fused region forms".
-DEFAULT_BACKEND_FORMS = {"ort": "fused", "tract": "canonical"}
+# BENCHMARKS.md "Fused region forms". tract runs them in the attention form, with the fusion whose attention
+# cores are the opset-23 Attention op (tract's fused kernel; slower on ort): BENCHMARKS.md "A tract form of the
+# fusion".
+DEFAULT_BACKEND_FORMS = {"ort": "fused", "tract": "attention"}
 
 
 def sha256(path: Path) -> str:
@@ -140,8 +145,14 @@ def export_graph(model, graph: str, path: Path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         torch.onnx.export(wrapper, args, str(path), input_names=names_in, output_names=names_out,
-                          dynamic_axes=dyn, opset_version=OPSET, do_constant_folding=True, dynamo=False)
+                          dynamic_axes=dyn, opset_version=OPSET, do_constant_folding=True, dynamo=False,
+                          custom_opsets={ATTENTION_DOMAIN: 1} if graph in attention_components(model) else None)
     m = onnx.load(str(path))
+    if any(n.domain == ATTENTION_DOMAIN for n in m.graph.node):
+        try:
+            to_attention_opset(m, graph)   # the AttentionOp nodes as the opset-23 Attention op
+        except ValueError as e:
+            raise ExportCheckError(str(e)) from None
     got_in = [i.name for i in m.graph.input]
     if got_in != names_in:
         raise ExportCheckError(f"graph '{graph}': exported inputs {got_in} differ from {names_in} "
@@ -241,7 +252,7 @@ def build_bundle(model, out: Path, *, provenance: dict, reference_wav: str | Non
 
 
 def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_tokens, log,
-           forms=("canonical", "fused"), backend_forms: dict | None = None) -> dict:
+           forms=FORMS, backend_forms: dict | None = None) -> dict:
     backend_forms = dict(backend_forms or DEFAULT_BACKEND_FORMS)
     cfg = model.cfg
     (tmp / "reference").mkdir()
@@ -287,6 +298,19 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
         checks[graph] = {"torch_fused_vs_canonical_max_abs": e_can, "ort_vs_torch_max_abs": e_ort}
         log(f"  {graph:<16} fused-vs-canonical {e_can:.2e}  ort-vs-torch {e_ort:.2e}  ({time.time() - t0:.1f}s)")
 
+    attention_graphs = []   # after the fused forms: the earlier graphs' reference seeds stay as they were
+    for graph, comp in (attention_components(model).items() if ATTENTION_FORM in forms else ()):
+        # the attention form's fusion (SPEC 14): checked against the canonical torch fusion step, then like
+        # every graph (its file is opset 23)
+        t0 = time.time()
+        e_can, out_name, step = check_fusion_attention(model, steps=max(cfg.fuse_window, cfg.audio_window) + 5)
+        if e_can > FUSED_VS_CANONICAL:
+            fail(graph, out_name, step, e_can, FUSED_VS_CANONICAL, "torch attention form vs the canonical fusion")
+        e_ort = export_checked(graph, comp, {"region": None, "form": ATTENTION_FORM})
+        attention_graphs.append(graph)
+        checks[graph] = {"torch_form_vs_canonical_max_abs": e_can, "ort_vs_torch_max_abs": e_ort}
+        log(f"  {graph:<16} form-vs-canonical {e_can:.2e}  ort-vs-torch {e_ort:.2e}  ({time.time() - t0:.1f}s)")
+
     # reference clip, its log-mel frames, and a whole seeded rollout of >= rollout_tokens steps
     clip, clip_desc = reference_audio(reference_wav, ref_seconds)
     write_wav(tmp / "reference" / "clip.wav", clip)
@@ -303,24 +327,29 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
     log(f"  rollout          {len(ro['tokens'])} tokens in {time.time() - t0:.1f}s")
     forms_manifest = {"canonical": {"experts": [f"expert_{r}" for r in REGION_NAMES],
                                     "decoders": [f"decoder_{r}" for r in REGION_NAMES]}}
-    if fused_graphs:
-        # the forms against each other on the seeded reference rollout (SPEC 14): identical tokens
+
+    def rollout_vs_canonical(form: str, form_graphs: list[str]) -> dict:
+        """The torch rollout in ``form`` against the canonical one (SPEC 14): identical tokens, frames within
+        ROLLOUT_FRAMES; returns the check's record."""
         t0 = time.time()
-        rf = generate_clip(model, rollout_audio, seed=ROLLOUT_SEED, form="fused")
+        rf = generate_clip(model, rollout_audio, seed=ROLLOUT_SEED, form=form)
         same = rf["tokens"] == ro["tokens"]
         if rf["tokens"].shape != ro["tokens"].shape or not same.all():
             bad = int(np.argwhere(~same)[0][0]) if rf["tokens"].shape == ro["tokens"].shape else 0
-            raise ExportCheckError(f"torch rollout, fused form vs canonical: graphs "
-                                   f"{', '.join(map(repr, fused_graphs))}, output 'tokens', step {bad}: tokens differ (fused {rf['tokens'][bad].tolist()}, canonical "
-                                   f"{ro['tokens'][bad].tolist()})")
+            raise ExportCheckError(f"torch rollout, {form} form vs canonical: graphs "
+                                   f"{', '.join(map(repr, form_graphs))}, output 'tokens', step {bad}: tokens differ "
+                                   f"({form} {rf['tokens'][bad].tolist()}, canonical {ro['tokens'][bad].tolist()})")
         e_frames = max(float(np.abs(rf[k].astype(np.float64) - ro[k]).max()) for k in
                        ("poses", "trans", "expressions", "foot_contact"))
         if e_frames > ROLLOUT_FRAMES:
-            fail(", ".join(fused_graphs), "rollout frames", -1, e_frames, ROLLOUT_FRAMES,
-                 "torch rollout, fused form vs canonical")
-        checks["forms"] = {"rollout_tokens_identical": int(len(ro["tokens"])), "rollout_frames_max_abs": e_frames}
-        log(f"  rollout fused    {len(rf['tokens'])} tokens identical, frames max abs {e_frames:.2e} "
+            fail(", ".join(form_graphs), "rollout frames", -1, e_frames, ROLLOUT_FRAMES,
+                 f"torch rollout, {form} form vs canonical")
+        log(f"  rollout {form:<8} {len(rf['tokens'])} tokens identical, frames max abs {e_frames:.2e} "
             f"({time.time() - t0:.1f}s)")
+        return {"rollout_tokens_identical": int(len(ro["tokens"])), "rollout_frames_max_abs": e_frames}
+
+    if fused_graphs:
+        checks["forms"] = rollout_vs_canonical("fused", fused_graphs)
         forms_manifest["fused"] = {
             "experts": [FUSED_EXPERTS],
             "decoders": [FUSED_DECODERS],
@@ -337,6 +366,21 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
                         "before r); caches: decoder_<r>'s cache names, each (batch, frames, regions * channels) "
                         "where channels r * channels .. (r + 1) * channels of the last axis are decoder_<r>'s "
                         "cache of the same name",
+        }
+    if attention_graphs:
+        # the checks record of each form's rollout: checks.forms (fused, the name predates other forms),
+        # checks.forms_<form> for the others
+        checks[f"forms_{ATTENTION_FORM}"] = rollout_vs_canonical(ATTENTION_FORM, attention_graphs)
+        forms_manifest[ATTENTION_FORM] = {
+            "experts": forms_manifest["canonical"]["experts"],
+            "decoders": forms_manifest["canonical"]["decoders"],
+            "fusion": FUSION_ATTENTION,
+            "opset": ATTENTION_OPSET,
+            "contract": "fusion_attention has the fusion graph's inputs, outputs and caches (names, shapes, "
+                        "layouts); its attention cores are the opset-23 ONNX Attention op (4-D q/k/v, additive "
+                        "float mask expanded to the query length, scale 1/sqrt(head_dim); the cached keys, stored "
+                        "before rotation, are rotated back elementwise by their distance to the query). The file "
+                        "is opset 23. The form runs the canonical eXperts and decoders",
         }
 
     files.update(file_table(tmp))
@@ -387,11 +431,12 @@ def main(argv=None):
     ap.add_argument("--rollout-tokens", type=int, default=1000, help="length of the reference rollout (>= 1000 for CI)")
     ap.add_argument("--rollout-windows", type=int, default=5,
                     help="diffsheg: FOPPAS windows of the reference rollout (>= 4; the last one is shorter)")
-    ap.add_argument("--forms", default="canonical,fused",
-                    help="graph forms to write (SPEC 14): canonical (always) and fused (the four eXperts as one "
-                         "graph on a region axis, the four SVQ decoders as one graph); default both")
+    ap.add_argument("--forms", default=",".join(FORMS),
+                    help="graph forms to write (SPEC 14): canonical (always), fused (the four eXperts as one "
+                         "graph on a region axis, the four SVQ decoders as one graph) and attention (the fusion "
+                         "with the opset-23 Attention op, fusion_attention); default all")
     ap.add_argument("--backend-forms", default=",".join(f"{b}={f}" for b, f in DEFAULT_BACKEND_FORMS.items()),
-                    help="the form each backend runs by default, e.g. ort=fused,tract=canonical (a form not "
+                    help="the form each backend runs by default, e.g. ort=fused,tract=attention (a form not "
                          "written falls back to canonical)")
     ap.add_argument("--guidance", type=float, default=None,
                     help="diffsheg: the bundle's default classifier-free guidance scale (manifest "
@@ -455,7 +500,7 @@ def main(argv=None):
     print(f"exporting {family} {model.cfg.name} -> {out}")
     forms = [f.strip() for f in args.forms.split(",") if f.strip()]
     if "canonical" not in forms or any(f not in FORMS for f in forms):
-        print(f"export failed: --forms {args.forms}: expected canonical[,fused]", file=sys.stderr)
+        print(f"export failed: --forms {args.forms}: expected canonical[,fused][,attention]", file=sys.stderr)
         return 2
     try:
         backend_forms = dict(kv.split("=", 1) for kv in args.backend_forms.split(",") if kv.strip())

@@ -4,6 +4,7 @@ Naming (the contract with the runtime, recorded in manifest.json):
   data inputs        audio_encoder: mel | expert_<r>: prev_token, audio, cond |
                      experts_fused (SPEC 14 fused form of the four eXperts): prev_token (B, R), audio, cond |
                      fusion: hidden_upper, hidden_hands, hidden_lower, hidden_face, audio, cond |
+                     fusion_attention (SPEC 14 form ``attention``): fusion's inputs |
                      decoder_<r>: token | decoders_fused (SPEC 14 fused form of the four decoders): token (B, R)
   data outputs       audio | hidden | logits | motion
   caches             input ``cache.<name>``, output ``new_cache.<name>``, in the component's cache_specs order
@@ -15,6 +16,8 @@ import torch.nn as nn
 
 from livegesture.models.fused import FUSED_EXPERTS, FusedExperts
 from livegesture.models.fused_decoders import FUSED_DECODERS, FusedDecoders
+from livegesture.models.fusion_attention import FUSION_ATTENTION, FusionAttention
+from livegesture.models.layers import ATTENTION_DOMAIN
 from livegesture.models.model import LiveGesture
 from livegesture.regions import REGION_NAMES
 
@@ -31,15 +34,59 @@ def fused_components(model: LiveGesture) -> dict[str, nn.Module]:
     return cached
 
 
+def attention_components(model: LiveGesture) -> dict[str, nn.Module]:
+    """The ``attention`` form's own graphs (SPEC 14) by graph name: ``fusion_attention``, the model's fusion
+    with its attention cores as the ONNX ``Attention`` op (cached on the model like :func:`fused_components`)."""
+    cached = getattr(model, "_attention_components", None)
+    if cached is None:
+        cached = {FUSION_ATTENTION: FusionAttention(model.fuse).eval()}
+        object.__setattr__(model, "_attention_components", cached)
+    return cached
+
+
 def component(model: LiveGesture, graph: str) -> nn.Module:
-    """The step component of a canonical graph (``model.components()``) or of a fused form."""
+    """The step component of a canonical graph (``model.components()``) or of another form's graph."""
     comps = model.components()
     if graph in comps:
         return comps[graph]
-    fused = fused_components(model)
-    if graph in fused:
-        return fused[graph]
+    for forms in (fused_components(model), attention_components(model)):
+        if graph in forms:
+            return forms[graph]
     raise ValueError(f"unknown graph {graph!r}")
+
+
+ATTENTION_OPSET = 23
+# Ops of the fusion graph whose schema changed between opset 17 and 23 only by accepting more types (Cast and
+# Constant: float8/int4/float4 types; Identity, Reshape, Squeeze, Unsqueeze, Transpose: the same), or, for Split, by the
+# optional attribute num_outputs (opset 18), which our Splits do not need: they have the ``split`` input.
+_SAME_MEANING_17_TO_23 = {"Cast", "Constant", "Identity", "Reshape", "Squeeze", "Unsqueeze", "Transpose", "Split"}
+
+
+def to_attention_opset(m, graph: str):
+    """Rewrites an exported opset-17 graph holding :class:`livegesture.models.layers.AttentionOp` nodes (domain
+    ``livegesture.attention``) into an opset-23 graph with the standard ``Attention`` op: the nodes move to the
+    default domain and the opset import becomes 23. Every other op must mean the same at opset 23 as at 17
+    (its schema unchanged, or in ``_SAME_MEANING_17_TO_23``; a Split must have its ``split`` input), else a
+    ValueError names the op. The model is changed in place."""
+    from onnx import defs
+    for n in m.graph.node:
+        if n.domain == ATTENTION_DOMAIN:
+            if n.op_type != "Attention":
+                raise ValueError(f"graph '{graph}': unexpected op {n.op_type} in domain {ATTENTION_DOMAIN}")
+            n.domain = ""
+            continue
+        if n.domain not in ("", "ai.onnx"):
+            raise ValueError(f"graph '{graph}': op {n.domain}::{n.op_type} outside the default domain")
+        if defs.get_schema(n.op_type, 17).since_version != defs.get_schema(n.op_type, ATTENTION_OPSET).since_version:
+            if n.op_type not in _SAME_MEANING_17_TO_23 or (n.op_type == "Split" and len(n.input) < 2):
+                raise ValueError(f"graph '{graph}': op {n.op_type} ({n.name}) changed between opset 17 and "
+                                 f"{ATTENTION_OPSET}; the opset-23 rewrite does not know it")
+    imports = [o for o in m.opset_import if o.domain not in ("", "ai.onnx", ATTENTION_DOMAIN)]
+    del m.opset_import[:]
+    m.opset_import.extend(imports)
+    o = m.opset_import.add()
+    o.domain, o.version = "", ATTENTION_OPSET
+    m.ir_version = max(m.ir_version, 10)   # IR 10: opset 23 loads on onnxruntime 1.31 and tract 0.23
 
 
 def data_io(model: LiveGesture, graph: str) -> tuple[list[dict], list[dict]]:
@@ -61,7 +108,7 @@ def data_io(model: LiveGesture, graph: str) -> tuple[list[dict], list[dict]]:
                  {"name": "audio", "dtype": f32, "shape": ["batch", Da]},
                  {"name": "cond", "dtype": f32, "shape": ["batch"]}],
                 [{"name": "hidden", "dtype": f32, "shape": ["batch", R, d]}])
-    if graph == "fusion":
+    if graph in ("fusion", FUSION_ATTENTION):
         return ([{"name": f"hidden_{r}", "dtype": f32, "shape": ["batch", d]} for r in REGION_NAMES]
                 + [{"name": "audio", "dtype": f32, "shape": ["batch", Da]},
                    {"name": "cond", "dtype": f32, "shape": ["batch"]}],
@@ -84,7 +131,7 @@ def call_step(model: LiveGesture, graph: str, inputs: dict, cache: dict) -> tupl
         return comp.step(inputs["mel"], cache)
     if graph.startswith("expert_") or graph == FUSED_EXPERTS:
         return comp.step(inputs["prev_token"], inputs["audio"], inputs["cond"], cache)
-    if graph == "fusion":
+    if graph in ("fusion", FUSION_ATTENTION):
         return comp.step({r: inputs[f"hidden_{r}"] for r in REGION_NAMES}, inputs["audio"], inputs["cond"], cache)
     return comp.step(inputs["token"], cache)
 

@@ -43,16 +43,21 @@ class LiveGestureStream:
     ``push(chunk)`` accepts float samples at 16 kHz (any chunk size) and returns the frames completed.
     ``form``: ``canonical`` runs the four region eXperts and SVQ decoders one by one, ``fused`` runs the eXperts as
     one step on a region axis (:class:`livegesture.models.fused.FusedExperts`) and the decoders as one step with the
-    regions side by side (:class:`livegesture.models.fused_decoders.FusedDecoders`), SPEC 14; both give the same
-    tokens and frames.
+    regions side by side (:class:`livegesture.models.fused_decoders.FusedDecoders`), ``attention`` runs the canonical
+    eXperts and decoders and the fusion with its attention cores as the ONNX ``Attention`` op
+    (:class:`livegesture.models.fusion_attention.FusionAttention`), SPEC 14; all give the same tokens and frames.
     """
 
     def __init__(self, model: LiveGesture, seed: int = 0, guidance: float | None = None,
                  temperature: float | None = None, top_k: int | None = None, form: str = "canonical"):
-        if form not in ("canonical", "fused"):
-            raise ValueError(f"form must be 'canonical' or 'fused', got {form!r}")
+        if form not in ("canonical", "fused", "attention"):
+            raise ValueError(f"form must be 'canonical', 'fused' or 'attention', got {form!r}")
         self.form = form
         self.fused = self.fused_decoders = None
+        self.fuse = model.fuse
+        if form == "attention":
+            from .models.fusion_attention import FusionAttention
+            self.fuse = FusionAttention(model.fuse).eval()
         if form == "fused":
             from .models.fused import FusedExperts
             from .models.fused_decoders import FusedDecoders
@@ -109,7 +114,7 @@ class LiveGestureStream:
                 prev = torch.full((B,), self.prev[r], dtype=torch.int64)
                 o, self.cache[f"expert_{r}"] = m.experts[r].step(prev, audio, cond, self.cache[f"expert_{r}"])
                 hidden[r] = o["hidden"]
-        o, self.cache["fusion"] = m.fuse.step(hidden, audio, cond, self.cache["fusion"])
+        o, self.cache["fusion"] = self.fuse.step(hidden, audio, cond, self.cache["fusion"])
         logits = o["logits"].numpy()                     # (B, R, K)
         self.logits.append(logits)
         tokens = {}
@@ -176,7 +181,7 @@ def generate_clip(model: LiveGesture, audio_16k: np.ndarray, seed: int = 0, guid
                   chunk: int | None = None, temperature: float | None = None, top_k: int | None = None,
                   finish: bool = False, form: str = "canonical") -> dict:
     """Run the streaming loop over a whole clip. Returns dict(poses, trans, expressions, foot_contact, tokens).
-    ``form``: the eXperts' form (see :class:`LiveGestureStream`).
+    ``form``: the graph form (see :class:`LiveGestureStream`).
 
     ``finish=True`` covers the whole audio as the runtime's ``generate`` does (SPEC 8, ``LiveGestureStream.finish``);
     the default stops at the last complete token, as the exported reference rollout does."""

@@ -40,6 +40,7 @@ def test_manifest_validates_and_files_match(bundle):
     for rel, info in on_disk["files"].items():
         assert exporter.sha256(out / rel) == info["sha256"], rel
     assert {g["name"] for g in on_disk["graphs"]} == {"audio_encoder", "fusion", "experts_fused", "decoders_fused",
+                                                      "fusion_attention",
                                                       *(f"{k}_{r}" for k in ("expert", "decoder")
                                                         for r in ("upper", "hands", "lower", "face"))}
     bad = dict(on_disk, schema_version=2)
@@ -129,7 +130,7 @@ def test_fused_form_is_listed_checked_and_equal_to_the_canonical_one(bundle):
     out, manifest, model = bundle
     assert manifest["forms"]["canonical"]["experts"] == [f"expert_{r}" for r in ("upper", "hands", "lower", "face")]
     assert manifest["forms"]["fused"]["experts"] == ["experts_fused"]
-    assert manifest["backend_forms"] == {"ort": "fused", "tract": "canonical"}
+    assert manifest["backend_forms"] == {"ort": "fused", "tract": "attention"}
     assert manifest["checks"]["experts_fused"]["torch_fused_vs_canonical_max_abs"] <= 1e-6
     assert manifest["checks"]["forms"]["rollout_tokens_identical"] == manifest["reference"]["rollout_tokens"]
     err, _, _ = check_fused_experts(model, steps=12)
@@ -202,3 +203,71 @@ def test_broken_fused_form_is_caught_naming_it(tmp_path, monkeypatch):
     with pytest.raises(ExportCheckError, match=r"graph 'experts_fused', output 'hidden\[:, 2\] \(lower\)', step \d+"):
         build(scrambled_model("tiny"), tmp_path / "bad")
     assert not (tmp_path / "bad").exists()
+
+
+def test_attention_form_is_listed_checked_and_uses_the_opset23_attention_op(bundle):
+    """SPEC 14: the attention form's fusion (``fusion_attention``) is listed in the manifest with the canonical
+    eXperts and decoders, has the canonical fusion's inputs, outputs and caches, is checked against the canonical
+    torch fusion and on the rollout (identical tokens), and its ONNX file is opset 23 with one standard
+    ``Attention`` node per attention core and no other domain."""
+    from livegesture.models.fusion_attention import check_fusion_attention
+    out, manifest, model = bundle
+    form = manifest["forms"]["attention"]
+    assert form["fusion"] == "fusion_attention" and form["opset"] == 23
+    assert form["experts"] == manifest["forms"]["canonical"]["experts"]
+    assert form["decoders"] == manifest["forms"]["canonical"]["decoders"]
+    assert "Attention" in form["contract"]
+    spec = {g["name"]: g for g in manifest["graphs"]}
+    g, canon = spec["fusion_attention"], spec["fusion"]
+    assert g["form"] == "attention"
+    assert (g["inputs"], g["outputs"], g["caches"]) == (canon["inputs"], canon["outputs"], canon["caches"])
+    checks = manifest["checks"]
+    assert 0 < checks["fusion_attention"]["torch_form_vs_canonical_max_abs"] <= 1e-5
+    assert checks["fusion_attention"]["ort_vs_torch_max_abs"] <= 1e-5
+    assert checks["forms_attention"]["rollout_tokens_identical"] == manifest["reference"]["rollout_tokens"]
+    err, _, _ = check_fusion_attention(model, steps=model.cfg.audio_window + 3)
+    assert err <= 1e-5
+    m = onnx.load(out / g["file"])
+    assert [(o.domain, o.version) for o in m.opset_import] == [("", 23)]
+    assert {n.domain for n in m.graph.node} == {""}
+    n_attn = sum(n.op_type == "Attention" for n in m.graph.node)
+    assert n_attn == 3 * model.cfg.fuse_blocks          # spatial, temporal and cross per block
+    # the canonical fusion keeps opset 17 and has no Attention node
+    c = onnx.load(out / canon["file"])
+    assert max(o.version for o in c.opset_import if o.domain == "") == 17
+    assert not any(n.op_type == "Attention" for n in c.graph.node)
+
+
+def test_a_wrong_attention_form_fails_the_export_naming_the_graph(tmp_path, monkeypatch):
+    """The attention form's torch step is checked against the canonical fusion before anything is written."""
+    orig = layers.WindowedAttention.step_op
+
+    def shifted(self, *a, **k):
+        return orig(self, *a, **k) * 1.01     # (a constant shift would vanish in the LayerNorms)
+    monkeypatch.setattr(layers.WindowedAttention, "step_op", shifted)
+    with pytest.raises(ExportCheckError, match=r"torch attention form vs the canonical fusion: graph 'fusion_attention'"):
+        build(scrambled_model("tiny"), tmp_path / "bad")
+    assert not (tmp_path / "bad").exists()
+
+
+def test_the_opset23_rewrite_refuses_an_op_whose_meaning_changed():
+    """to_attention_opset moves the Attention nodes to the default domain at opset 23 and refuses a graph with an
+    op whose definition changed between opset 17 and 23 that it does not know (here Pad, changed at 18)."""
+    from graphs import to_attention_opset
+    from onnx import TensorProto, helper
+    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 2, 3, 4])
+    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 2, 3, 4])
+
+    def model(extra):
+        nodes = [helper.make_node("Attention", ["x", "x", "x"], ["a"], domain=layers.ATTENTION_DOMAIN, scale=0.5)]
+        nodes += extra or [helper.make_node("Identity", ["a"], ["y"])]
+        m = helper.make_model(helper.make_graph(nodes, "g", [x], [y]),
+                              opset_imports=[helper.make_opsetid("", 17), helper.make_opsetid(layers.ATTENTION_DOMAIN, 1)])
+        return m
+    m = model(None)
+    to_attention_opset(m, "g")
+    assert [(o.domain, o.version) for o in m.opset_import] == [("", 23)] and m.graph.node[0].domain == ""
+    onnx.checker.check_model(m, full_check=True)
+    pads = helper.make_node("Pad", ["a", "p"], ["y"])
+    with pytest.raises(ValueError, match=r"graph 'g': op Pad .* changed between opset 17 and 23"):
+        to_attention_opset(model([pads]), "g")

@@ -29,10 +29,12 @@ fn test_bundle_loads_and_describes_itself() {
     assert_eq!(b.family(), livegesture::bundle::Family::LiveGesture);
     let lg = b.livegesture().unwrap();
     assert_eq!(lg.region_names(), ["upper", "hands", "lower", "face"]);
-    // 10 canonical graphs, the fused eXperts and the fused decoders (SPEC 14)
-    assert_eq!(b.graphs().len(), 12);
+    // 10 canonical graphs, the fused eXperts, the fused decoders and the attention form's fusion
+    // (SPEC 14)
+    assert_eq!(b.graphs().len(), 13);
     assert!(b.graph("experts_fused").is_ok());
     assert!(b.graph("decoders_fused").is_ok());
+    assert!(b.graph("fusion_attention").is_ok());
     assert!(lg.vocab.bos_token >= lg.vocab.codebook_size as i64);
     assert!(lg.sampling.temperature > 0.0);
     // initial state comes from the manifest's cache shapes
@@ -76,6 +78,15 @@ fn a_form_naming_a_missing_graph_or_an_unknown_form_is_refused() {
     assert!(e.contains("forms.fused.decoders lists 2 graphs"), "{e}");
     edit_manifest(&dir, |v| {
         v["forms"]["fused"]["decoders"] = serde_json::json!(["decoders_fused"]);
+        v["forms"]["attention"]["fusion"] = serde_json::json!("fusion_missing");
+    });
+    let e = load_err(&dir);
+    assert!(
+        e.contains("forms.attention.fusion") && e.contains("fusion_missing"),
+        "{e}"
+    );
+    edit_manifest(&dir, |v| {
+        v["forms"]["attention"]["fusion"] = serde_json::json!("fusion_attention");
         v["backend_forms"]["tract"] = serde_json::json!("sideways");
     });
     let e = load_err(&dir);
@@ -109,6 +120,19 @@ fn a_missing_file_is_refused() {
     let e = load_err(&dir);
     assert!(
         e.contains("decoder_hands.onnx") && e.contains("missing"),
+        "{e}"
+    );
+}
+
+#[test]
+fn a_missing_form_fusion_file_is_refused_naming_it() {
+    // the attention form's fusion graph (SPEC 14) is checked like every graph file
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = common::copy_bundle(tmp.path());
+    std::fs::remove_file(dir.join("fusion_attention.onnx")).unwrap();
+    let e = load_err(&dir);
+    assert!(
+        e.contains("fusion_attention.onnx") && e.contains("missing"),
         "{e}"
     );
 }

@@ -1,9 +1,11 @@
 //! Graph forms (SPEC 14): the tiny test bundle carries the canonical region eXperts and SVQ decoders
-//! (one graph per region) and the fused form (`experts_fused`, the four eXperts on a region axis;
-//! `decoders_fused`, the four decoders side by side). Both forms give identical tokens and frames on
-//! both backends, alone and in a [`StreamBatch`]; a bundle whose fused graph has one perturbed weight
-//! fails parity, naming the fused graph; a bundle exported before `decoders_fused` runs its fused
-//! form with the canonical decoders; `--form` chooses the form.
+//! (one graph per region), the fused form (`experts_fused`, the four eXperts on a region axis;
+//! `decoders_fused`, the four decoders side by side) and the attention form (the canonical eXperts
+//! and decoders, the fusion as `fusion_attention` with the ONNX `Attention` op). The forms give
+//! identical tokens and frames on both backends, alone and in a [`StreamBatch`]; a bundle whose
+//! fused or attention graph has one perturbed weight fails parity, naming that graph; a bundle
+//! exported before `decoders_fused` runs its fused form with the canonical decoders, one exported
+//! before the attention form runs the canonical fusion; `--form` chooses the form.
 
 use livegesture_parity_tests as common;
 
@@ -79,12 +81,17 @@ fn assert_same(a: &[TokenStep], b: &[TokenStep], bound: f32, what: &str) {
 }
 
 #[test]
-fn the_tiny_bundle_carries_both_forms() {
+fn the_tiny_bundle_carries_every_form() {
     let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
     let lg = bundle.livegesture().unwrap();
     let forms = lg.form_graphs();
     assert_eq!(forms["fused"].experts, vec!["experts_fused".to_string()]);
     assert_eq!(forms["fused"].decoders, vec!["decoders_fused".to_string()]);
+    assert_eq!(forms["fused"].fusion, "fusion");
+    assert_eq!(forms["canonical"].fusion, "fusion");
+    assert_eq!(forms["attention"].fusion, "fusion_attention");
+    assert_eq!(forms["attention"].experts, forms["canonical"].experts);
+    assert_eq!(forms["attention"].decoders, forms["canonical"].decoders);
     assert_eq!(forms["canonical"].experts.len(), lg.regions.len());
     assert_eq!(
         forms["canonical"].decoders,
@@ -97,6 +104,7 @@ fn the_tiny_bundle_carries_both_forms() {
     for (choice, name) in [
         (FormChoice::Canonical, "canonical"),
         (FormChoice::Fused, "fused"),
+        (FormChoice::Attention, "attention"),
         (FormChoice::Auto, lg.default_form("tract")),
     ] {
         let p = Pipeline::with_form(&bundle, be.as_ref(), choice).unwrap();
@@ -109,6 +117,7 @@ fn forms_agree(kind: BackendKind) {
     let audio = audio(&bundle, 20.0);
     let mut canonical = pipeline(&bundle, kind, FormChoice::Canonical);
     let mut fused = pipeline(&bundle, kind, FormChoice::Fused);
+    let mut attention = pipeline(&bundle, kind, FormChoice::Attention);
     for opts in [
         StreamOptions {
             seed: 7,
@@ -129,6 +138,15 @@ fn forms_agree(kind: BackendKind) {
             &a,
             0.0,
             &format!("{kind} fused vs canonical, seed {}", opts.seed),
+        );
+        // the attention form's fusion rounds differently (~1e-7 on the logits) but samples the same
+        // tokens, which the same decoders turn into the same frames
+        let c = run(&mut attention, &opts, &audio);
+        assert_same(
+            &c,
+            &a,
+            0.0,
+            &format!("{kind} attention vs canonical, seed {}", opts.seed),
         );
     }
     // several streams stepped together in the fused form (stacked caches) = each alone
@@ -258,6 +276,135 @@ fn parity_fails_on_a_perturbed_fused_decoder_weight_naming_the_fused_decoders() 
     );
 }
 
+#[test]
+fn parity_fails_on_a_perturbed_attention_fusion_weight_naming_the_graph() {
+    let dir = tempfile::tempdir().unwrap();
+    let broken = dir.path().join("broken");
+    common::break_bundle(
+        &common::tiny_bundle(),
+        &broken,
+        "fusion_attention",
+        &common::Breakage::PerturbWeight { delta: 0.05 },
+    );
+    let report = common::run_parity(&broken, &[Check::Graph]);
+    let failed: Vec<_> = report.rows.iter().filter(|r| !r.pass).collect();
+    assert!(
+        !failed.is_empty(),
+        "parity passed on a perturbed fusion_attention graph"
+    );
+    assert!(
+        failed
+            .iter()
+            .all(|r| r.what == "fusion_attention" && r.comparison.contains("vs torch")),
+        "only fusion_attention vs torch fails: {failed:#?}"
+    );
+    // the forms disagree on the rollout too, on the backend made to run the attention form
+    let opts = livegesture::parity::ParityOptions {
+        backends: vec![BackendKind::Tract],
+        checks: vec![Check::Rollout],
+        form: FormChoice::Attention,
+        ..Default::default()
+    };
+    let report = livegesture::parity::run(&broken, &opts, &mut |m: &str| eprintln!("parity: {m}"))
+        .expect("parity runs");
+    let row = report
+        .rows
+        .iter()
+        .find(|r| r.what == "rollout (attention form)" && r.output == "tokens")
+        .expect("the rollout compares the attention form with the canonical one");
+    assert!(
+        !row.pass,
+        "the forms agree with a perturbed fusion_attention: {row:?}"
+    );
+}
+
+/// A copy of the tiny bundle as exported before the attention form: no `forms.attention`, no
+/// `fusion_attention` (graph, reference vectors, manifest entries), no `fusion` key in any form.
+fn bundle_without_attention_form(dir: &Path) -> std::path::PathBuf {
+    let bundle = common::copy_bundle(dir);
+    let path = bundle.join("manifest.json");
+    let mut m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let graph = m["graphs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|g| g["name"] == "fusion_attention")
+        .cloned()
+        .expect("the tiny bundle has fusion_attention");
+    m["graphs"]
+        .as_array_mut()
+        .unwrap()
+        .retain(|g| g["name"] != "fusion_attention");
+    for key in ["file", "reference"] {
+        let rel = graph[key].as_str().unwrap();
+        std::fs::remove_file(bundle.join(rel)).unwrap();
+        m["files"].as_object_mut().unwrap().remove(rel);
+    }
+    m["reference"]["graphs"]
+        .as_object_mut()
+        .unwrap()
+        .remove("fusion_attention");
+    for key in ["fusion_attention", "forms_attention"] {
+        m["checks"].as_object_mut().unwrap().remove(key);
+    }
+    let forms = m["forms"].as_object_mut().unwrap();
+    forms.remove("attention");
+    for f in forms.values_mut() {
+        assert!(f.as_object_mut().unwrap().remove("fusion").is_none());
+    }
+    for b in ["ort", "tract"] {
+        if m["backend_forms"][b] == "attention" {
+            m["backend_forms"][b] = serde_json::json!("canonical");
+        }
+    }
+    std::fs::write(&path, serde_json::to_string_pretty(&m).unwrap()).unwrap();
+    bundle
+}
+
+#[test]
+fn a_bundle_without_the_attention_form_runs_the_canonical_fusion() {
+    let dir = tempfile::tempdir().unwrap();
+    let old = bundle_without_attention_form(dir.path());
+    let b = Bundle::load(&old).expect("a bundle without fusion_attention loads");
+    let forms = b.livegesture().unwrap().form_graphs();
+    assert!(!forms.contains_key("attention"));
+    for f in forms.values() {
+        assert_eq!(f.fusion, "fusion");
+    }
+    let full = Bundle::load(common::tiny_bundle()).unwrap();
+    let audio = audio(&full, 6.0);
+    let opts = StreamOptions {
+        seed: 5,
+        ..Default::default()
+    };
+    for kind in [BackendKind::Ort, BackendKind::Tract] {
+        let mut p = pipeline(&b, kind, FormChoice::Auto);
+        let got = run(&mut p, &opts, &audio);
+        let want = run(
+            &mut pipeline(&full, kind, FormChoice::Canonical),
+            &opts,
+            &audio,
+        );
+        assert_same(
+            &got,
+            &want,
+            0.0,
+            &format!("{kind}: without the attention form"),
+        );
+        let be = backend::create(&BackendOptions {
+            kind,
+            ..Default::default()
+        })
+        .unwrap();
+        let e = Pipeline::with_form(&b, be.as_ref(), FormChoice::Attention)
+            .err()
+            .expect("the attention form is refused");
+        let e = format!("{e:#}");
+        assert!(e.contains("no 'attention' form"), "{e}");
+    }
+}
+
 /// A copy of the tiny bundle as exported before the fused decoders: its fused form lists the fused
 /// eXperts only, and `decoders_fused` (graph, reference vectors, manifest entries) is gone.
 fn bundle_without_fused_decoders(dir: &Path) -> std::path::PathBuf {
@@ -380,12 +527,13 @@ fn cli_form_flag_chooses_the_form_and_rejects_unknown_ones() {
         assert_eq!(out.status.code(), Some(2));
         assert!(String::from_utf8_lossy(&out.stderr).contains("unknown form 'sideways'"));
     }
-    // both forms, and the form from the flag or the variable, write the same motion
+    // every form, and the form from the flag or the variable, write the same motion
     let dir = tempfile::tempdir().unwrap();
-    let runs: [(&[&str], Option<&str>); 3] = [
+    let runs: [(&[&str], Option<&str>); 4] = [
         (&["--form", "canonical", "--backend", "tract"], None),
         (&["--form", "fused", "--backend", "tract"], None),
         (&["--backend", "tract"], Some("fused")),
+        (&["--form", "attention", "--backend", "tract"], None),
     ];
     let mut npz = Vec::new();
     for (i, (args, env)) in runs.iter().enumerate() {
@@ -394,8 +542,8 @@ fn cli_form_flag_chooses_the_form_and_rejects_unknown_ones() {
         npz.push(std::fs::read(&o).unwrap());
     }
     assert!(
-        npz[0] == npz[1] && npz[1] == npz[2],
-        "generate wrote different motion with --form canonical, --form fused and LIVEGESTURE_FORM=fused"
+        npz[0] == npz[1] && npz[1] == npz[2] && npz[2] == npz[3],
+        "generate wrote different motion with --form canonical, --form fused, LIVEGESTURE_FORM=fused and --form attention"
     );
 }
 

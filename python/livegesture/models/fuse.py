@@ -21,7 +21,7 @@ import torch.nn as nn
 
 from ..config import LiveGestureConfig
 from ..regions import REGION_NAMES
-from .layers import CacheSpec, FeedForward, WindowedAttention, check_cache, check_shape, window_bias
+from .layers import AttentionOp, CacheSpec, FeedForward, WindowedAttention, check_cache, check_shape, window_bias
 
 
 class SpatialAttention(nn.Module):
@@ -45,6 +45,12 @@ class SpatialAttention(nn.Module):
         q, k, v = self.qkv(x).reshape(-1, R, 3, self.h, self.hd).permute(2, 0, 3, 1, 4)
         a = torch.softmax((q @ k.transpose(-1, -2)) / math.sqrt(self.hd), dim=-1)
         return self.o((a @ v).transpose(1, 2).reshape(-1, R, self.d))
+
+    def step_op(self, x):  # step with the attention core as one AttentionOp (ONNX Attention, no mask)
+        R = int(x.shape[1])
+        q, k, v = self.qkv(x).reshape(-1, R, 3, self.h, self.hd).permute(2, 0, 3, 1, 4)
+        y = AttentionOp.apply(q, k, v, None, 1.0 / math.sqrt(self.hd))
+        return self.o(y.transpose(1, 2).reshape(-1, R, self.d))
 
 
 class FuseBlock(nn.Module):
@@ -119,8 +125,12 @@ class XARFuse(nn.Module):
     def init_cache(self, batch: int, device=None) -> dict:
         return {s.name: s.zeros(batch, device) for s in self.cache_specs()}
 
-    def step(self, hidden: dict, audio: torch.Tensor, cond: torch.Tensor, cache: dict):
-        """hidden {region: (B, d)}, audio (B, audio_dim), cond (B,) -> ({'logits': (B, R, K)}, new_cache)."""
+    def step(self, hidden: dict, audio: torch.Tensor, cond: torch.Tensor, cache: dict, attention_op: bool = False):
+        """hidden {region: (B, d)}, audio (B, audio_dim), cond (B,) -> ({'logits': (B, R, K)}, new_cache).
+
+        ``attention_op``: the attention cores as the ONNX ``Attention`` op (``step_op`` of the attention layers;
+        the SPEC 14 form ``attention``, graph ``fusion_attention``, :mod:`livegesture.models.fusion_attention`):
+        same inputs, caches and outputs."""
         d, R = self.cfg.d_model, self.R
         B = audio.shape[0]
         for r in REGION_NAMES:
@@ -141,12 +151,13 @@ class XARFuse(nn.Module):
         bias_t = (bias_t[:, None] + torch.zeros((1, R, 1, 1), device=bias_t.device)).reshape(
             -1, 1, self.cfg.fuse_window)
         for i, blk in enumerate(self.blocks):
-            x = x + blk.spatial.step(blk.ln_s(x))
+            spatial, temporal, cross = ((blk.spatial.step_op, blk.temporal.step_op, blk.cross.step_op) if attention_op
+                                        else (blk.spatial.step, blk.temporal.step, blk.cross.step))
+            x = x + spatial(blk.ln_s(x))
             # temporal attention on B * R rows (stream-major, region-minor); its caches keep the region axis
             xt = blk.ln_t(x).reshape(-1, d)
-            x = x + blk.temporal.step(xt, xt, bias_t, cache, new_cache, f"block{i}.tattn",
-                                      lead=(R,)).reshape(-1, R, d)
-            x = x + blk.cross.step(blk.ln_a(x), a, bias_a, cache, new_cache, f"block{i}.xattn")
+            x = x + temporal(xt, xt, bias_t, cache, new_cache, f"block{i}.tattn", lead=(R,)).reshape(-1, R, d)
+            x = x + cross(blk.ln_a(x), a, bias_a, cache, new_cache, f"block{i}.xattn")
             x = x + blk.ffn(blk.ln_f(x))
         new_cache["step"] = step + 1
         return {"logits": self._classify(x)}, new_cache

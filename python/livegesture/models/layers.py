@@ -176,6 +176,54 @@ def step_query_rotations(window: int, head_dim: int, rope: bool = True) -> torch
     return (torch.cat(blocks, dim=1) / math.sqrt(head_dim)).float()
 
 
+ATTENTION_DOMAIN = "livegesture.attention"
+
+
+class AttentionOp(torch.autograd.Function):
+    """softmax(q k^T * scale + mask) v over 4-D (rows, heads, seq, head_dim) tensors: the ONNX ``Attention`` op
+    (opset 23) with 4-D inputs, an additive float mask (or none) and ``scale``.
+
+    The torch forward is the op's definition; the ONNX export writes one node ``Attention`` in the domain
+    :data:`ATTENTION_DOMAIN` (the TorchScript exporter writes opset 17, which has no ``Attention``), and
+    ``export/graphs.py:to_attention_opset`` moves it to the default domain at opset 23 (the graph's other ops
+    have the same definition at 17 and 23; the exporter checks that). onnxruntime 1.31 wants the mask's query
+    axis at full size (no broadcast there), so callers pass masks of shape (rows, 1, n_q, W)."""
+
+    @staticmethod
+    def forward(ctx, q, k, v, mask, scale: float):  # noqa: ARG004 - torch.autograd.Function signature
+        s = (q @ k.transpose(-1, -2)) * scale
+        if mask is not None:
+            s = s + mask
+        return torch.softmax(s, dim=-1) @ v
+
+    @staticmethod
+    def symbolic(g, q, k, v, mask, scale: float):
+        ins = [q, k, v] if mask is None or _is_none(mask) else [q, k, v, mask]
+        y = g.op(f"{ATTENTION_DOMAIN}::Attention", *ins, scale_f=float(scale))
+        y.setType(q.type())   # (rows, heads, n_q, head_dim): the query's shape (values have head_dim too)
+        return y
+
+
+def _is_none(v) -> bool:
+    """A TorchScript export value standing for ``None``."""
+    try:
+        return v.node().mustBeNone()
+    except AttributeError:
+        return False
+
+
+def key_rotations(window: int, head_dim: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(cos, sin, swap) rotating the key in window slot j back by m = window - 1 - j positions, elementwise:
+    R_-m k = k * cos + k[..., swap] * sin, cos and sin (window, head_dim) float32 (built from
+    :func:`rope_tables`), swap the int64 half-swap index. <q, R_-m k> = <R_m q, k>, the score of the query at
+    slot window - 1 (:meth:`WindowedAttention.step`)."""
+    cos, sin = (t.flip(0) for t in rope_tables(window, head_dim))   # row j: m = window - 1 - j
+    h = head_dim // 2
+    sign = torch.cat([-torch.ones(h), torch.ones(h)])                # rotate_half(k) = k[..., swap] * sign
+    swap = torch.cat([torch.arange(h, head_dim), torch.arange(h)])
+    return cos.contiguous(), (-(sin * sign)).contiguous(), swap
+
+
 def window_bias(step: torch.Tensor, window: int) -> torch.Tensor:
     """Additive attention mask (B, 1, window) for a step with ``step`` (B,) steps taken before it (heads
     broadcast on axis 1; insert a query axis, ``[:, None]``, for :meth:`WindowedAttention.step` with several
@@ -214,6 +262,10 @@ class WindowedAttention(nn.Module):
         self.register_buffer("win_cos", cos, persistent=False)
         self.register_buffer("win_sin", sin, persistent=False)
         self.register_buffer("qrot", step_query_rotations(window, self.hd, rope), persistent=False)
+        kcos, ksin, swap = key_rotations(window, self.hd)
+        self.register_buffer("key_cos", kcos, persistent=False)
+        self.register_buffer("key_sin", ksin, persistent=False)
+        self.register_buffer("key_swap", swap, persistent=False)
 
     def _heads(self, x):  # (B, T, d) -> (B, h, T, hd)
         return x.reshape(x.shape[0], x.shape[1], self.h, self.hd).transpose(1, 2)
@@ -309,6 +361,32 @@ class WindowedAttention(nn.Module):
         p = torch.softmax(scores, dim=-1).permute(1, 2, 0, 3)     # (rows, h, n_q, W)
         y = (p @ v).transpose(1, 2).reshape((-1, nq, d))          # (rows, n_q, d)
         return self.o(y)
+
+
+    def step_op(self, x: torch.Tensor, kv_in: torch.Tensor, bias: torch.Tensor, cache: dict, new_cache: dict,
+                name: str, lead: tuple[int, ...] = ()) -> torch.Tensor:
+        """:meth:`step` (same inputs, caches and result) with the attention core as one :class:`AttentionOp`
+        (the ONNX ``Attention`` op): the W keys are rotated back elementwise by their distance to the query
+        (:func:`key_rotations`; the caches keep the keys before rotation, as in :meth:`step`), the query is not
+        rotated, scale 1/sqrt(hd). The form of the fusion graph ``fusion_attention`` (SPEC 14 form
+        ``attention``): tract runs the op as one fused kernel, 2.7-4.7x faster than :meth:`_step_queries` for the
+        fusion's cross-attention; onnxruntime runs it slower than :meth:`step` (BENCHMARKS.md, "A tract form
+        of the fusion")."""
+        W, h, hd, d = self.w, self.h, self.hd, self.d
+        k_all, v_all = self._append_kv(kv_in, cache, new_cache, name, tuple(lead))
+        k = k_all.reshape((-1, h, W, hd))                         # (rows, h, W, hd)
+        v = v_all.reshape((-1, h, W, hd))
+        if self.rope:
+            k = k * self.key_cos + torch.index_select(k, 3, self.key_swap) * self.key_sin
+        if x.dim() == 3:                                          # n_q queries per row sharing the keys
+            nq = int(x.shape[1])
+            q = self.q(x).reshape((-1, nq, h, hd)).transpose(1, 2)                        # (rows, h, n_q, hd)
+            mask = bias.reshape((-1, 1, 1, W)) + torch.zeros((1, 1, nq, 1), device=bias.device)
+            y = AttentionOp.apply(q, k, v, mask, 1.0 / math.sqrt(hd))
+            return self.o(y.transpose(1, 2).reshape((-1, nq, d)))
+        q = self.q(x).reshape((-1, h, 1, hd))                     # (rows, h, 1, hd)
+        y = AttentionOp.apply(q, k, v, bias.reshape((-1, 1, 1, W)), 1.0 / math.sqrt(hd))
+        return self.o(y.reshape((-1, d)))
 
 
 class FeedForward(nn.Module):

@@ -60,8 +60,8 @@ pub struct SamplingDefaults {
     pub prng: Option<String>,
 }
 
-/// One form of the chain's components (SPEC 14): which graphs compute the region eXperts and the
-/// region SVQ decoders.
+/// One form of the chain's components (SPEC 14): which graphs compute the region eXperts, the
+/// fusion and the region SVQ decoders.
 ///
 /// `canonical`: one `expert_<region>` and one `decoder_<region>` graph per region, in region order.
 /// `fused`: one graph (`experts_fused`) computing all eXperts on a region axis: `prev_token`
@@ -70,6 +70,9 @@ pub struct SamplingDefaults {
 /// `token` `(batch, regions)`, `motion` `(batch, frames_per_token, sum of the region dims)` (region
 /// `r` at the columns after the dims of the regions before it), caches of the canonical names with
 /// the regions' channels side by side on the last axis.
+/// `attention`: the canonical eXperts and decoders and the fusion graph `fusion_attention`, the
+/// canonical fusion's inputs, outputs and caches with its attention cores as the opset-23 ONNX
+/// `Attention` op (the form tract runs fastest).
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 pub struct FormSpec {
     /// The graphs running the region eXperts in this form.
@@ -78,6 +81,10 @@ pub struct FormSpec {
     /// fused decoders): the canonical `decoder_<region>` graphs.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub decoders: Vec<String>,
+    /// The graph running the fusion in this form; absent (every form before `attention`): the
+    /// canonical `fusion`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fusion: Option<String>,
 }
 
 /// The graphs of one form, resolved ([`LiveGestureManifest::form_graphs`]).
@@ -87,10 +94,15 @@ pub struct FormGraphs {
     pub experts: Vec<String>,
     /// The region SVQ decoders: one graph per region, or one for all.
     pub decoders: Vec<String>,
+    /// The fusion graph.
+    pub fusion: String,
 }
 
+/// The canonical fusion graph's name.
+pub const FUSION: &str = "fusion";
+
 /// The form names the runtime knows.
-pub const FORMS: [&str; 2] = ["canonical", "fused"];
+pub const FORMS: [&str; 3] = ["canonical", "fused", "attention"];
 
 /// The LiveGesture sections of `manifest.json` (see the module docs).
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
@@ -142,8 +154,9 @@ impl LiveGestureManifest {
     }
 
     /// The bundle's forms with their graphs: the manifest's `forms`, with `canonical` when it does
-    /// not list it, and the canonical `decoder_<region>` graphs for a form that lists no decoders
-    /// (bundles exported before the fused decoders).
+    /// not list it, the canonical `decoder_<region>` graphs for a form that lists no decoders
+    /// (bundles exported before the fused decoders) and the canonical `fusion` for a form that
+    /// names no fusion (bundles exported before the attention form).
     pub fn form_graphs(&self) -> BTreeMap<String, FormGraphs> {
         let mut out: BTreeMap<String, FormGraphs> = self
             .forms
@@ -159,6 +172,7 @@ impl LiveGestureManifest {
                     FormGraphs {
                         experts: f.experts.clone(),
                         decoders,
+                        fusion: f.fusion.clone().unwrap_or_else(|| FUSION.to_string()),
                     },
                 )
             })
@@ -166,6 +180,7 @@ impl LiveGestureManifest {
         out.entry("canonical".into()).or_insert_with(|| FormGraphs {
             experts: self.canonical_graphs("expert"),
             decoders: self.canonical_graphs("decoder"),
+            fusion: FUSION.to_string(),
         });
         out
     }
@@ -245,6 +260,11 @@ impl LiveGestureManifest {
                     if !m.graphs.iter().any(|x| &x.name == g) {
                         return Err(format!("forms.{name}.{field}: no graph named '{g}'"));
                     }
+                }
+            }
+            if let Some(g) = &f.fusion {
+                if !m.graphs.iter().any(|x| &x.name == g) {
+                    return Err(format!("forms.{name}.fusion: no graph named '{g}'"));
                 }
             }
         }

@@ -42,9 +42,9 @@ pub use common::exit_code;
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
-    /// LiveGesture: form of the region eXperts and decoders (SPEC 14): auto (the bundle's form for
-    /// the backend, see `info`), canonical (one graph per region) or fused (one graph for the four
-    /// regions).
+    /// LiveGesture: form of the region eXperts, fusion and decoders (SPEC 14): auto (the bundle's
+    /// form for the backend, see `info`), canonical (one graph per region), fused (one graph for the
+    /// four regions) or attention (the fusion with the ONNX Attention op, `fusion_attention`).
     #[arg(
         long,
         global = true,

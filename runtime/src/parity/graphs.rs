@@ -91,15 +91,24 @@ pub(super) fn graph_rows(
             detail: Some("measured by export/export.py, read from manifest.json `checks`".into()),
         });
     }
-    // a fused form's graph (SPEC 14) against the canonical graphs it replaces, in torch: measured by
-    // the exporter too
-    if let Some(e) =
-        bundle.manifest().checks[&spec.name]["torch_fused_vs_canonical_max_abs"].as_f64()
-    {
+    // another form's graph (SPEC 14) against the canonical graphs it replaces, in torch: measured by
+    // the exporter too (`torch_fused_vs_canonical_max_abs` for the fused form's graphs,
+    // `torch_form_vs_canonical_max_abs` for the others)
+    let checks = &bundle.manifest().checks[&spec.name];
+    let recorded = [
+        (
+            "torch_fused_vs_canonical_max_abs",
+            "torch fused vs canonical",
+        ),
+        ("torch_form_vs_canonical_max_abs", "torch form vs canonical"),
+    ]
+    .into_iter()
+    .find_map(|(key, what)| checks[key].as_f64().map(|e| (e, what)));
+    if let Some((e, what)) = recorded {
         rows.push(Row {
             check: Check::Graph,
             what: spec.name.clone(),
-            comparison: "torch fused vs canonical".into(),
+            comparison: what.into(),
             output: "(all, recorded by export)".into(),
             step: None,
             metric: Metric::MaxAbs,

@@ -9,7 +9,7 @@
 //! | `graph` | the same, tract vs ort (same inputs, each backend chaining its own caches; every output and cache at every step) | [`TRACT_VS_ORT`] |
 //! | `graph` | the same, tract vs torch (implied by the two above) | [`TRACT_VS_TORCH`] |
 //! | `graph` | torch step-by-step vs torch offline: measured by the exporter (it needs PyTorch) and read from the manifest's `checks` | [`TORCH_STEP_VS_OFFLINE`] |
-//! | `graph` | a fused form's graph (`experts_fused`, `decoders_fused`) vs the canonical graphs in torch: measured by the exporter, read from `checks` | [`TORCH_FUSED_VS_CANONICAL`] |
+//! | `graph` | another form's graph (`experts_fused`, `decoders_fused`, `fusion_attention`) vs the canonical graphs in torch: measured by the exporter, read from `checks` | [`TORCH_FUSED_VS_CANONICAL`] |
 //! | `rollout` | the whole seeded rollout (`reference/clip.wav` repeated `clip_repeats` times, the manifest's seed and sampling defaults): tokens identical at every step, frames (poses, trans, expressions, foot contact) | [`ROLLOUT_FRAMES`] |
 //! | `rollout` | a bundle with several forms (SPEC 14): on each backend that runs a form other than canonical (the manifest's `backend_forms`, or `--form`), the canonical form's rollout vs that form's: identical tokens, frames | [`ROLLOUT_FRAMES`] |
 //! | `logmel` | the Rust log-mel frontend on `reference/clip.wav` vs `reference/logmel.npy` | [`LOGMEL`] |

@@ -13,7 +13,7 @@ use crate::output::Frame;
 /// True for the graphs that run both guidance branches (2 rows per guided stream): the experts and
 /// fusion.
 fn is_branched(graph: &str) -> bool {
-    graph.starts_with("expert_") || graph.starts_with("experts_") || graph == "fusion"
+    graph.starts_with("expert_") || graph.starts_with("experts_") || graph.starts_with("fusion")
 }
 
 /// The graphs of the forms other than canonical (SPEC 14): a stream holds the caches of one form.
@@ -23,11 +23,16 @@ fn other_form_graphs(bundle: &Bundle) -> Result<Vec<String>> {
     Ok(forms
         .into_iter()
         .filter(|(k, _)| k != "canonical")
-        .flat_map(|(_, f)| f.experts.into_iter().chain(f.decoders))
+        .flat_map(|(_, f)| {
+            f.experts
+                .into_iter()
+                .chain(f.decoders)
+                .chain(std::iter::once(f.fusion))
+        })
         .filter(|g| {
             !canonical
                 .as_ref()
-                .is_some_and(|c| c.experts.contains(g) || c.decoders.contains(g))
+                .is_some_and(|c| c.experts.contains(g) || c.decoders.contains(g) || &c.fusion == g)
         })
         .collect())
 }
@@ -147,8 +152,9 @@ pub fn describe(bundle: &Bundle) -> Result<Description> {
                 forms
                     .iter()
                     .map(|(k, g)| format!(
-                        "{k}: eXperts {}, decoders {}",
+                        "{k}: eXperts {}, fusion {}, decoders {}",
                         g.experts.join(" "),
+                        g.fusion,
                         g.decoders.join(" ")
                     ))
                     .collect::<Vec<_>>()

@@ -88,7 +88,7 @@ use caches::{Caches, SeparateCaches, StackedCaches};
 use chain::Stage;
 use stream::StreamState;
 
-/// Which form of the region eXperts and decoders a [`Pipeline`] runs (SPEC 14).
+/// Which form of the region eXperts, fusion and decoders a [`Pipeline`] runs (SPEC 14).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum FormChoice {
     /// The form the bundle's manifest names for the backend (`backend_forms`), else canonical.
@@ -99,6 +99,9 @@ pub enum FormChoice {
     /// The four eXperts as one graph on a region axis (`experts_fused`) and, where the bundle has
     /// it, the four SVQ decoders as one graph (`decoders_fused`).
     Fused,
+    /// The canonical eXperts and decoders and the fusion with its attention cores as the ONNX
+    /// `Attention` op (`fusion_attention`).
+    Attention,
 }
 
 impl std::fmt::Display for FormChoice {
@@ -107,6 +110,7 @@ impl std::fmt::Display for FormChoice {
             FormChoice::Auto => "auto",
             FormChoice::Canonical => "canonical",
             FormChoice::Fused => "fused",
+            FormChoice::Attention => "attention",
         })
     }
 }
@@ -118,8 +122,9 @@ impl std::str::FromStr for FormChoice {
             "auto" | "" => Ok(FormChoice::Auto),
             "canonical" => Ok(FormChoice::Canonical),
             "fused" => Ok(FormChoice::Fused),
+            "attention" => Ok(FormChoice::Attention),
             other => Err(format!(
-                "unknown form '{other}'; expected auto, canonical or fused"
+                "unknown form '{other}'; expected auto, canonical, fused or attention"
             )),
         }
     }
@@ -137,7 +142,7 @@ pub struct Pipeline {
     audio_encoder: Stage,
     /// The region eXperts: one stage per region (canonical form) or one for all (fused form).
     experts: Vec<Stage>,
-    /// The form of the eXperts and decoders (`canonical` or `fused`).
+    /// The form of the eXperts, fusion and decoders (`canonical`, `fused` or `attention`).
     form: String,
     fusion: Stage,
     /// The region SVQ decoders: one stage per region (canonical form, and the fused form of a bundle
@@ -159,16 +164,16 @@ impl std::fmt::Debug for Pipeline {
 }
 
 impl Pipeline {
-    /// Loads every graph of `bundle` with `backend`, the eXperts and decoders in the bundle's form
-    /// for the backend (`backend_forms`, else canonical).
+    /// Loads every graph of `bundle` with `backend`, the eXperts, fusion and decoders in the
+    /// bundle's form for the backend (`backend_forms`, else canonical).
     pub fn new(bundle: &Bundle, backend: &dyn Backend) -> Result<Self> {
         Self::with_form(bundle, backend, FormChoice::Auto)
     }
 
-    /// Loads every graph of `bundle` with `backend`, the region eXperts and decoders in the form
-    /// `form` (a fused form without `decoders_fused`, from bundles exported before it, runs the
-    /// canonical decoders). Asking for a form the bundle does not carry is an error naming the forms
-    /// it has.
+    /// Loads every graph of `bundle` with `backend`, the region eXperts, fusion and decoders in the
+    /// form `form` (a fused form without `decoders_fused`, from bundles exported before it, runs the
+    /// canonical decoders; a form without its own `fusion` runs the canonical fusion). Asking for a
+    /// form the bundle does not carry is an error naming the forms it has.
     pub fn with_form(bundle: &Bundle, backend: &dyn Backend, form: FormChoice) -> Result<Self> {
         let lg = bundle.livegesture()?;
         let names: Vec<String> = lg.region_names().iter().map(|s| s.to_string()).collect();
@@ -178,6 +183,7 @@ impl Pipeline {
             FormChoice::Auto => lg.default_form(backend.name()),
             FormChoice::Canonical => "canonical",
             FormChoice::Fused => "fused",
+            FormChoice::Attention => "attention",
         }
         .to_string();
         // a form the bundle does not carry is bad input (exit code 2), named in the manifest's terms
@@ -186,12 +192,12 @@ impl Pipeline {
             .ok_or_else(|| crate::bundle::BundleError::Manifest {
                 path: bundle.dir().join("manifest.json"),
                 detail: format!(
-                    "forms: no '{form}' form of the region eXperts and decoders was exported (the bundle has {:?})",
+                    "forms: no '{form}' form of the region eXperts, fusion and decoders was exported (the bundle has {:?})",
                     forms.keys().collect::<Vec<_>>()
                 ),
             })?;
         let audio_encoder = Stage::new(bundle, backend, "audio_encoder", &names)?;
-        let fusion = Stage::new(bundle, backend, "fusion", &names)?;
+        let fusion = Stage::new(bundle, backend, &graphs.fusion, &names)?;
         let experts = graphs
             .experts
             .iter()
@@ -235,8 +241,8 @@ impl Pipeline {
         })
     }
 
-    /// The form of the region eXperts and decoders this pipeline runs (`canonical` or `fused`,
-    /// SPEC 14).
+    /// The form of the region eXperts, fusion and decoders this pipeline runs (`canonical`,
+    /// `fused` or `attention`, SPEC 14).
     pub fn form(&self) -> &str {
         &self.form
     }
