@@ -7,8 +7,13 @@
 #   BIN=/path/to/old/livegesture scripts/bench_ab.sh B   # the same bundle on another build
 #   ROUNDS=3 BACKENDS="ort tract" STREAMS=32 scripts/bench_ab.sh ...
 #   FORMS="canonical fused" scripts/bench_ab.sh B         # the graph forms of one bundle (SPEC 14; --form)
-#   GRAPHS=decoder scripts/bench_ab.sh ...                # also: the summed medians of the graphs whose name
-#                                                         # contains GRAPHS, one stream and per batched step
+#   GRAPHS=decoder scripts/bench_ab.sh ...                # also: the graphs whose name contains GRAPHS,
+#                                                         # one stream and per batched step: the median over
+#                                                         # steps of their per-step sum (from the bench's
+#                                                         # JSON samples; "-" for a binary without them), and
+#                                                         # for comparison the sum of their per-graph medians
+#                                                         # (biased on a shared core: see BENCHMARKS.md, "The
+#                                                         # decoders at N = 32")
 #
 # Prints one line per run; quote medians over rounds, measured in one invocation (BENCHMARKS.md's log).
 set -euo pipefail
@@ -22,7 +27,8 @@ ROUNDS="${ROUNDS:-2}"; BACKENDS="${BACKENDS:-ort tract}"; STREAMS="${STREAMS:-32
 FORMS="${FORMS:-auto}"; GRAPHS="${GRAPHS:-}"
 [ $# -ge 1 ] || { echo "usage: scripts/bench_ab.sh BUNDLE [BUNDLE ...]" >&2; exit 2; }
 printf "%-5s %-40s %-9s %-6s %12s %14s" round bundle form backend "chain ms" "N=$STREAMS step ms"
-[ -z "$GRAPHS" ] || printf " %16s %18s" "$GRAPHS* 1 ms" "$GRAPHS* N=$STREAMS ms"
+[ -z "$GRAPHS" ] || printf " %16s %18s %22s" "$GRAPHS* 1 ms" "$GRAPHS* N=$STREAMS ms" "sum of medians N=$STREAMS"
+JSON="$(mktemp)"; trap 'rm -f "$JSON"' EXIT
 printf "\n"
 bundles=("$@")
 for r in $(seq 1 "$ROUNDS"); do
@@ -40,19 +46,29 @@ for r in $(seq 1 "$ROUNDS"); do
     for f in "${forms[@]}"; do
       for be in $BACKENDS; do
         out=$(taskset -c "$CPU" "$BIN" bench --form "$f" --bundle "$b" --backend "$be" --threads 1 --steps 150 \
-          --warmup 10 --latency-trials 1 --streams "$STREAMS" --batch-steps 10 --batch-warmup 2 --quiet)
+          --warmup 10 --latency-trials 1 --streams "$STREAMS" --batch-steps 10 --batch-warmup 2 --quiet --json "$JSON")
         chain=$(awk '/whole chain/ {print $3}' <<<"$out")
         batched=$(awk -v n="$STREAMS" '$1 == n && NF >= 8 {print $3; exit}' <<<"$out")
         printf "%-5s %-40s %-9s %-6s %12s %14s" "$r" "$b" "$f" "$be" "$chain" "$batched"
         if [ -n "$GRAPHS" ]; then
-          # one stream: the per-graph table's medians; batched: the "per graph" table's row for N
-          one=$(awk -v g="$GRAPHS" '/^per-token step/ {t = 1; next} /sum of graphs/ {t = 0}
-                t && index($1, g) {s += $2} END {printf "%.3f", s}' <<<"$out")
-          many=$(awk -v g="$GRAPHS" -v n="$STREAMS" '/^batched, per graph/ {t = 1; next}
+          # the median over timed steps of the per-step sum of the matching graphs (one stream; batched
+          # N), then the sum of their per-graph medians at N (the "per graph" table's row)
+          read -r one many <<<"$("$LIVEGESTURE_PY" - "$JSON" "$GRAPHS" "$STREAMS" <<'PY'
+import json, statistics, sys
+r, g, n = json.load(open(sys.argv[1])), sys.argv[2], int(sys.argv[3])
+def med(graphs):
+    s = [x for x in graphs if g in x["graph"]]
+    if not s or "samples_ms" not in s[0]:
+        return "-"
+    return "%.3f" % statistics.median(map(sum, zip(*(x["samples_ms"] for x in s))))
+print(med(r["single"]["graphs"]), med(next(b for b in r["batched"] if b["streams"] == n)["graphs"]))
+PY
+)"
+          sum_med=$(awk -v g="$GRAPHS" -v n="$STREAMS" '/^batched, per graph/ {t = 1; next}
                 t && $1 == "N" {for (i = 2; i <= NF; i++) h[i] = $i; next}
                 t && $1 == n {for (i = 2; i <= NF; i++) if (index(h[i], g)) s += $i; t = 0}
                 END {printf "%.3f", s}' <<<"$out")
-          printf " %16s %18s" "$one" "$many"
+          printf " %16s %18s %22s" "$one" "$many" "$sum_med"
         fi
         printf "\n"
       done

@@ -99,6 +99,12 @@ impl Default for BenchConfig {
 pub struct GraphTiming {
     pub graph: String,
     pub ms: Stats,
+    /// The graph's time in every timed step, in step order (0 where it did not run). Summing graphs
+    /// per step before taking the median (`scripts/bench_ab.sh GRAPHS=...`) compares one graph with
+    /// several on equal terms: a sum of per-graph medians drops the preemptions of a shared core
+    /// that hit each short graph in fewer than half of the steps, which the median of one longer
+    /// graph keeps.
+    pub samples_ms: Vec<f64>,
 }
 
 /// Per-graph statistics from each graph's samples (`names[i]`'s samples in `samples[i]`).
@@ -109,6 +115,7 @@ fn graph_timings(names: &[String], samples: &[Vec<f64>]) -> Vec<GraphTiming> {
         .map(|(n, v)| GraphTiming {
             graph: n.clone(),
             ms: Stats::of(v),
+            samples_ms: v.clone(),
         })
         .collect()
 }
@@ -550,4 +557,27 @@ pub fn run_family(
             FamilyReport::DiffSheg(diffsheg::run(bundle, backend, cfg, d, progress)?)
         }
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn graph_timings_keep_every_step_in_order() {
+        // two short graphs, each preempted (+4 ms) in one step of three: the per-step sums (2, 6, 6;
+        // median 6) are what `bench_ab.sh GRAPHS=...` takes the median of; the sum of the per-graph
+        // medians (1 + 1 = 2) drops the preemptions
+        let names = vec!["decoder_a".to_string(), "decoder_b".to_string()];
+        let samples = vec![vec![1.0, 1.0, 5.0], vec![1.0, 5.0, 1.0]];
+        let t = graph_timings(&names, &samples);
+        assert_eq!(t[0].graph, "decoder_a");
+        assert_eq!(t[0].samples_ms, samples[0]);
+        assert_eq!(t[1].samples_ms, samples[1]);
+        assert_eq!(t[0].ms.median + t[1].ms.median, 2.0);
+        let sums: Vec<f64> = (0..3)
+            .map(|i| t[0].samples_ms[i] + t[1].samples_ms[i])
+            .collect();
+        assert_eq!(Stats::of(&sums).median, 6.0);
+    }
 }
