@@ -99,8 +99,11 @@ impl SamplerOptions {
 /// `n = min(N, t - start)`; the last window is the first with `start + N >= t`.
 pub fn plan_windows(t: usize, window: usize, overlap: usize) -> Vec<(usize, usize)> {
     let mut out = Vec::new();
+    if t == 0 {
+        return out;
+    }
     let mut s = 0;
-    while t > 0 {
+    loop {
         let n = window.min(t - s);
         out.push((s, n));
         if s + window >= t {
