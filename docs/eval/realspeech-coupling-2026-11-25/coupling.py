@@ -5,6 +5,7 @@ Three probes, each scored on the real-speech VALIDATION split (8 clips) and the 
     python coupling.py decode --checkpoint CKPT --set real --seeds 13 14 15 16 17 18 --out DIR
     python coupling.py decode --checkpoint CKPT --set synth --synth /tmp/corpus_default --seeds 13 14 15 --out DIR
     python coupling.py encoder --checkpoint CKPT --synth /tmp/corpus_default --out FILE.json
+    python coupling.py hidden --checkpoint CKPT --synth /tmp/corpus_default --seed 13 --out FILE.json
     python coupling.py generator --synth /tmp/corpus_default --out FILE.json
 
 ``decode``: the Python streaming reference (``livegesture.stream``) with two switches, everything else as shipped:
@@ -25,6 +26,10 @@ Also recorded per step in ``fuse`` mode: how often the local head's argmax equal
 the streaming step) to the speech envelope of token t (mean of its 4 frames; raw and Gaussian-smoothed with
 generalise's 0.2 s), fitted on the synthetic TRAIN split, R^2 on the synthetic test split and the real
 validation split (per clip and pooled; ridge lambda chosen by 5-fold CV over train clips).
+
+``hidden``: the same linear read-out of the envelope along the chain, from one default rollout per clip: the audio
+token a_t, the upper/hands eXperts' hidden h_t^r and the fuse's output for those regions; ridge fitted on the
+synthetic test split's rollouts, per-clip Pearson r on synthetic test (5-fold CV over clips) and on real speech.
 
 ``generator``: the corpus generator's motion model (``synth.generate_motion``, speaker 2's style, seed 0 - the
 ``reference`` of the generalise reports) on each clip with features of the audio analysis ablated, speed_env gap
@@ -166,6 +171,7 @@ def cmd_decode(a):
         res = {}
         for design in G.DESIGNS:
             res[design] = G.evaluate_set(ids, cm, ca, speed_ref, design=design)
+        res["mean_upper_speed_m_s"] = float(np.mean([np.mean([c.speed.mean() for c in reals]) for reals in cm]))
         res["argmax_agreement_local_vs_fuse"] = {r: float(np.mean([g[r] for g in agree])) for r in LOCAL_REGIONS}
         res["realisations"] = len(seeds)
         report["modes"][mode] = res
@@ -205,6 +211,93 @@ def format_decode(rep) -> str:
             f"{m[:11]} {res['audio_swap']['per_clip'][i]['speed_env']['gap']:+.3f}/"
             f"{res['motion_swap']['per_clip'][i]['speed_env']['gap']:+.3f}" for m, res in rep["modes"].items()))
     return "\n".join(L)
+
+
+# ----------------------------------------------------------------------------- hidden-state probe
+
+@torch.no_grad()
+def hidden_states(model, audio, seed):
+    """One default (fuse, sampled) rollout; per token: audio token, the eXperts' hidden h^r (conditional branch)
+    and the fuse's normalised output x^r (input of the classifiers) for upper and hands."""
+    s = ProbeStream(model, seed, "fuse")
+    rec = {"audio": [], "fuse_out": []}
+    enc_step, fuse_cls = model.audio_encoder.step, model.fuse._classify
+    exp_steps = {r: model.experts[r].step for r in LOCAL_REGIONS}
+
+    def enc(mel, cache):
+        o, c = enc_step(mel, cache)
+        rec["audio"].append(o["audio"][0].numpy().copy())
+        return o, c
+
+    def cls(x):
+        rec["fuse_out"].append(model.fuse.norm(x)[0].numpy().copy())
+        return fuse_cls(x)
+
+    def make(r):
+        def st(prev, audio, cond, cache):
+            o, c = exp_steps[r](prev, audio, cond, cache)
+            rec.setdefault(f"expert_{r}", []).append(o["hidden"][0].numpy().copy())
+            return o, c
+        return st
+    model.audio_encoder.step, model.fuse._classify = enc, cls
+    for r in LOCAL_REGIONS:
+        model.experts[r].step = make(r)
+    try:
+        s.push(np.asarray(audio, np.float32))
+    finally:
+        del model.audio_encoder.step, model.fuse._classify
+        for r in LOCAL_REGIONS:
+            del model.experts[r].step
+    fo = np.stack(rec["fuse_out"])          # (T, R, d)
+    out = {"audio": np.stack(rec["audio"])}
+    for r in LOCAL_REGIONS:
+        out[f"expert_{r}"] = np.stack(rec[f"expert_{r}"])
+        out[f"fuse_{r}"] = fo[:, REGION_NAMES.index(r)]
+    return out
+
+
+def _ridge_fit(Xs, ys, lam):
+    X = np.vstack(Xs)
+    mu, sd = X.mean(0), X.std(0) + 1e-6
+    Z = lambda A: np.hstack([(A - mu) / sd, np.ones((len(A), 1))])
+    X = Z(X)
+    w = np.linalg.solve(X.T @ X + lam * np.eye(X.shape[1]), X.T @ np.concatenate(ys))
+    return lambda A: Z(A) @ w
+
+
+def cmd_hidden(a):
+    """Envelope decodability along the chain audio token -> eXpert hidden -> fuse output (upper, hands), from
+    one default rollout (seed ``--seed``) per clip; ridge fitted on the synthetic test split's rollouts (5-fold
+    CV over clips for the synthetic score, all clips for the real score), scored by per-clip Pearson r."""
+    from livegesture.checkpoint import load
+    torch.set_num_threads(1)
+    model = load(a.checkpoint)
+    ids_s, aud_s, _ = G.synth_set(a.synth, "test")
+    ids_r, aud_r = G.real_set(a.real_speech)
+    t0 = time.time()
+    Hs = [hidden_states(model, x, a.seed) for x in aud_s]
+    Hr = [hidden_states(model, x, a.seed) for x in aud_r]
+    _log(f"rollouts {time.time() - t0:.1f} s")
+    env = lambda x, n: token_envelope(x, n, False)
+    ys = [env(x, len(h["audio"])) for x, h in zip(aud_s, Hs)]
+    yr = [env(x, len(h["audio"])) for x, h in zip(aud_r, Hr)]
+    report = {"checkpoint": a.checkpoint, "seed": a.seed, "lambda": a.lam, "features": {}}
+    for feat in ["audio"] + [f"{k}_{r}" for r in LOCAL_REGIONS for k in ("expert", "fuse")]:
+        folds = np.arange(len(Hs)) % 5
+        rs = []
+        for f in range(5):
+            pr = _ridge_fit([h[feat] for h, k in zip(Hs, folds) if k != f], [y for y, k in zip(ys, folds) if k != f], a.lam)
+            rs += [G.pearson(y, pr(h[feat])) for h, y, k in zip(Hs, ys, folds) if k == f]
+        pr = _ridge_fit([h[feat] for h in Hs], ys, a.lam)
+        rr = [G.pearson(y, pr(h[feat])) for h, y in zip(Hr, yr)]
+        report["features"][feat] = {"synth_test_cv_r": float(np.mean(rs)), "synth_test_cv_r_ci95": list(G.bootstrap_ci(rs)),
+                                    "real_r": float(np.mean(rr)), "real_r_ci95": list(G.bootstrap_ci(rr)),
+                                    "real_per_clip": dict(zip(ids_r, rr))}
+        f_ = report["features"][feat]
+        print(f"{feat:<14} synth test (5-fold CV) r {f_['synth_test_cv_r']:.3f} [{f_['synth_test_cv_r_ci95'][0]:.3f}, "
+              f"{f_['synth_test_cv_r_ci95'][1]:.3f}]   real val r {f_['real_r']:.3f} [{f_['real_r_ci95'][0]:.3f}, "
+              f"{f_['real_r_ci95'][1]:.3f}]")
+    Path(a.out).write_text(json.dumps(report, indent=1, default=float))
 
 
 # ----------------------------------------------------------------------------- encoder probe
@@ -391,12 +484,19 @@ def main(argv=None):
     e.add_argument("--synth", default="/tmp/corpus_default")
     e.add_argument("--real-speech")
     e.add_argument("--out", required=True)
+    h = sub.add_parser("hidden")
+    h.add_argument("--checkpoint", required=True)
+    h.add_argument("--synth", default="/tmp/corpus_default")
+    h.add_argument("--real-speech")
+    h.add_argument("--seed", type=int, default=13)
+    h.add_argument("--lam", type=float, default=100.0)
+    h.add_argument("--out", required=True)
     g = sub.add_parser("generator")
     g.add_argument("--synth", default="/tmp/corpus_default")
     g.add_argument("--real-speech")
     g.add_argument("--out", required=True)
     a = ap.parse_args(argv)
-    {"decode": cmd_decode, "encoder": cmd_encoder, "generator": cmd_generator}[a.cmd](a)
+    {"decode": cmd_decode, "encoder": cmd_encoder, "hidden": cmd_hidden, "generator": cmd_generator}[a.cmd](a)
 
 
 if __name__ == "__main__":
