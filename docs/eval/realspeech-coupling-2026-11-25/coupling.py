@@ -28,7 +28,7 @@ generalise's 0.2 s), fitted on the synthetic TRAIN split, R^2 on the synthetic t
 validation split (per clip and pooled; ridge lambda chosen by 5-fold CV over train clips).
 
 ``hidden``: the same linear read-out of the envelope along the chain, from one default rollout per clip: the audio
-token a_t, the upper/hands eXperts' hidden h_t^r and the fuse's output for those regions; ridge fitted on the
+token a_t, every eXpert's hidden h_t^r and the fuse's output per region (face: the jaw's contrast case); ridge fitted on the
 synthetic test split's rollouts, per-clip Pearson r on synthetic test (5-fold CV over clips) and on real speech.
 
 ``generator``: the corpus generator's motion model (``synth.generate_motion``, speaker 2's style, seed 0 - the
@@ -218,11 +218,11 @@ def format_decode(rep) -> str:
 @torch.no_grad()
 def hidden_states(model, audio, seed):
     """One default (fuse, sampled) rollout; per token: audio token, the eXperts' hidden h^r (conditional branch)
-    and the fuse's normalised output x^r (input of the classifiers) for upper and hands."""
+    and the fuse's normalised output x^r (input of the classifiers), every region."""
     s = ProbeStream(model, seed, "fuse")
     rec = {"audio": [], "fuse_out": []}
     enc_step, fuse_cls = model.audio_encoder.step, model.fuse._classify
-    exp_steps = {r: model.experts[r].step for r in LOCAL_REGIONS}
+    exp_steps = {r: model.experts[r].step for r in REGION_NAMES}
 
     def enc(mel, cache):
         o, c = enc_step(mel, cache)
@@ -240,17 +240,17 @@ def hidden_states(model, audio, seed):
             return o, c
         return st
     model.audio_encoder.step, model.fuse._classify = enc, cls
-    for r in LOCAL_REGIONS:
+    for r in REGION_NAMES:
         model.experts[r].step = make(r)
     try:
         s.push(np.asarray(audio, np.float32))
     finally:
         del model.audio_encoder.step, model.fuse._classify
-        for r in LOCAL_REGIONS:
+        for r in REGION_NAMES:
             del model.experts[r].step
     fo = np.stack(rec["fuse_out"])          # (T, R, d)
     out = {"audio": np.stack(rec["audio"])}
-    for r in LOCAL_REGIONS:
+    for r in REGION_NAMES:
         out[f"expert_{r}"] = np.stack(rec[f"expert_{r}"])
         out[f"fuse_{r}"] = fo[:, REGION_NAMES.index(r)]
     return out
@@ -266,7 +266,7 @@ def _ridge_fit(Xs, ys, lam):
 
 
 def cmd_hidden(a):
-    """Envelope decodability along the chain audio token -> eXpert hidden -> fuse output (upper, hands), from
+    """Envelope decodability along the chain audio token -> eXpert hidden -> fuse output (every region), from
     one default rollout (seed ``--seed``) per clip; ridge fitted on the synthetic test split's rollouts (5-fold
     CV over clips for the synthetic score, all clips for the real score), scored by per-clip Pearson r."""
     from livegesture.checkpoint import load
@@ -282,7 +282,7 @@ def cmd_hidden(a):
     ys = [env(x, len(h["audio"])) for x, h in zip(aud_s, Hs)]
     yr = [env(x, len(h["audio"])) for x, h in zip(aud_r, Hr)]
     report = {"checkpoint": a.checkpoint, "seed": a.seed, "lambda": a.lam, "features": {}}
-    for feat in ["audio"] + [f"{k}_{r}" for r in LOCAL_REGIONS for k in ("expert", "fuse")]:
+    for feat in ["audio"] + [f"{k}_{r}" for r in REGION_NAMES for k in ("expert", "fuse")]:
         folds = np.arange(len(Hs)) % 5
         rs = []
         for f in range(5):
