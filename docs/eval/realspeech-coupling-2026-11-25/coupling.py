@@ -407,10 +407,18 @@ def _ablate(an, what):
         return r(an, f0=np.zeros_like(an.f0))
     if what == "always_active":      # engagement (gesture space) constant
         return r(an, active=np.ones_like(an.active))
+    if what in ("strength_from_env", "strength_from_env+always_active"):
+        # what-if, not an ablation: onset strength = the analysis envelope at the onset (10 ms hop), so that
+        # the stroke probability/amplitude follow the loudness of the syllable (a candidate target change)
+        idx = np.clip(np.round(an.onsets / (an.times[1] - an.times[0])).astype(int), 0, len(an.env) - 1) \
+            if len(an.onsets) else np.zeros(0, int)
+        b = r(an, onset_strength=an.env[idx].astype(np.float64))
+        return b if what == "strength_from_env" else r(b, active=np.ones_like(an.active))
     raise ValueError(what)
 
 
-ABLATIONS = ("full", "no_onsets", "const_strength", "no_phrase_start", "flat_pitch", "always_active")
+ABLATIONS = ("full", "no_onsets", "const_strength", "no_phrase_start", "flat_pitch", "always_active",
+             "strength_from_env", "strength_from_env+always_active")
 
 
 def cmd_generator(a):
@@ -455,7 +463,8 @@ def cmd_generator(a):
                 ms.append([G.ClipMotion({"poses": p, "trans": tr, "expressions": ex})])
             ev = G.evaluate_set(ids, ms, ca, None, design="audio_swap")
             s = ev["summary"]["speed_env"]
-            res["ablations"][ab] = {"speed_env": s, "per_clip_gap": [r["speed_env"]["gap"] for r in ev["per_clip"]]}
+            res["ablations"][ab] = {"speed_env": s, "per_clip_gap": [r["speed_env"]["gap"] for r in ev["per_clip"]],
+                                    "mean_upper_speed_m_s": float(np.mean([m[0].speed.mean() for m in ms]))}
         report[name] = res
     Path(a.out).write_text(json.dumps(report, indent=1, default=float))
     for name, res in report.items():
@@ -463,7 +472,8 @@ def cmd_generator(a):
         for ab, r in res["ablations"].items():
             s = r["speed_env"]
             print(f"  {ab:<16} speed_env own {s['own']:.3f} other {s['other']:.3f} gap {s['gap']:+.3f} "
-                  f"[{s['gap_ci95'][0]:+.3f}, {s['gap_ci95'][1]:+.3f}] wins {round(s['wins'] * s['clips'])}/{s['clips']}")
+                  f"[{s['gap_ci95'][0]:+.3f}, {s['gap_ci95'][1]:+.3f}] wins {round(s['wins'] * s['clips'])}/{s['clips']}, "
+                  f"mean upper speed {r['mean_upper_speed_m_s']:.4f} m/s")
 
 
 def main(argv=None):
