@@ -14,7 +14,8 @@ import sys
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
+# the folder holding real/ and synth/: this one, or TABLES_DIR (a later sitting that reuses these rules)
+HERE = os.environ.get("TABLES_DIR") or os.path.dirname(os.path.abspath(__file__))
 MEASURES = ("speed_env", "jaw_env", "bc")
 SEEDS = (7, 8, 9, 10, 11, 12)
 
