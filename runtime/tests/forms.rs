@@ -318,24 +318,20 @@ fn parity_fails_on_a_perturbed_attention_fusion_weight_naming_the_graph() {
     );
 }
 
-/// A copy of the tiny bundle as exported before the attention form: no `forms.attention`, no
-/// `fusion_attention` (graph, reference vectors, manifest entries), no `fusion` key in any form.
-fn bundle_without_attention_form(dir: &Path) -> std::path::PathBuf {
-    let bundle = common::copy_bundle(dir);
-    let path = bundle.join("manifest.json");
-    let mut m: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+/// Removes graph `name` from a copied bundle and its manifest `m`: its graph file and reference vectors
+/// (and their `files` entries), its `graphs`, `reference.graphs` and `checks` entries.
+fn remove_graph(bundle: &Path, m: &mut serde_json::Value, name: &str) {
     let graph = m["graphs"]
         .as_array()
         .unwrap()
         .iter()
-        .find(|g| g["name"] == "fusion_attention")
+        .find(|g| g["name"] == name)
         .cloned()
-        .expect("the tiny bundle has fusion_attention");
+        .unwrap_or_else(|| panic!("the tiny bundle has {name}"));
     m["graphs"]
         .as_array_mut()
         .unwrap()
-        .retain(|g| g["name"] != "fusion_attention");
+        .retain(|g| g["name"] != name);
     for key in ["file", "reference"] {
         let rel = graph[key].as_str().unwrap();
         std::fs::remove_file(bundle.join(rel)).unwrap();
@@ -344,10 +340,22 @@ fn bundle_without_attention_form(dir: &Path) -> std::path::PathBuf {
     m["reference"]["graphs"]
         .as_object_mut()
         .unwrap()
-        .remove("fusion_attention");
-    for key in ["fusion_attention", "forms_attention"] {
-        m["checks"].as_object_mut().unwrap().remove(key);
-    }
+        .remove(name);
+    m["checks"].as_object_mut().unwrap().remove(name);
+}
+
+/// A copy of the tiny bundle as exported before the attention form: no `forms.attention`, no
+/// `fusion_attention` (graph, reference vectors, manifest entries), no `fusion` key in any form.
+fn bundle_without_attention_form(dir: &Path) -> std::path::PathBuf {
+    let bundle = common::copy_bundle(dir);
+    let path = bundle.join("manifest.json");
+    let mut m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    remove_graph(&bundle, &mut m, "fusion_attention");
+    m["checks"]
+        .as_object_mut()
+        .unwrap()
+        .remove("forms_attention");
     let forms = m["forms"].as_object_mut().unwrap();
     forms.remove("attention");
     for f in forms.values_mut() {
@@ -412,30 +420,7 @@ fn bundle_without_fused_decoders(dir: &Path) -> std::path::PathBuf {
     let path = bundle.join("manifest.json");
     let mut m: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
-    let graph = m["graphs"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|g| g["name"] == "decoders_fused")
-        .cloned()
-        .expect("the tiny bundle has decoders_fused");
-    m["graphs"]
-        .as_array_mut()
-        .unwrap()
-        .retain(|g| g["name"] != "decoders_fused");
-    for key in ["file", "reference"] {
-        let rel = graph[key].as_str().unwrap();
-        std::fs::remove_file(bundle.join(rel)).unwrap();
-        m["files"].as_object_mut().unwrap().remove(rel);
-    }
-    m["reference"]["graphs"]
-        .as_object_mut()
-        .unwrap()
-        .remove("decoders_fused");
-    m["checks"]
-        .as_object_mut()
-        .unwrap()
-        .remove("decoders_fused");
+    remove_graph(&bundle, &mut m, "decoders_fused");
     for form in ["canonical", "fused"] {
         m["forms"][form].as_object_mut().unwrap().remove("decoders");
     }
