@@ -98,6 +98,14 @@ class LiveGestureStream:
     @torch.no_grad()
     def step_token(self, mel: np.ndarray) -> list[Frame]:
         """One token step from its mel frames (mel_frames_per_token, n_mels)."""
+        _, logits = self.hidden_and_logits(mel)
+        return self.emit(logits)
+
+    @torch.no_grad()
+    def hidden_and_logits(self, mel: np.ndarray) -> tuple[dict, np.ndarray]:
+        """The first half of :meth:`step_token`: the audio encoder, the eXperts and the fusion on one token's mel
+        frames (their caches advanced). Returns the eXperts' hidden states {region: (B, d_model)} and the
+        fusion's logits (B, R, K) (B = 2 with guidance: the conditional row first)."""
         m = self.model
         B = 2 if self.guided else 1
         out, self.cache["audio_encoder"] = m.audio_encoder.step(
@@ -115,7 +123,13 @@ class LiveGestureStream:
                 o, self.cache[f"expert_{r}"] = m.experts[r].step(prev, audio, cond, self.cache[f"expert_{r}"])
                 hidden[r] = o["hidden"]
         o, self.cache["fusion"] = self.fuse.step(hidden, audio, cond, self.cache["fusion"])
-        logits = o["logits"].numpy()                     # (B, R, K)
+        return hidden, o["logits"].numpy()               # (B, R, K)
+
+    @torch.no_grad()
+    def emit(self, logits: np.ndarray) -> list[Frame]:
+        """The second half of :meth:`step_token`: samples the region tokens from ``logits`` (B, R, K), decodes
+        them and returns the token's frames."""
+        m = self.model
         self.logits.append(logits)
         tokens = {}
         for i, r in enumerate(REGION_NAMES):

@@ -51,7 +51,6 @@ import torch
 from livegesture.eval import generalise as G
 from livegesture.eval import corpus as C
 from livegesture.regions import FPS, FRAMES_PER_TOKEN, REGION_NAMES, SAMPLE_RATE
-from livegesture.sampling import sample_token
 from livegesture.stream import LiveGestureStream, frames_to_arrays
 
 LOCAL_REGIONS = ("upper", "hands")
@@ -75,42 +74,16 @@ class ProbeStream(LiveGestureStream):
 
     @torch.no_grad()
     def step_token(self, mel):
-        from livegesture.motion import features_to_motion
-        from livegesture.stream import Frame
-        m, B = self.model, (2 if self.guided else 1)
-        out, self.cache["audio_encoder"] = m.audio_encoder.step(
-            torch.as_tensor(mel, dtype=torch.float32)[None], self.cache["audio_encoder"])
-        audio = out["audio"].expand(B, -1)
-        cond = torch.tensor([1.0, 0.0][:B])
-        hidden = {}
-        for r in REGION_NAMES:
-            prev = torch.full((B,), self.prev[r], dtype=torch.int64)
-            o, self.cache[f"expert_{r}"] = m.experts[r].step(prev, audio, cond, self.cache[f"expert_{r}"])
-            hidden[r] = o["hidden"]
-        o, self.cache["fusion"] = m.fuse.step(hidden, audio, cond, self.cache["fusion"])
-        logits = o["logits"].numpy().copy()                     # (B, R, K)
+        # LiveGestureStream.step_token with the upper/hands rows of the logits swapped for the local heads'
+        hidden, logits = self.hidden_and_logits(mel)
+        logits = logits.copy()                                  # (B, R, K)
         for r in LOCAL_REGIONS:
             i = REGION_NAMES.index(r)
-            loc = m.experts[r].logits(hidden[r]).numpy()
+            loc = self.model.experts[r].logits(hidden[r]).numpy()
             self.agree[r].append(int(np.argmax(loc[0]) == np.argmax(logits[0, i])))
             if self.heads == "local":
                 logits[:, i] = loc
-        tokens = {r: sample_token(logits[0, i], logits[1, i] if self.guided else None, self.rng,
-                                  self.gamma, self.temperature, self.top_k) for i, r in enumerate(REGION_NAMES)}
-        feats = {}
-        for r in REGION_NAMES:
-            o, self.cache[f"decoder_{r}"] = m.svq[r].step(torch.tensor([tokens[r]]), self.cache[f"decoder_{r}"])
-            feats[r] = o["motion"][0].numpy()
-        self.prev = tokens
-        self.tokens.append(tokens)
-        motion = features_to_motion(feats)
-        frames = []
-        for j in range(FRAMES_PER_TOKEN):
-            k = FRAMES_PER_TOKEN * self.t + j
-            frames.append(Frame(k, k / FPS, motion["poses"][j], motion["trans"][j], motion["expressions"][j],
-                                motion["foot_contact"][j]))
-        self.t += 1
-        return frames
+        return self.emit(logits)
 
 
 def rollout(model, audio, seed, heads, sampler) -> tuple[dict, dict]:
