@@ -40,17 +40,20 @@ class SpatialAttention(nn.Module):
         a = torch.softmax((q @ k.transpose(-1, -2)) / math.sqrt(self.hd), dim=-1)
         return self.o((a @ v).transpose(1, 2).reshape(N, R, self.d))
 
-    def step(self, x):  # (B, R, d): the same computation with constant reshape sizes (lean step graph)
-        R = int(x.shape[1])
-        q, k, v = self.qkv(x).reshape(-1, R, 3, self.h, self.hd).permute(2, 0, 3, 1, 4)
+    def _step_qkv(self, x):  # (B, R, d) -> q, k, v (B, h, R, hd) with constant reshape sizes (lean step graph)
+        return self.qkv(x).reshape(-1, int(x.shape[1]), 3, self.h, self.hd).permute(2, 0, 3, 1, 4)
+
+    def _step_out(self, y):  # (B, h, R, hd) -> (B, R, d)
+        return self.o(y.transpose(1, 2).reshape(-1, int(y.shape[2]), self.d))
+
+    def step(self, x):  # (B, R, d): the same computation as forward
+        q, k, v = self._step_qkv(x)
         a = torch.softmax((q @ k.transpose(-1, -2)) / math.sqrt(self.hd), dim=-1)
-        return self.o((a @ v).transpose(1, 2).reshape(-1, R, self.d))
+        return self._step_out(a @ v)
 
     def step_op(self, x):  # step with the attention core as one AttentionOp (ONNX Attention, no mask)
-        R = int(x.shape[1])
-        q, k, v = self.qkv(x).reshape(-1, R, 3, self.h, self.hd).permute(2, 0, 3, 1, 4)
-        y = AttentionOp.apply(q, k, v, None, 1.0 / math.sqrt(self.hd))
-        return self.o(y.transpose(1, 2).reshape(-1, R, self.d))
+        q, k, v = self._step_qkv(x)
+        return self._step_out(AttentionOp.apply(q, k, v, None, 1.0 / math.sqrt(self.hd)))
 
 
 class FuseBlock(nn.Module):

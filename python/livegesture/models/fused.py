@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as F
 
 from .expert import RegionExpert
-from .layers import CacheSpec, PerRegionWeights, check_cache, check_shape, window_bias
+from .layers import CacheSpec, PerRegionWeights, check_cache, check_shape, window_bias, worst_difference
 
 FUSED_EXPERTS = "experts_fused"
 
@@ -164,7 +164,7 @@ def check_fused_experts(model, steps: int, batch: int = 2, seed: int = 0) -> tup
     f_cache = fused.init_cache(batch)
     c_caches = [e.init_cache(batch) for e in experts]
     cond = torch.tensor([1.0 if i % 2 == 0 else 0.0 for i in range(batch)])
-    worst, where = -1.0, ("hidden", 0)
+    worst = (-1.0, "hidden", 0)
     for s in range(steps):
         prev = torch.randint(0, cfg.codebook_size, (batch, len(experts)), generator=g)
         if s == 0:
@@ -177,8 +177,5 @@ def check_fused_experts(model, steps: int, batch: int = 2, seed: int = 0) -> tup
             pairs.append((f"hidden[:, {r}] ({REGION_NAMES[r]})", fo["hidden"][:, r], co["hidden"]))
         for r, split in enumerate(fused.split_cache(f_cache)):
             pairs += [(f"new_cache.{k}[:, {r}]", v, c_caches[r][k]) for k, v in split.items()]
-        for name, a, b in pairs:
-            err = float((a.double() - b.double()).abs().max())
-            if err > worst:
-                worst, where = err, (name, s)
-    return worst, where[0], where[1]
+        worst = worst_difference(worst, pairs, s)
+    return worst

@@ -43,7 +43,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from .layers import CacheSpec, CausalConv1d, PerRegionWeights, check_cache, check_shape, gemm_weight
+from .layers import (CacheSpec, CausalConv1d, PerRegionWeights, check_cache, check_shape, gemm_weight,
+                     worst_difference)
 from .svq import SVQ, upsample2_channels_last
 
 FUSED_DECODERS = "decoders_fused"
@@ -183,7 +184,7 @@ def check_fused_decoders(model, steps: int, batch: int = 2, seed: int = 0) -> tu
     g = torch.Generator().manual_seed(seed)
     f_cache = fused.init_cache(batch)
     c_caches = [s.init_cache(batch) for s in svqs]
-    worst, where = -1.0, ("motion", 0)
+    worst = (-1.0, "motion", 0)
     for s in range(steps):
         tok = torch.randint(0, model.cfg.codebook_size, (batch, len(svqs)), generator=g)
         fo, f_cache = fused.step(tok, f_cache)
@@ -193,8 +194,5 @@ def check_fused_decoders(model, steps: int, batch: int = 2, seed: int = 0) -> tu
             pairs.append((f"motion[..., {REGION_NAMES[r]}]", m, co["motion"]))
         for r, split in enumerate(fused.split_cache(f_cache)):
             pairs += [(f"new_cache.{k} ({REGION_NAMES[r]})", v, c_caches[r][k]) for k, v in split.items()]
-        for name, a, b in pairs:
-            err = float((a.double() - b.double()).abs().max())
-            if err > worst:
-                worst, where = err, (name, s)
-    return worst, where[0], where[1]
+        worst = worst_difference(worst, pairs, s)
+    return worst

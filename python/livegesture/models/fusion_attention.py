@@ -23,7 +23,7 @@ import torch.nn as nn
 
 from ..regions import REGION_NAMES
 from .fuse import XARFuse
-from .layers import CacheSpec
+from .layers import CacheSpec, worst_difference
 
 FUSION_ATTENTION = "fusion_attention"
 ATTENTION_FORM = "attention"
@@ -61,15 +61,12 @@ def check_fusion_attention(model, steps: int, batch: int = 2, seed: int = 0) -> 
     g = torch.Generator().manual_seed(seed)
     c_cache, a_cache = fuse.init_cache(batch), form.init_cache(batch)
     cond = torch.tensor([1.0 if i % 2 == 0 else 0.0 for i in range(batch)])
-    worst, where = -1.0, ("logits", 0)
+    worst = (-1.0, "logits", 0)
     for s in range(steps):
         hidden = {r: torch.randn(batch, cfg.d_model, generator=g) for r in REGION_NAMES}
         audio = torch.randn(batch, cfg.audio_dim, generator=g)
         co, c_cache = fuse.step(hidden, audio, cond, c_cache)
         ao, a_cache = form.step(hidden, audio, cond, a_cache)
         pairs = [("logits", ao["logits"], co["logits"])] + [(f"new_cache.{k}", a_cache[k], c_cache[k]) for k in c_cache]
-        for name, a, b in pairs:
-            err = float((a.double() - b.double()).abs().max())
-            if err > worst:
-                worst, where = err, (name, s)
-    return worst, where[0], where[1]
+        worst = worst_difference(worst, pairs, s)
+    return worst

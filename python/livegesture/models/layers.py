@@ -49,6 +49,18 @@ def check_shape(component: str, name: str, x: torch.Tensor, expected: tuple, dty
         raise ValueError(f"{component}: input '{name}' has dtype {x.dtype}, expected {dtype}")
 
 
+def worst_difference(worst: tuple[float, str, int], pairs, step: int) -> tuple[float, str, int]:
+    """``worst`` (max abs difference, output name, step) updated with ``pairs`` of (name, a, b) tensors at
+    ``step``: the largest |a - b| in float64, the first one met on ties. Start from ``(-1.0, name, 0)``. Used
+    by the checks of a form against the canonical graphs (``check_fused_experts``, ``check_fused_decoders``,
+    ``check_fusion_attention``)."""
+    for name, a, b in pairs:
+        err = float((a.double() - b.double()).abs().max())
+        if err > worst[0]:
+            worst = (err, name, step)
+    return worst
+
+
 def check_cache(component: str, specs: list[CacheSpec], cache: dict, batch: int):
     missing = [s.name for s in specs if s.name not in cache]
     if missing:
@@ -361,7 +373,6 @@ class WindowedAttention(nn.Module):
         p = torch.softmax(scores, dim=-1).permute(1, 2, 0, 3)     # (rows, h, n_q, W)
         y = (p @ v).transpose(1, 2).reshape((-1, nq, d))          # (rows, n_q, d)
         return self.o(y)
-
 
     def step_op(self, x: torch.Tensor, kv_in: torch.Tensor, bias: torch.Tensor, cache: dict, new_cache: dict,
                 name: str, lead: tuple[int, ...] = ()) -> torch.Tensor:
