@@ -28,7 +28,7 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "python"))
-from livegesture.models.layers import rope_tables, step_query_rotations  # noqa: E402
+from livegesture.models.layers import key_rotations, step_query_rotations  # noqa: E402
 
 ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
 ap.add_argument("--rows", type=int, default=64)
@@ -43,10 +43,7 @@ rows, n_q, h, hd, W = a.rows, a.queries, a.heads, a.head_dim, a.window
 Path(a.out).parent.mkdir(parents=True, exist_ok=True)
 
 qrot = step_query_rotations(W, hd)
-cos, sin = (t.flip(0) for t in rope_tables(W, hd))   # slot j: m = W - 1 - j positions back
-sign = torch.cat([-torch.ones(hd // 2), torch.ones(hd // 2)])
-S_k = -(sin * sign)   # R_-m k = k cos + swap(k) [sin, -sin]
-swap = torch.cat([torch.arange(hd // 2, hd), torch.arange(hd // 2)])
+cos, S_k, swap = key_rotations(W, hd)   # slot j rotated back by m = W - 1 - j: R_-m k = k cos + swap(k) S_k
 
 
 class A(torch.nn.Module):
