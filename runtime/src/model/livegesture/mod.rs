@@ -179,13 +179,11 @@ impl Pipeline {
         let names: Vec<String> = lg.region_names().iter().map(|s| s.to_string()).collect();
         let regions = resolve_layouts(&lg.regions)?;
         let forms = lg.form_graphs();
+        // the form's name in the manifest is its `Display` (`auto`: the bundle's form for the backend)
         let form = match form {
-            FormChoice::Auto => lg.default_form(backend.name()),
-            FormChoice::Canonical => "canonical",
-            FormChoice::Fused => "fused",
-            FormChoice::Attention => "attention",
-        }
-        .to_string();
+            FormChoice::Auto => lg.default_form(backend.name()).to_string(),
+            named => named.to_string(),
+        };
         // a form the bundle does not carry is bad input (exit code 2), named in the manifest's terms
         let graphs = forms
             .get(&form)
