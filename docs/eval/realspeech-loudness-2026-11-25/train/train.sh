@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# usage: train.sh NAME  -> NAME = loud (the candidate: loudness-driven corpora) or flux (the ablation: the
+# original flux-driven corpora, the same audio); recipe of README.md "The rule"
+set -euo pipefail
+name=$1
+case $name in
+  loud) C=/tmp/corpus_loud R=/tmp/corpus_rs_loud ;;
+  flux) C=/tmp/corpus_default R=/tmp/corpus_rs ;;
+  *) echo "usage: train.sh loud|flux" >&2; exit 2 ;;
+esac
+cd "$(dirname "$0")/../../../.."
+source scripts/env.sh >/dev/null 2>&1
+export PYTHONPATH=$PWD/python OMP_NUM_THREADS=1
+L=docs/eval/realspeech-loudness-2026-11-25/train
+t0=$(date +%s); echo "start $(date -u)"
+nice -n 5 $LIVEGESTURE_PY -m livegesture.train --config default --data $C --extra-data $C --extra-data $R \
+  --out /work/runs-loud16/$name --speakers all --threads 1 --augment 0 --seed 0 \
+  --svq-from models/default.train/checkpoint.pt --steps-experts 3000 --steps-fuse 1600
+echo "train done $(date -u) $(( $(date +%s) - t0 )) s"
+cp /work/runs-loud16/$name/train_log.jsonl $L/${name}_train_log.jsonl
+echo TRAINDONE
