@@ -425,13 +425,15 @@ def synth_set(data, split: str, max_clips: int | None = None):
     return ids, audio, motion
 
 
-def reference_real_motion(audio: np.ndarray, seed: int = 0) -> dict:
-    """The synthetic corpus generator's motion for a real recording (speaker 2's style)."""
+def reference_real_motion(audio: np.ndarray, seed: int = 0, drive: str = "flux") -> dict:
+    """The synthetic corpus generator's motion for a real recording (speaker 2's style), with the stroke
+    ``drive`` of the corpus the model was trained on (``synth --stroke-drive``)."""
     from ..data import synth
     pcm = np.clip(np.round(np.asarray(audio, np.float64) * 32767.0), -32768, 32767) / 32768.0
     an = synth.analyse_audio(pcm)
     T = len(audio) * FPS // SAMPLE_RATE
-    poses, trans, expr = synth.generate_motion(an, T, synth.STYLE_BY_SPEAKER[2], np.random.default_rng(seed))
+    poses, trans, expr = synth.generate_motion(an, T, synth.STYLE_BY_SPEAKER[2], np.random.default_rng(seed),
+                                               drive)
     return {"poses": poses, "trans": trans, "expressions": expr}
 
 
@@ -593,6 +595,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--real-speech", help="real-speech folder (default $LIVEGESTURE_REAL_SPEECH or "
                                           "shared/data/real-speech beside the repository)")
     ap.add_argument("--no-real", action="store_true", help="skip the real-speech set")
+    ap.add_argument("--reference-drive", default="flux", choices=("flux", "loudness"),
+                    help="the corpus generator's stroke drive for the real set's reference motion: the one the "
+                    "model's training corpus used (synth --stroke-drive; default flux, the original corpus)")
     ap.add_argument("--checkpoint", help="generate with this checkpoint (Python streaming reference)")
     ap.add_argument("--generated-real", action="append", default=[], help="folder of {id}.npz for the real set "
                     "(repeat for several realisations)")
@@ -639,7 +644,7 @@ def main(argv: list[str] | None = None) -> int:
                            "mismatch": "audio swap: clip i gets the audio of clip (i + 1) mod n (sorted ids); motion "
                                        "swap: clip i's audio gets the motion of every clip j != i",
                            "env_range_db": ENV_RANGE_DB, "speed_smooth_s": SPEED_SMOOTH_S, "bc_trim_s": BC_TRIM_S,
-                           "bootstrap": a.bootstrap, "ci": 0.95,
+                           "bootstrap": a.bootstrap, "ci": 0.95, "reference_drive": a.reference_drive,
                            "bc_speed_ref": "synth train split" if speed_ref is not None else "evaluated motion",
                            "motion": a.checkpoint or gen},
               "sets": {}}
@@ -654,7 +659,7 @@ def main(argv: list[str] | None = None) -> int:
             model_m = _generate(a.checkpoint, ids, aud, a.n_realisations, a.seed, a.guidance)
         else:
             model_m = _load_generated(gen[name], ids, f"--generated-{name}")
-        ref_m = [[m] for m in mot] if mot is not None else [[reference_real_motion(x)] for x in aud]
+        ref_m = [[m] for m in mot] if mot is not None else [[reference_real_motion(x, drive=a.reference_drive)] for x in aud]
         ca = [ClipAudio(x) for x in aud]
         report[name] = {"motion_swap": {}, "onset_power": {}}
         for src, mm in (("model", model_m), ("reference", ref_m)):
