@@ -20,6 +20,11 @@ if ! command -v espeak-ng >/dev/null 2>&1 || ! command -v flite >/dev/null 2>&1;
   fi
 fi
 
+# One installer at a time: scripts that source this file at the same moment (parallel evaluations) would
+# otherwise race in pip (the editable reinstall below) and one of them fail.
+mkdir -p "$(dirname "$LIVEGESTURE_VENV")"
+exec {_lg_lock}>"$LIVEGESTURE_VENV.lock"
+flock "$_lg_lock"
 if [ ! -f "$LIVEGESTURE_VENV/.complete" ]; then
   echo "[env] creating Python venv at $LIVEGESTURE_VENV (first run on this machine: a few minutes)" >&2
   rm -rf "$LIVEGESTURE_VENV"
@@ -31,6 +36,8 @@ fi
 # The package itself is used from the checkout (editable, no copy): cheap, so redone every time.
 "$LIVEGESTURE_VENV/bin/pip" install -q --no-deps --no-build-isolation -e "$_lg_root/python" >/dev/null 2>&1 || \
   "$LIVEGESTURE_VENV/bin/pip" install -q --no-deps -e "$_lg_root/python" >/dev/null
+flock -u "$_lg_lock"
+exec {_lg_lock}>&-
 
 export LIVEGESTURE_VENV
 export LIVEGESTURE_PY="$LIVEGESTURE_VENV/bin/python"

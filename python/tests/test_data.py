@@ -405,8 +405,8 @@ def _loud_quiet_speech(seconds: float = 24.0):
 
 
 def test_loudness_drive_couples_strokes_to_loudness():
-    """On continuous speech whose loudness changes by phrase, the ``loudness`` stroke drive makes upper-body
-    speed follow the loud phrases far more than the ``flux`` drive (the original corpus), whose spectral-flux
+    """On continuous speech whose loudness changes by phrase, the ``loudness`` and ``syllable`` stroke drives make
+    upper-body speed follow the loud phrases far more than the ``flux`` drive (the original corpus), whose spectral-flux
     onset strength barely sees an 18 dB level change."""
     from scipy.ndimage import gaussian_filter1d
     from livegesture.data import synth
@@ -426,10 +426,26 @@ def test_loudness_drive_couples_strokes_to_loudness():
             v[1:] = np.linalg.norm(np.diff(J, axis=0), axis=-1).mean(1) * 30
             cs.append(np.corrcoef(gaussian_filter1d(v, 6), loud)[0, 1])
         r[drive] = float(np.mean(cs))
-    assert r["loudness"] > 0.6, r
-    assert r["loudness"] > r["flux"] + 0.15, r
+    for drive in ("loudness", "syllable"):
+        assert r[drive] > 0.6, r
+        assert r[drive] > r["flux"] + 0.15, r
     with pytest.raises(ValueError, match="stroke drive 'pitch'"):
         synth.generate_motion(an, T, synth.STYLE_BY_SPEAKER[2], np.random.default_rng(0), "pitch")
+
+
+def test_syllable_loudness_is_the_window_mean():
+    """``syllable_loudness``: the mean envelope over the 60 ms (6 analysis frames) from each onset's frame,
+    shortened at the clip's end."""
+    from livegesture.data import synth
+
+    n = 50
+    env = np.linspace(0.0, 0.98, n)
+    a = synth.AudioAnalysis(times=np.arange(n) * 0.01, env=env, active=np.ones(n, bool), onset_env=env,
+                            f0=np.zeros(n), onsets=np.array([0.10, 0.47]), onset_strength=np.array([0.5, 0.5]),
+                            phrase_start=np.zeros(2, bool))
+    got = synth.syllable_loudness(a)
+    np.testing.assert_allclose(got, [env[10:16].mean(), env[47:50].mean()], rtol=1e-12)
+    np.testing.assert_allclose(synth.onset_loudness(a), [env[10], env[47]], rtol=1e-12)
 
 
 def test_one_audio_many_motions(corpus_dir):

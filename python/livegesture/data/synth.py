@@ -32,7 +32,8 @@ Everything audio-driven is causal: an onset at time t only changes frames at or 
   point), dominant hand per speaker style, sometimes both hands. Which onsets are stressed, the stroke
   probability and the amplitude read each onset's *drive* (:data:`STROKE_DRIVES`): ``flux`` (the original
   corpus) is the spectral-flux onset strength; ``loudness`` is the energy envelope at the onset frame, a
-  feature every speech has (on real, almost continuous speech the flux strength follows the envelope far
+  feature every speech has; ``syllable`` is its mean over the first 60 ms, with the onset's events starting
+  60 ms later (on real, almost continuous speech the flux strength follows the envelope far
   less than on espeak-ng speech: r 0.50 against 0.84, docs/eval/realspeech-coupling-2026-11-25);
 - finger curl changes with the strokes, and a hand shape per phrase; small wrist flicks at every onset;
 - gesture space: arms rise while the speaker talks (causally smoothed speech activity) and return to the
@@ -579,7 +580,8 @@ REST_POSTURES = {  # sh_fwd, sh_out, sh_abd, el_flex, pron, curl shape
 }
 
 
-STROKE_DRIVES = ("flux", "loudness")
+STROKE_DRIVES = ("flux", "loudness", "syllable")
+SYLLABLE_WINDOW = 0.06   # s: the "syllable" drive's loudness window after the onset (and the events' delay)
 
 
 def onset_loudness(a: AudioAnalysis) -> np.ndarray:
@@ -588,6 +590,20 @@ def onset_loudness(a: AudioAnalysis) -> np.ndarray:
         return np.zeros(0)
     idx = np.clip(np.round(a.onsets / (a.times[1] - a.times[0])).astype(int), 0, len(a.env) - 1)
     return a.env[idx].astype(np.float64)
+
+
+def syllable_loudness(a: AudioAnalysis, window: float = SYLLABLE_WINDOW) -> np.ndarray:
+    """The mean energy envelope over ``[onset, onset + window]`` of each onset (the syllable's early loudness,
+    a steadier reading than the onset's own frame). Known only at ``onset + window``: the ``syllable`` drive
+    starts every onset event there, so the motion stays causal."""
+    if not len(a.onsets):
+        return np.zeros(0)
+    hop = a.times[1] - a.times[0]
+    i0 = np.clip(np.round(a.onsets / hop).astype(int), 0, len(a.env) - 1)
+    n = max(1, int(round(window / hop)))
+    c = np.concatenate([[0.0], np.cumsum(a.env, dtype=np.float64)])
+    i1 = np.minimum(i0 + n, len(a.env))
+    return (c[i1] - c[i0]) / np.maximum(i1 - i0, 1)
 
 
 def generate_motion(analysis: AudioAnalysis, n_frames: int, style: Style, rng: np.random.Generator,
@@ -600,6 +616,8 @@ def generate_motion(analysis: AudioAnalysis, n_frames: int, style: Style, rng: n
     a = analysis
     if drive == "loudness":
         a = dataclasses.replace(a, onset_strength=onset_loudness(a))
+    elif drive == "syllable":
+        a = dataclasses.replace(a, onset_strength=syllable_loudness(a), onsets=a.onsets + SYLLABLE_WINDOW)
     elif drive != "flux":
         raise ValueError(f"stroke drive {drive!r}: expected one of {', '.join(STROKE_DRIVES)}")
     env = _at_frames(a, a.env, T)
@@ -1122,7 +1140,8 @@ def main(argv: list[str] | None = None) -> int:
                     "or shared/data/real-speech beside the repository)")
     ap.add_argument("--stroke-drive", default="flux", choices=STROKE_DRIVES,
                     help="what picks and scales the arm strokes, nods and flicks at each onset: flux (spectral-flux "
-                    "onset strength, the original corpus) or loudness (the energy envelope at the onset)")
+                    "onset strength, the original corpus), loudness (the energy envelope at the onset) or syllable "
+                    "(its mean over the first 60 ms; the onset's events start 60 ms later)")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
     t0 = time.time()

@@ -80,6 +80,7 @@ from . import corpus as C
 from . import metrics as M
 from .report import jsonable
 from ..regions import FPS, JAW_JOINT, SAMPLE_RATE, UPPER_JOINTS, frame_start_sample
+from ..data.synth import STROKE_DRIVES
 
 SPEED_SMOOTH_S = 0.2
 BC_TRIM_S = 0.5          # the recordings are 4-30 s: livegesture.eval's 2 s trim would leave nothing of some
@@ -595,7 +596,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--real-speech", help="real-speech folder (default $LIVEGESTURE_REAL_SPEECH or "
                                           "shared/data/real-speech beside the repository)")
     ap.add_argument("--no-real", action="store_true", help="skip the real-speech set")
-    ap.add_argument("--reference-drive", default="flux", choices=("flux", "loudness"),
+    ap.add_argument("--reference-drive", default="flux", choices=STROKE_DRIVES,
                     help="the corpus generator's stroke drive for the real set's reference motion: the one the "
                     "model's training corpus used (synth --stroke-drive; default flux, the original corpus)")
     ap.add_argument("--checkpoint", help="generate with this checkpoint (Python streaming reference)")

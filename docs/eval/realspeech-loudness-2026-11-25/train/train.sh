@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
-# usage: train.sh NAME  -> NAME = loud (the candidate: loudness-driven corpora) or flux (the ablation: the
-# original flux-driven corpora, the same audio); recipe of README.md "The rule"
+# usage: train.sh NAME  -> NAME = loud (the candidate: loudness-driven corpora), flux (the ablation: the
+# original flux-driven corpora, the same audio) or syl (the next sitting's candidate: syllable-driven corpora);
+# recipe of README.md "The rule"
 set -euo pipefail
 name=$1
 case $name in
   loud) C=/tmp/corpus_loud R=/tmp/corpus_rs_loud ;;
   flux) C=/tmp/corpus_default R=/tmp/corpus_rs ;;
-  *) echo "usage: train.sh loud|flux" >&2; exit 2 ;;
+  syl) C=/tmp/corpus_syl R=/tmp/corpus_rs_syl ;;
+  *) echo "usage: train.sh loud|flux|syl" >&2; exit 2 ;;
 esac
 cd "$(dirname "$0")/../../../.."
 source scripts/env.sh >/dev/null 2>&1
