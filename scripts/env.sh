@@ -33,6 +33,11 @@ if [ ! -f "$LIVEGESTURE_VENV/.complete" ]; then
   "$LIVEGESTURE_VENV/bin/pip" install -q -r "$_lg_req"
   touch "$LIVEGESTURE_VENV/.complete"
 fi
+# The package's pyproject needs setuptools >= 77 to build (its licence field); a venv's own setuptools is older,
+# so install a new one once: then the editable install below builds offline, without an isolated build env.
+if ! "$LIVEGESTURE_VENV/bin/python" -c 'import sys, setuptools; sys.exit(int(setuptools.__version__.split(".")[0]) < 77)' 2>/dev/null; then
+  "$LIVEGESTURE_VENV/bin/pip" install -q "setuptools>=77" >/dev/null
+fi
 # The package itself is used from the checkout (editable, no copy): cheap, so redone every time.
 "$LIVEGESTURE_VENV/bin/pip" install -q --no-deps --no-build-isolation -e "$_lg_root/python" >/dev/null 2>&1 || \
   "$LIVEGESTURE_VENV/bin/pip" install -q --no-deps -e "$_lg_root/python" >/dev/null
