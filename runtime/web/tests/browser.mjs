@@ -49,7 +49,9 @@ try {
   const outside = [];
   page.on('request', (r) => { if (!r.url().startsWith(`http://${addr}`) && !r.url().startsWith(`ws://${addr}`) && !r.url().startsWith('data:') && !r.url().startsWith('blob:')) outside.push(r.url()); });
   await page.goto(`http://${addr}/`, { timeout: 30000 });
-  await page.waitForFunction(() => window.lgState && window.lgState.ready, null, { timeout: 30000 });
+  // generous: on a loaded 2-core machine swiftshader's WebGL start alone has taken over 30 s
+  await page.waitForFunction(() => window.lgState && window.lgState.ready, null, { timeout: 120000 })
+    .catch(async () => fail(`page not ready within 120 s: ${JSON.stringify(await page.evaluate(() => window.lgState || null))}\n${consoleLines.join('\n')}`));
   await page.click('#mic');
   await page.waitForFunction(() => window.lgState.frames >= 90 || window.lgState.error, null, { timeout: 90000 })
     .catch(async () => fail(`no frames within 90 s: ${JSON.stringify(await page.evaluate(() => window.lgState))}\n${consoleLines.join('\n')}`));
