@@ -21,7 +21,8 @@ let log = '';
 const addr = await withTimeout(new Promise((res, rej) => {
   server.stderr.on('data', (d) => {
     log += d;
-    const m = /listening on http:\/\/(\S+)/.exec(log);
+    // the address only once it is whole: stderr arrives in chunks, and a chunk may end inside it
+    const m = /listening on http:\/\/(\S+)\s/.exec(log);
     if (m) res(m[1]);
   });
   server.on('exit', (c) => rej(new Error(`serve exited ${c}: ${log}`)));
@@ -49,7 +50,7 @@ try {
   const outside = [];
   page.on('request', (r) => { if (!r.url().startsWith(`http://${addr}`) && !r.url().startsWith(`ws://${addr}`) && !r.url().startsWith('data:') && !r.url().startsWith('blob:')) outside.push(r.url()); });
   await page.goto(`http://${addr}/`, { timeout: 30000 });
-  // generous: on a loaded 2-core machine swiftshader's WebGL start alone has taken over 30 s
+  // generous: a loaded 2-core machine is slow to start swiftshader's WebGL
   await page.waitForFunction(() => window.lgState && window.lgState.ready, null, { timeout: 120000 })
     .catch(async () => fail(`page not ready within 120 s: ${JSON.stringify(await page.evaluate(() => window.lgState || null))}\n${consoleLines.join('\n')}`));
   await page.click('#mic');
