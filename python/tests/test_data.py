@@ -426,7 +426,7 @@ def test_loudness_drive_couples_strokes_to_loudness():
             v[1:] = np.linalg.norm(np.diff(J, axis=0), axis=-1).mean(1) * 30
             cs.append(np.corrcoef(gaussian_filter1d(v, 6), loud)[0, 1])
         r[drive] = float(np.mean(cs))
-    for drive in ("loudness", "syllable"):
+    for drive in ("loudness", "syllable", "syllable-body"):
         assert r[drive] > 0.6, r
         assert r[drive] > r["flux"] + 0.15, r
     with pytest.raises(ValueError, match="stroke drive 'pitch'"):

@@ -8,7 +8,8 @@ case $name in
   loud) C=/tmp/corpus_loud R=/tmp/corpus_rs_loud ;;
   flux) C=/tmp/corpus_default R=/tmp/corpus_rs ;;
   syl) C=/tmp/corpus_syl R=/tmp/corpus_rs_syl ;;
-  *) echo "usage: train.sh loud|flux|syl" >&2; exit 2 ;;
+  sylb) C=/tmp/corpus_sylb R=/tmp/corpus_rs_sylb ;;
+  *) echo "usage: train.sh loud|flux|syl|sylb" >&2; exit 2 ;;
 esac
 cd "$(dirname "$0")/../../../.."
 source scripts/env.sh >/dev/null 2>&1
