@@ -395,7 +395,8 @@ def _loud_quiet_speech(seconds: float = 24.0):
     tt = np.arange(L) / sr
     for k, t0 in enumerate(np.arange(0.0, seconds - 0.2, 0.2)):
         f0 = 120 + 20 * np.sin(k)
-        burst = sum(np.sin(2 * np.pi * f0 * h * tt) / h for h in range(1, 12)) * np.minimum(tt / 0.02, 1) * np.exp(-tt / 0.08)
+        attack_decay = np.minimum(tt / 0.02, 1) * np.exp(-tt / 0.08)
+        burst = sum(np.sin(2 * np.pi * f0 * h * tt) / h for h in range(1, 12)) * attack_decay
         gain = 1.0 if int(t0 // 2) % 2 == 0 else 10 ** (-18 / 20)
         i0 = int(t0 * sr)
         x[i0:i0 + L] += 0.3 * gain * burst

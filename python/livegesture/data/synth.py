@@ -30,12 +30,15 @@ Everything audio-driven is causal: an onset at time t only changes frames at or 
 - arm strokes at stressed onsets: shoulder/elbow/wrist kernels ``(u^2) exp(2 (1 - u))``, ``u = (t - t0)
   / tau``, that start at the onset and peak ``tau`` (0.13-0.24 s) later (stroke types beat, sweep, push,
   point), dominant hand per speaker style, sometimes both hands. Which onsets are stressed, the stroke
-  probability and the amplitude read each onset's *drive* (:data:`STROKE_DRIVES`): ``flux`` (the original
-  corpus) is the spectral-flux onset strength; ``loudness`` is the energy envelope at the onset frame, a
-  feature every speech has; ``syllable`` is its mean over the first 60 ms, with the onset's events starting
-  60 ms later; ``syllable-body`` is ``syllable`` for the body (strokes, nods, flicks) with the brows left on
-  the flux strength, so the face target is the original corpus's (on real, almost continuous speech the flux strength follows the envelope far
-  less than on espeak-ng speech: r 0.50 against 0.84, docs/eval/realspeech-coupling-2026-11-25);
+  probability and the amplitude read each onset's *drive* (:data:`STROKE_DRIVES`):
+
+  - ``flux`` (the original corpus): the spectral-flux onset strength;
+  - ``loudness``: the energy envelope at the onset's frame, a feature every speech has (on real, almost
+    continuous speech the flux strength follows the envelope far less than on espeak-ng speech: r 0.50
+    against 0.84, docs/eval/realspeech-coupling-2026-11-25);
+  - ``syllable``: the envelope's mean over the first 60 ms, the onset's events starting 60 ms later;
+  - ``syllable-body``: ``syllable`` for strokes, nods and flicks, the brows on the flux strength (the
+    original corpus's face target);
 - finger curl changes with the strokes, and a hand shape per phrase; small wrist flicks at every onset;
 - gesture space: arms rise while the speaker talks (causally smoothed speech activity) and return to the
   speaker's rest posture in pauses;
@@ -1144,9 +1147,9 @@ def main(argv: list[str] | None = None) -> int:
                     "or shared/data/real-speech beside the repository)")
     ap.add_argument("--stroke-drive", default="flux", choices=STROKE_DRIVES,
                     help="what picks and scales the arm strokes, nods and flicks at each onset: flux (spectral-flux "
-                    "onset strength, the original corpus), loudness (the energy envelope at the onset) or syllable "
-                    "(its mean over the first 60 ms; the onset's events start 60 ms later) or syllable-body (syllable for "
-                    "the body, brows on the flux strength)")
+                    "onset strength, the original corpus), loudness (the energy envelope at the onset), syllable "
+                    "(its mean over the first 60 ms; the onset's events start 60 ms later) or syllable-body "
+                    "(syllable for the body, the brows on the flux strength)")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
     t0 = time.time()

@@ -660,7 +660,8 @@ def main(argv: list[str] | None = None) -> int:
             model_m = _generate(a.checkpoint, ids, aud, a.n_realisations, a.seed, a.guidance)
         else:
             model_m = _load_generated(gen[name], ids, f"--generated-{name}")
-        ref_m = [[m] for m in mot] if mot is not None else [[reference_real_motion(x, drive=a.reference_drive)] for x in aud]
+        ref_m = ([[m] for m in mot] if mot is not None
+                 else [[reference_real_motion(x, drive=a.reference_drive)] for x in aud])
         ca = [ClipAudio(x) for x in aud]
         report[name] = {"motion_swap": {}, "onset_power": {}}
         for src, mm in (("model", model_m), ("reference", ref_m)):
