@@ -154,6 +154,7 @@ def verdict(ship, cand):
     ok.append(all(sub))
     print(f"rule 4 (all in-distribution parts): {'PASS' if ok[-1] else 'FAIL'}")
     print(f"VERDICT {cand}: {'PASS' if all(ok) else 'FAIL'}")
+    return ok   # rules 1-4, each True (PASS) or False
 
 
 if __name__ == "__main__":

@@ -6,8 +6,6 @@ $LIVEGESTURE_PY from the repository root:
   REAL_SEED0=31 python docs/eval/realspeech-seeds-2026-11-26/tables.py verdict shipped NAME   stage 2 (seeds 31-36)
   python docs/eval/realspeech-seeds-2026-11-26/tables.py real|synth|perclip ...   as the confirmation's tables.py
 """
-import contextlib
-import io
 import os
 import runpy
 import sys
@@ -31,13 +29,10 @@ if len(sys.argv) >= 2 and sys.argv[1] == "select":
             print(f"## {n}\nno in-distribution reports (its export failed: README.md): not eligible\n")
             rows.append((n, speed, False))
             continue
-        out = io.StringIO()
-        with contextlib.redirect_stdout(out):
-            T["verdict"]("shipped", n)
-        lines = out.getvalue().splitlines()
-        print(f"## {n}\n" + "\n".join(lines) + "\n")
-        rule = {l.split(":")[0]: l for l in lines}
-        eligible = ("PASS" in rule["rule 2"]) and ("PASS" in rule["rule 4 (all in-distribution parts)"])
+        print(f"## {n}")
+        ok = T["verdict"]("shipped", n)   # rules 1-4
+        print()
+        eligible = ok[1] and ok[3]
         rows.append((n, speed, eligible))
     ok = [r for r in rows if r[2]]
     for n, s, e in rows:
