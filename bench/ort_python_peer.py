@@ -177,7 +177,7 @@ class Streams:
 
 def token_mels(chain: Chain, audio: np.ndarray) -> np.ndarray:
     """(n_tokens, mel_frames_per_token, n_mels): the log-mel frames of every complete token (the offline
-    frontend, identical to the streaming one: SPEC 5 chunk-size invariance)."""
+    frontend, identical to the streaming one: docs/streaming.md chunk-size invariance)."""
     f = chain.frontend
     mel = logmel(audio, f)
     return mel.reshape(-1, f.mel_frames_per_token, f.n_mels)

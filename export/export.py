@@ -57,9 +57,9 @@ REFERENCE_STEPS = 10
 REFERENCE_BATCH = 2
 ROLLOUT_SEED = 1234
 FUSED_VS_CANONICAL = 1e-5    # torch fused form vs the canonical eXperts / decoders, every output and cache
-ROLLOUT_FRAMES = 1e-4        # SPEC 7, rollout frames
+ROLLOUT_FRAMES = 1e-4        # docs/parity.md, rollout frames
 FORMS = ("canonical", "fused", "attention")
-# The form each backend runs (SPEC 14). ort runs the fused eXperts: bit-identical to the canonical graphs on
+# The form each backend runs (docs/bundle.md#forms-and-precision). ort runs the fused eXperts: bit-identical to the canonical graphs on
 # ort and faster. tract runs the canonical eXperts: its kernels round differently for another head count (like
 # for another batch size), so the fused form's logits differ from the canonical form's by ~1e-7 on tract, which
 # flips numerical near-ties of the sampler (the tiny test bundle's rollout has one at step 1044); see
@@ -280,7 +280,7 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
         checks[graph] = {"torch_step_vs_offline_max_abs": e_off, "ort_vs_torch_max_abs": e_ort}
         log(f"  {graph:<16} step-vs-offline {e_off:.2e}  ort-vs-torch {e_ort:.2e}  ({time.time() - t0:.1f}s)")
 
-    # the fused forms (SPEC 14): checked against the canonical torch steps, then like every graph
+    # the fused forms (docs/bundle.md#forms-and-precision): checked against the canonical torch steps, then like every graph
     fused_graphs = []
     against = {FUSED_EXPERTS: (check_fused_experts, max(cfg.history, cfg.audio_window) + 5, "eXperts"),
                # past the longest conv cache (in frames; a token adds at least one frame to every cache)
@@ -300,7 +300,7 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
 
     attention_graphs = []   # after the fused forms: the earlier graphs' reference seeds stay as they were
     for graph, comp in (attention_components(model).items() if ATTENTION_FORM in forms else ()):
-        # the attention form's fusion (SPEC 14): checked against the canonical torch fusion step, then like
+        # the attention form's fusion (docs/bundle.md#forms-and-precision): checked against the canonical torch fusion step, then like
         # every graph (its file is opset 23)
         t0 = time.time()
         e_can, out_name, step = check_fusion_attention(model, steps=max(cfg.fuse_window, cfg.audio_window) + 5)
@@ -329,7 +329,7 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
                                     "decoders": [f"decoder_{r}" for r in REGION_NAMES]}}
 
     def rollout_vs_canonical(form: str, form_graphs: list[str]) -> dict:
-        """The torch rollout in ``form`` against the canonical one (SPEC 14): identical tokens, frames within
+        """The torch rollout in ``form`` against the canonical one (docs/bundle.md#forms-and-precision): identical tokens, frames within
         ROLLOUT_FRAMES; returns the check's record."""
         t0 = time.time()
         rf = generate_clip(model, rollout_audio, seed=ROLLOUT_SEED, form=form)
@@ -432,7 +432,7 @@ def main(argv=None):
     ap.add_argument("--rollout-windows", type=int, default=5,
                     help="diffsheg: FOPPAS windows of the reference rollout (>= 4; the last one is shorter)")
     ap.add_argument("--forms", default=",".join(FORMS),
-                    help="graph forms to write (SPEC 14): canonical (always), fused (the four eXperts as one "
+                    help="graph forms to write (docs/bundle.md#forms-and-precision): canonical (always), fused (the four eXperts as one "
                          "graph on a region axis, the four SVQ decoders as one graph) and attention (the fusion "
                          "with the opset-23 Attention op, fusion_attention); default all")
     ap.add_argument("--backend-forms", default=",".join(f"{b}={f}" for b, f in DEFAULT_BACKEND_FORMS.items()),

@@ -92,7 +92,7 @@ def bundle_counts(bundle: str | Path) -> dict:
                           "weight_bytes": c1["weight_bytes"], "uncounted_nodes": c1["uncounted_nodes"]}
     keys = ["flops_per_step_guided", "model_flops_per_step_guided", "rope_expansion_flops_per_step_guided",
             "weight_bytes"]
-    # one form's graphs per step: the canonical ones (a fused form's graphs compute the same, SPEC 14)
+    # one form's graphs per step: the canonical ones (a fused form's graphs compute the same, docs/bundle.md#forms-and-precision)
     canonical = {g["name"] for g in man["graphs"] if g.get("form", "canonical") == "canonical"}
     out["_total"] = {k: sum(v[k] for n, v in out.items() if n in canonical) for k in keys}
     return out

@@ -2,10 +2,10 @@
 
 Naming (the contract with the runtime, recorded in manifest.json):
   data inputs        audio_encoder: mel | expert_<r>: prev_token, audio, cond |
-                     experts_fused (SPEC 14 fused form of the four eXperts): prev_token (B, R), audio, cond |
+                     experts_fused (docs/bundle.md#forms-and-precision fused form of the four eXperts): prev_token (B, R), audio, cond |
                      fusion: hidden_upper, hidden_hands, hidden_lower, hidden_face, audio, cond |
-                     fusion_attention (SPEC 14 form ``attention``): fusion's inputs |
-                     decoder_<r>: token | decoders_fused (SPEC 14 fused form of the four decoders): token (B, R)
+                     fusion_attention (docs/bundle.md#forms-and-precision form ``attention``): fusion's inputs |
+                     decoder_<r>: token | decoders_fused (docs/bundle.md#forms-and-precision fused form of the four decoders): token (B, R)
   data outputs       audio | hidden | logits | motion
   caches             input ``cache.<name>``, output ``new_cache.<name>``, in the component's cache_specs order
 """
@@ -23,7 +23,7 @@ from livegesture.regions import REGION_NAMES
 
 
 def fused_components(model: LiveGesture) -> dict[str, nn.Module]:
-    """The fused forms (SPEC 14) by graph name: ``experts_fused``, the four eXperts on a region axis, and
+    """The fused forms (docs/bundle.md#forms-and-precision) by graph name: ``experts_fused``, the four eXperts on a region axis, and
     ``decoders_fused``, the four SVQ decoders side by side. Built from the model's current weights (a copy);
     cached on the model so every export step sees one module."""
     cached = getattr(model, "_fused_components", None)
@@ -35,7 +35,7 @@ def fused_components(model: LiveGesture) -> dict[str, nn.Module]:
 
 
 def attention_components(model: LiveGesture) -> dict[str, nn.Module]:
-    """The ``attention`` form's own graphs (SPEC 14) by graph name: ``fusion_attention``, the model's fusion
+    """The ``attention`` form's own graphs (docs/bundle.md#forms-and-precision) by graph name: ``fusion_attention``, the model's fusion
     with its attention cores as the ONNX ``Attention`` op (cached on the model like :func:`fused_components`)."""
     cached = getattr(model, "_attention_components", None)
     if cached is None:

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Derive a reduced-precision bundle from an f32 LiveGesture bundle (issue 15 deliverable 3, SPEC 14).
+"""Derive a reduced-precision bundle from an f32 LiveGesture bundle (issue 15 deliverable 3, docs/bundle.md#forms-and-precision).
 
     python export/quantize.py --bundle models/default --precision f16 --out /tmp/default-f16
     python export/quantize.py --bundle models/default --precision int8 --out /tmp/default-int8
@@ -24,7 +24,7 @@ accumulation) + the scale multiply and the bias add in f32. Standard ONNX ops (o
 and tract. The RoPE rotation matrices are ``Constant`` nodes, not initializers, and stay f32, as do the
 codebook embeddings (Gather), layer norms and attention arithmetic.
 
-The reduced bundle is a separate bundle (SPEC 14), never a change of the f32 one:
+The reduced bundle is a separate bundle (docs/bundle.md#forms-and-precision), never a change of the f32 one:
 
 - its graphs are the quantized ones, its manifest the f32 manifest with ``precision`` added and the files
   table rewritten; ``model``, ``regions``, ``normalisation``, ``sampling`` and the reference clip are the f32
@@ -33,7 +33,7 @@ The reduced bundle is a separate bundle (SPEC 14), never a change of the f32 one
   graph chained over the f32 bundle's reference inputs (``reference/<graph>.npz``, same keys), and the
   reference rollout (same clip, repeats and seed) stepped with the reduced graphs by the Python chain of
   ``bench/ort_python_peer.py``. ``livegesture parity`` checks the runtime's ort against these and tract against
-  ort (1e-4, SPEC 14);
+  ort (1e-4, docs/bundle.md#forms-and-precision);
 - ``precision.error_vs_f32`` is the measured error against the f32 model: per graph, the max abs difference
   of every output (``logits`` for the fusion) from the f32 bundle's torch reference over its chained steps
   on the same inputs; over the reference rollout, token agreement free-running (the first step where the
@@ -63,7 +63,7 @@ from livegesture.sampling import guide  # noqa: E402
 from ort_python_peer import Chain, Streams, reference, token_mels  # noqa: E402
 
 PRECISIONS = ("int8", "f16", "bf16", "float16", "bfloat16")
-# --precision -> the manifest's precision.weights (SPEC 14; the runtime's bundle::PRECISIONS)
+# --precision -> the manifest's precision.weights (docs/bundle.md#forms-and-precision; the runtime's bundle::PRECISIONS)
 WEIGHTS = {"int8": "int8", "f16": "float16", "float16": "float16", "bf16": "bfloat16", "bfloat16": "bfloat16"}
 F16_MAX = float(np.finfo(np.float16).max)
 BF16_MAX = 3.3895313892515355e38
@@ -416,7 +416,7 @@ def _init_chain_from(chain: Chain, folder: Path, manifest: dict):
 
 def record_metrics(bundle: Path, f32_eval: Path, reduced_eval: Path, command: str) -> dict:
     """Writes ``precision.metrics`` of a reduced bundle: the evaluation reports (``python -m livegesture.eval``
-    JSON, as ``scripts/eval_bundle.sh`` writes them) of the f32 bundle and of this one, side by side (SPEC 14).
+    JSON, as ``scripts/eval_bundle.sh`` writes them) of the f32 bundle and of this one, side by side (docs/bundle.md#forms-and-precision).
     The manifest is rewritten; the files table (graphs and reference vectors) is unchanged."""
     mpath = bundle / "manifest.json"
     m = json.loads(mpath.read_text())

@@ -1,6 +1,6 @@
 """Export-time checks. Each failure names the graph, the output, the step and the error.
 
-1. torch step-by-step vs torch offline causal forward (SPEC section 7: max abs 1e-5), over a sequence
+1. torch step-by-step vs torch offline causal forward (docs/parity.md: max abs 1e-5), over a sequence
    longer than every window: catches a step that reads the future or drops a cache update;
 2. the ONNX graph: onnx.checker, opset >= 17, no If/Loop, static ranks, batch axis dynamic;
 3. onnxruntime vs the torch step over chained steps with batch sizes 1, 2 and 5 (max abs 1e-5).

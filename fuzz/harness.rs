@@ -72,7 +72,7 @@ pub fn manifest(data: &[u8]) {
     }
 }
 
-/// The serve protocol (SPEC 12), everything a session does with a client's bytes: the input's first
+/// The serve protocol (docs/serve.md), everything a session does with a client's bytes: the input's first
 /// line is the query string of `GET /v1/stream`, parsed as the server parses it (axum's `Query`,
 /// then [`SessionParams::parse`]); the rest is a sequence of client messages for [`SessionInput`],
 /// each a header byte (`% 3`: 0 binary PCM, 1 text, 2 the server starting to drain, no payload)
@@ -81,7 +81,7 @@ pub fn manifest(data: &[u8]) {
 /// protocol's close codes, that the 16 kHz output never exceeds twice the input frames plus one
 /// resampler block (no message multiplies the work: `fuzz/regressions/serve_protocol/rate_1_*`), and
 /// that at `{"type":"end"}` it has exactly `floor(frames * 16000 / rate)` samples (the resampler's
-/// promise, SPEC 8).
+/// promise, docs/output.md).
 #[cfg(feature = "serve")]
 pub fn serve_protocol(data: &[u8]) {
     use axum::extract::Query;

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Runs the whole benchmark matrix (SPEC section 11, issue 7) on one core and writes BENCHMARKS.md's inputs:
+# Runs the whole benchmark matrix (BENCHMARKS.md, issue 7) on one core and writes BENCHMARKS.md's inputs:
 #   bench/results/*.json      raw results (livegesture bench, PyTorch eager loop, FLOPs, roofline)
 #   bench/results/summary.md  the tables (also written into BENCHMARKS.md between its results markers)
 #   docs/bench/*.png          latency distribution, real-time streams per core against N

@@ -6,7 +6,7 @@
 #   scripts/bench_ab.sh BUNDLE_A BUNDLE_B [...]          # e.g. an export before and after a graph change
 #   BIN=/path/to/old/livegesture scripts/bench_ab.sh B   # the same bundle on another build
 #   ROUNDS=3 BACKENDS="ort tract" STREAMS=32 scripts/bench_ab.sh ...
-#   FORMS="canonical fused" scripts/bench_ab.sh B         # the graph forms of one bundle (SPEC 14; --form)
+#   FORMS="canonical fused" scripts/bench_ab.sh B         # the graph forms of one bundle (docs/bundle.md#forms-and-precision; --form)
 #   GRAPHS=decoder scripts/bench_ab.sh ...                # also: the graphs whose name contains GRAPHS,
 #                                                         # one stream and per batched step: the median over
 #                                                         # steps of their per-step sum (from the bench's

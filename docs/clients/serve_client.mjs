@@ -1,4 +1,4 @@
-// Minimal `livegesture serve` client in JavaScript, written against SPEC section 12 alone.
+// Minimal `livegesture serve` client in JavaScript, written against docs/serve.md alone.
 // Works in a browser (WebSocket is built in) and in Node (>= 22, or 20 with --experimental-websocket):
 //
 //   node --experimental-websocket serve_client.mjs ws://127.0.0.1:8765 speech.wav [seed] > frames.jsonl

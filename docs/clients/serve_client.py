@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Minimal `livegesture serve` client, written against SPEC section 12 alone (nothing of the project).
+"""Minimal `livegesture serve` client, written against docs/serve.md alone (nothing of the project).
 
 Streams a 16-bit PCM WAV file to ws://HOST:PORT/v1/stream (optionally in real time), then sends
 {"type":"end"} and writes every frame it receives as one JSON object per line.

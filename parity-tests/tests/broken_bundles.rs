@@ -94,7 +94,7 @@ fn frozen_cache_update_is_caught() {
         &Breakage::FreezeCache { name: cache.into() },
     );
     eprintln!("break_bundle: {change}");
-    // ort runs the fused eXperts by default (SPEC 14): there the broken canonical graph shows in the
+    // ort runs the fused eXperts by default (docs/bundle.md#forms-and-precision): there the broken canonical graph shows in the
     // rollout of the canonical form against the fused one
     let report = run_parity(&dst, &[Check::Rollout]);
     let forms = report

@@ -1,5 +1,5 @@
 //! The parity suite passes on the shipped bundle and on a freshly exported tiny bundle, both
-//! backends, every check (SPEC section 7).
+//! backends, every check (docs/parity.md).
 
 use livegesture::parity::{Check, Metric, Report};
 use livegesture_parity_tests::{default_bundle, rollout_tokens_row, run_parity, tiny_bundle};

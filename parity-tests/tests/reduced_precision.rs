@@ -1,4 +1,4 @@
-//! Reduced-precision bundles (SPEC 14): `export/quantize.py --precision f16` derives a float16-weight
+//! Reduced-precision bundles (docs/bundle.md#forms-and-precision): `export/quantize.py --precision f16` derives a float16-weight
 //! bundle from the tiny export (weights stored as float16 + Cast, float32 arithmetic; its reference
 //! vectors and rollout are onnxruntime's on the reduced graphs). That bundle passes every parity check
 //! against its own reference vectors on both backends, tract vs ort within 1e-4 included, both forms;

@@ -1,4 +1,4 @@
-"""Benchmarks on the Python side (SPEC section 11): the machine's single-core limits and the PyTorch eager
+"""Benchmarks on the Python side (BENCHMARKS.md): the machine's single-core limits and the PyTorch eager
 streaming loop, the reference the Rust runtime is compared against.
 
     python -m livegesture.bench roofline --json roofline.json

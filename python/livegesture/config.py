@@ -2,7 +2,7 @@
 
 - ``tiny``: for tests (seconds on a CPU), same structure, tiny widths and windows;
 - ``default``: the model we train on the synthetic corpus and ship in ``models/default``;
-- ``paper``: exactly the LiveGesture paper's values (SPEC section 4), for users with BEAT2 and a GPU.
+- ``paper``: exactly the LiveGesture paper's values (docs/model.md), for users with BEAT2 and a GPU.
 """
 from __future__ import annotations
 

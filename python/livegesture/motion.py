@@ -1,4 +1,4 @@
-"""Region features -> output frames (SPEC section 8). The Rust runtime (``runtime/src/pipeline.rs``) does the same.
+"""Region features -> output frames (docs/output.md). The Rust runtime (``runtime/src/pipeline.rs``) does the same.
 
 Each region's decoded features are split by the layout of ``livegesture.regions`` (see
 ``livegesture.data.features``): rot6d per joint is decoded to axis-angle into the joint's slot of ``poses``
@@ -21,7 +21,7 @@ def features_to_motion(feats: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 
 def beat2_npz_dict(motion: dict[str, np.ndarray]) -> dict:
-    """The exact key set of a BEAT2 motion file (SPEC sections 3 and 8)."""
+    """The exact key set of a BEAT2 motion file (docs/data.md and docs/output.md)."""
     return {"poses": np.asarray(motion["poses"], dtype=np.float32),
             "trans": np.asarray(motion["trans"], dtype=np.float32),
             "expressions": np.asarray(motion["expressions"], dtype=np.float32),

@@ -1,7 +1,7 @@
 """SMPL-X body regions (EMAGE masks, as the LiveGesture paper uses them) and the motion layout.
 
 A BEAT2 frame is ``poses`` (55 joints x 3 axis-angle), ``trans`` (3) and ``expressions`` (100).
-Each region's feature vector is laid out as follows (SPEC section 2):
+Each region's feature vector is laid out as follows (docs/motion.md):
 
 - upper: 13 joints x rot6d                                   = 78
 - hands: 30 joints x rot6d                                   = 180

@@ -45,7 +45,7 @@ class LiveGestureStream:
     one step on a region axis (:class:`livegesture.models.fused.FusedExperts`) and the decoders as one step with the
     regions side by side (:class:`livegesture.models.fused_decoders.FusedDecoders`), ``attention`` runs the canonical
     eXperts and decoders and the fusion with its attention cores as the ONNX ``Attention`` op
-    (:class:`livegesture.models.fusion_attention.FusionAttention`), SPEC 14; all give the same tokens and frames.
+    (:class:`livegesture.models.fusion_attention.FusionAttention`), docs/bundle.md#forms-and-precision; all give the same tokens and frames.
     """
 
     def __init__(self, model: LiveGesture, seed: int = 0, guidance: float | None = None,
@@ -163,7 +163,7 @@ class LiveGestureStream:
         return frames
 
     def finish(self, n_in: int | None = None, rate_in: int | None = None) -> list[Frame]:
-        """End of the audio (SPEC 8): completes the last partial token with silence and returns its frames
+        """End of the audio (docs/output.md): completes the last partial token with silence and returns its frames
         cut at the audio's end, so that ceil(duration x fps) frames were emitted in total, computed in
         integers from the input's own sample count and rate: ``(n_in * fps + rate_in - 1) // rate_in``
         (default: the samples pushed, at the frontend's rate). The Rust runtime's ``finish`` is the same."""
@@ -197,7 +197,7 @@ def generate_clip(model: LiveGesture, audio_16k: np.ndarray, seed: int = 0, guid
     """Run the streaming loop over a whole clip. Returns dict(poses, trans, expressions, foot_contact, tokens).
     ``form``: the graph form (see :class:`LiveGestureStream`).
 
-    ``finish=True`` covers the whole audio as the runtime's ``generate`` does (SPEC 8, ``LiveGestureStream.finish``);
+    ``finish=True`` covers the whole audio as the runtime's ``generate`` does (docs/output.md, ``LiveGestureStream.finish``);
     the default stops at the last complete token, as the exported reference rollout does."""
     if getattr(model, "family", "livegesture") == "diffsheg":   # the other model family: FOPPAS over the clip
         from .diffsheg.foppas import generate_clip as diffsheg_generate_clip

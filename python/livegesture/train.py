@@ -1,4 +1,4 @@
-"""The paper's four-stage training pipeline (SPEC section 4, paper section 3.3 and supp. B).
+"""The paper's four-stage training pipeline (docs/model.md, paper section 3.3 and supp. B).
 
     python -m livegesture.train --config default --data DIR --out runs/NAME              # all stages
     python -m livegesture.train --config default --data DIR --out runs/NAME --stage svq1 # one stage

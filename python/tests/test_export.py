@@ -124,7 +124,7 @@ def test_future_reading_attention_is_caught(tmp_path, monkeypatch):
 
 
 def test_fused_form_is_listed_checked_and_equal_to_the_canonical_one(bundle):
-    """SPEC 14: the fused eXperts are a form in the manifest, checked against the canonical torch steps and on
+    """docs/bundle.md#forms-and-precision: the fused eXperts are a form in the manifest, checked against the canonical torch steps and on
     the rollout (identical tokens), and computed exactly as the canonical steps in torch."""
     from livegesture.models.fused import check_fused_experts
     out, manifest, model = bundle
@@ -138,7 +138,7 @@ def test_fused_form_is_listed_checked_and_equal_to_the_canonical_one(bundle):
 
 
 def test_fused_decoders_are_listed_checked_and_equal_to_the_canonical_ones(bundle):
-    """SPEC 14: the fused SVQ decoders are in the fused form, checked against the four canonical torch decoder
+    """docs/bundle.md#forms-and-precision: the fused SVQ decoders are in the fused form, checked against the four canonical torch decoder
     steps, computed exactly as they are (every motion value and cache, bit-identical in torch), and their ONNX graph
     has the documented contract: token (B, R), motion (B, frames, sum of the region dims), caches with the regions'
     channels side by side."""
@@ -206,7 +206,7 @@ def test_broken_fused_form_is_caught_naming_it(tmp_path, monkeypatch):
 
 
 def test_attention_form_is_listed_checked_and_uses_the_opset23_attention_op(bundle):
-    """SPEC 14: the attention form's fusion (``fusion_attention``) is listed in the manifest with the canonical
+    """docs/bundle.md#forms-and-precision: the attention form's fusion (``fusion_attention``) is listed in the manifest with the canonical
     eXperts and decoders, has the canonical fusion's inputs, outputs and caches, is checked against the canonical
     torch fusion and on the rollout (identical tokens), and its ONNX file is opset 23 with one standard
     ``Attention`` node per attention core and no other domain."""

@@ -53,7 +53,7 @@ def test_ort_python_peer_reproduces_the_reference_rollout(tiny, tmp_path):
     assert n_ref >= ROLLOUT_TOKENS
     assert res["check"]["tokens_checked"] == n_ref and res["check"]["identical"]
     assert res["single"]["step_ms"]["n"] == 3
-    # the peer chains the canonical graphs (a bundle's fused form, SPEC 14, is the Rust runtime's)
+    # the peer chains the canonical graphs (a bundle's fused form, docs/bundle.md#forms-and-precision, is the Rust runtime's)
     assert set(res["single"]["graphs_ms_median"]) == {g["name"] for g in json.loads((tiny / "manifest.json").read_text())["graphs"]
                                                       if g.get("form", "canonical") == "canonical"}
     b = {r["streams"]: r for r in res["batched"]}

@@ -1,4 +1,4 @@
-"""Step-by-step equals the offline causal forward for every component (SPEC section 7: max abs 1e-5),
+"""Step-by-step equals the offline causal forward for every component (docs/parity.md: max abs 1e-5),
 on sequences longer than every window; cold start from zero caches is exact."""
 import pytest
 import torch

@@ -1,4 +1,4 @@
-"""The streaming contract (SPEC section 5) on the reference loop."""
+"""The streaming contract (docs/streaming.md) on the reference loop."""
 import numpy as np
 import pytest
 import torch
@@ -132,7 +132,7 @@ def test_step_rejects_bad_shapes(tiny):
 
 
 def test_finish_covers_the_whole_audio(tiny):
-    """SPEC 8: the last partial token is completed with silence and cut at the audio's end, so
+    """docs/output.md: the last partial token is completed with silence and cut at the audio's end, so
     ceil(duration x 30) frames come out; the same rule as the runtime's finish (runtime/tests/coverage.rs)."""
     cfg = FrontendConfig()
     audio = speechy(1.0, seed=4)

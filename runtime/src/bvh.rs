@@ -1,4 +1,4 @@
-//! BVH output (`generate -o motion.bvh`, SPEC 8) on the project's own skeleton ([`crate::skeleton`]).
+//! BVH output (`generate -o motion.bvh`, docs/output.md) on the project's own skeleton ([`crate::skeleton`]).
 //!
 //! - `HIERARCHY`: the 55 SMPL-X joints with their SMPL-X names and parents; `OFFSET`s are the
 //!   project's rest offsets in **centimetres** (the usual BVH unit; in Blender import with scale 0.01

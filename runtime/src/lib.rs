@@ -21,9 +21,9 @@
 //! Tools, behind cargo features that are on by default (the `livegesture` binary uses them; a program
 //! that only runs bundles can depend on the crate with `default-features = false, features = ["ort"]`):
 //!
-//! - `parity` ([`parity`]): the parity suite of SPEC section 7;
-//! - `bench` ([`bench`]): the benchmarks of SPEC section 11;
-//! - `serve` ([`serve`]): live serving over WebSocket (SPEC 12), sessions stepped together in batches.
+//! - `parity` ([`parity`]): the parity suite of docs/parity.md;
+//! - `bench` ([`bench`]): the benchmarks of BENCHMARKS.md;
+//! - `serve` ([`serve`]): live serving over WebSocket (docs/serve.md), sessions stepped together in batches.
 
 pub mod audio;
 pub mod backend;

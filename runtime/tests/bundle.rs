@@ -30,7 +30,7 @@ fn test_bundle_loads_and_describes_itself() {
     let lg = b.livegesture().unwrap();
     assert_eq!(lg.region_names(), ["upper", "hands", "lower", "face"]);
     // 10 canonical graphs, the fused eXperts, the fused decoders and the attention form's fusion
-    // (SPEC 14)
+    // (docs/bundle.md#forms-and-precision)
     assert_eq!(b.graphs().len(), 13);
     assert!(b.graph("experts_fused").is_ok());
     assert!(b.graph("decoders_fused").is_ok());
@@ -126,7 +126,7 @@ fn a_missing_file_is_refused() {
 
 #[test]
 fn a_missing_form_fusion_file_is_refused_naming_it() {
-    // the attention form's fusion graph (SPEC 14) is checked like every graph file
+    // the attention form's fusion graph (docs/bundle.md#forms-and-precision) is checked like every graph file
     let tmp = tempfile::tempdir().unwrap();
     let dir = common::copy_bundle(tmp.path());
     std::fs::remove_file(dir.join("fusion_attention.onnx")).unwrap();

@@ -159,7 +159,7 @@ fn generate_writes_a_beat2_npz_with_both_backends() {
     common::require_ort();
     let tmp = tempfile::tempdir().unwrap();
     let (wav, samples) = short_wav(tmp.path(), 2.3);
-    // SPEC 8: the frames cover the whole audio, ceil(duration x 30)
+    // docs/output.md: the frames cover the whole audio, ceil(duration x 30)
     let n_frames = AudioSpan::at_16k(samples.len() as u64).frames(30) as usize;
     assert!(n_frames > 4 * frontend().n_tokens(samples.len() as u64) as usize);
     let mut motions = Vec::new();
@@ -295,7 +295,7 @@ fn stream_resamples_and_mixes_any_input() {
     let o = stream_stdin(&args, pcm, usize::MAX);
     assert!(o.status.success(), "{}", stderr(&o));
     let lines = String::from_utf8(o.stdout).unwrap().lines().count();
-    // SPEC 8, from the input's own count and rate: ceil(n * 30 / 48000) frames
+    // docs/output.md, from the input's own count and rate: ceil(n * 30 / 48000) frames
     let n_in = 3 * samples.len() as u64;
     assert_eq!(lines as u64, (n_in * 30).div_ceil(48000));
 }
@@ -458,7 +458,7 @@ fn a_corrupted_bundle_is_refused_by_the_cli() {
     assert!(stderr(&o).contains("expert_lower.onnx"));
 }
 
-/// SPEC 8 through the CLI: audio shorter than one token, and a length one sample past a token
+/// docs/output.md through the CLI: audio shorter than one token, and a length one sample past a token
 /// boundary, give ceil(duration x 30) frames from `generate` and `stream`, and the same frames.
 #[test]
 fn generate_and_stream_cover_the_whole_audio() {

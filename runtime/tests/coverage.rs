@@ -1,4 +1,4 @@
-//! Whole-audio coverage (SPEC 8): at the end of the audio the last partial token is completed with
+//! Whole-audio coverage (docs/output.md): at the end of the audio the last partial token is completed with
 //! silence and its frames are cut at the audio's end, so a stream emits exactly
 //! `ceil(duration x 30)` frames, computed from the input's own sample count and rate. Checked through
 //! the family-independent API ([`livegesture::model`]) and the LiveGesture pipeline.

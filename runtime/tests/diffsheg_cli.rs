@@ -80,7 +80,7 @@ fn generate_covers_the_whole_audio() {
         assert!(m.poses.iter().all(|v| v.is_finite()));
         outs.push(m);
     }
-    // both backends sample the same motion (the same noise; graphs within the SPEC 7 bounds)
+    // both backends sample the same motion (the same noise; graphs within the docs/parity.md bounds)
     let d = outs[0]
         .poses
         .iter()

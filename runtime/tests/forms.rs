@@ -1,4 +1,4 @@
-//! Graph forms (SPEC 14): the tiny test bundle carries the canonical region eXperts and SVQ decoders
+//! Graph forms (docs/bundle.md#forms-and-precision): the tiny test bundle carries the canonical region eXperts and SVQ decoders
 //! (one graph per region), the fused form (`experts_fused`, the four eXperts on a region axis;
 //! `decoders_fused`, the four decoders side by side) and the attention form (the canonical eXperts
 //! and decoders, the fusion as `fusion_attention` with the ONNX `Attention` op). The forms give

@@ -1,7 +1,7 @@
 //! Cross-language numerics checks: the Rust frontend, sampler and rotations against reference values
 //! written by `python/tools/make_numerics_fixtures.py` into `tests/fixtures/numerics.npz`.
 //!
-//! Bounds (SPEC section 7): log-mel max abs error <= 1e-4; sampled tokens and SplitMix64 outputs
+//! Bounds (docs/parity.md): log-mel max abs error <= 1e-4; sampled tokens and SplitMix64 outputs
 //! identical; rotations within 1e-5. Streaming with any chunk size must equal offline exactly.
 
 use std::fmt::Debug;
@@ -14,7 +14,7 @@ use livegesture::sampling::{sample_token, SplitMix64};
 use ndarray::{Array0, Array1, Array2, ArrayBase, Data, Dimension};
 use ndarray_npy::{NpzReader, ReadableElement};
 
-/// The SPEC section 7 bound for the Rust log-mel frontend against the Python one.
+/// The docs/parity.md bound for the Rust log-mel frontend against the Python one.
 const LOGMEL_BOUND: f64 = 1e-4;
 const ROTATION_BOUND: f64 = 1e-5;
 

@@ -1,10 +1,10 @@
-//! `livegesture serve` over loopback: SPEC 12's protocol, frames equal to `generate`'s computation,
+//! `livegesture serve` over loopback: docs/serve.md's protocol, frames equal to `generate`'s computation,
 //! refusals with reasons, limits, batching of concurrent sessions, and the shutdown drain.
 //!
 //! The reference for a session is what `generate` computes for the same audio written as a WAV file:
 //! `read_wav_16k_mono` (the WAV reader and resampler `generate` streams through), the pipeline on
 //! one stream with the same seed and backend, ended by the stream's `finish` with the input's own
-//! sample count and rate (SPEC 8: the last token completed with silence, `ceil(n_in * 30 / rate)`
+//! sample count and rate (docs/output.md: the last token completed with silence, `ceil(n_in * 30 / rate)`
 //! frames). One test also runs the `generate` binary itself.
 
 use livegesture_parity_tests as common;
@@ -172,7 +172,7 @@ fn frames_equal_the_generate_binary() {
         60,
         session(server.addr(), "?seed=5", &pcm_bytes(&audio, false), &[640]),
     );
-    // both cover the whole audio with the same frames (SPEC 8)
+    // both cover the whole audio with the same frames (docs/output.md)
     assert_eq!(
         got.frames.len() as u64,
         AudioSpan::at_16k(audio.len() as u64).frames(30)

@@ -185,7 +185,7 @@ fn frames_equal_the_generate_binary() {
         120,
         session(server.addr(), "?seed=5", &pcm_bytes(&audio, false), &[640]),
     );
-    // both cover the whole audio with the same frames (SPEC 8)
+    // both cover the whole audio with the same frames (docs/output.md)
     assert_eq!(
         got.frames.len() as u64,
         AudioSpan::at_16k(audio.len() as u64).frames(30)

@@ -1,4 +1,4 @@
-"""Loader for the real BEAT2 layout (SPEC section 3), also written by :mod:`livegesture.data.synth`.
+"""Loader for the real BEAT2 layout (docs/data.md), also written by :mod:`livegesture.data.synth`.
 
 ``root`` is the ``beat_english_v2.0.0/`` directory (a directory that contains it is accepted too)::
 

@@ -1,6 +1,6 @@
 """BEAT2 motion <-> per-region feature vectors, and per-region normalisation statistics.
 
-The layout follows :mod:`livegesture.regions` exactly (SPEC section 2):
+The layout follows :mod:`livegesture.regions` exactly (docs/motion.md):
 
 - upper: joints ``UPPER_JOINTS`` as rot6d                                  (78)
 - hands: joints 25..54 as rot6d                                            (180)

@@ -1,10 +1,10 @@
 """Synthetic BEAT2-layout corpus: espeak-ng speech and SMPL-X motion computed from that same audio.
 
-BEAT2 cannot be downloaded on our machines (SPEC section 9), so the shipped model learns from this::
+BEAT2 cannot be downloaded on our machines (docs/data.md), so the shipped model learns from this::
 
     python -m livegesture.data.synth --out DIR --minutes N --seed S [--jobs J]
 
-writes exactly the BEAT2 layout of SPEC section 3 into ``DIR``: ``smplxflame_30/{id}.npz``,
+writes exactly the BEAT2 layout of docs/data.md into ``DIR``: ``smplxflame_30/{id}.npz``,
 ``wave16k/{id}.wav`` (16 kHz mono int16), ``textgrid/{id}.TextGrid`` (a ``words`` tier, approximate
 timing) and ``train_test_split.csv``. ``--minutes`` is the total audio duration. Needs the ``espeak-ng``
 program (``apt-get install -y espeak-ng``). The same seed gives byte-identical files, whatever ``--jobs``.

@@ -5,7 +5,7 @@ outputs are float32; everything the sampler computes itself is IEEE float64 per 
 order (no fused multiply-add), and is rounded to float32 only where stated.
 
 **Windows.** ``T = ceil(n_samples * fps / sample_rate)`` = ``(n_samples * 30 + 15999) // 16000`` frames
-cover the whole audio (SPEC 8). Window k starts at ``s_0 = 0``, ``s_{k+1} = s_k + N - L`` (N = window,
+cover the whole audio (docs/output.md). Window k starts at ``s_0 = 0``, ``s_{k+1} = s_k + N - L`` (N = window,
 L = overlap) and has ``n_k = min(N, T - s_k)`` frames; the last window is the first with ``s_k + N >= T``
 (it may be shorter than N: the Transformer drops the remaining positional rows). Window k needs the
 log-mel frames ``2 s_k .. 2 (s_k + n_k) - 1`` (``livegesture.frontend``; audio past the end is zeros): in a

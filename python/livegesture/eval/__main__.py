@@ -1,4 +1,4 @@
-"""``python -m livegesture.eval``: BEAT2-style evaluation report (SPEC section 10).
+"""``python -m livegesture.eval``: BEAT2-style evaluation report (docs/evaluation.md).
 
     python -m livegesture.eval --data DIR [--split test] [--generated GEN_DIR ...] [--checkpoint CKPT]
                                [--fgd-encoder PATH] [--out report.json]

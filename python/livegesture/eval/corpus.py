@@ -1,4 +1,4 @@
-"""The evaluation's view of a BEAT2-layout corpus (SPEC section 3): thin adapters over
+"""The evaluation's view of a BEAT2-layout corpus (docs/data.md): thin adapters over
 :mod:`livegesture.data.beat2`, which owns the reading and validation of the files."""
 from __future__ import annotations
 

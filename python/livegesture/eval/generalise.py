@@ -14,7 +14,7 @@ Two sets of audio, each evaluated with the same three measures:
 For every clip i, its motion is scored against its OWN audio and against a mismatched pair, in two designs
 reported side by side (:func:`evaluate_set`):
 
-- ``audio swap`` (SPEC 10's "BC with the audio of another clip"; the report's ``model``/``reference``
+- ``audio swap`` (docs/evaluation.md's "BC with the audio of another clip"; the report's ``model``/``reference``
   blocks): clip i's motion against ANOTHER clip's audio (a fixed derangement: clip i of the sorted ids
   gets the audio of clip (i + 1) mod n), over their common length;
 - ``motion swap`` (the ``motion_swap`` blocks): clip i's OWN audio against the motion made for every
@@ -235,7 +235,7 @@ def evaluate_set(ids: list[str], motions: list[list[dict]], audios: list[np.ndar
 
     ``design`` picks the mismatched side of the gap (the own side is the same in both):
 
-    - ``"audio_swap"``: clip i's motion against the audio of clip :func:`derangement` (i) (SPEC 10: "BC with
+    - ``"audio_swap"``: clip i's motion against the audio of clip :func:`derangement` (i) (docs/evaluation.md: "BC with
       the audio of another clip"). The two sides use different onset tracks and envelopes, so a clip whose
       partner's onsets are sparser than its own shows a BC gap whatever its motion (see :func:`chance_bc`);
     - ``"motion_swap"``: clip i's OWN audio against the motion made for every OTHER clip j != i: for each
@@ -614,7 +614,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--require-targets", action="store_true",
                     help="exit 1 unless the model reaches issue 16's targets on the real set")
     ap.add_argument("--targets-design", choices=DESIGNS, default="audio_swap",
-                    help="which mismatch design --require-targets reads (default audio_swap, SPEC 10's \"audio "
+                    help="which mismatch design --require-targets reads (default audio_swap, docs/evaluation.md's \"audio "
                          "of another clip\"); both are always reported")
     a = ap.parse_args(argv)
 

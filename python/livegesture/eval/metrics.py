@@ -1,4 +1,4 @@
-"""BEAT2-style evaluation metrics (SPEC section 10; LiveGesture paper, supplementary C).
+"""BEAT2-style evaluation metrics (docs/evaluation.md; LiveGesture paper, supplementary C).
 
 Everything here is numpy/scipy, deterministic, and works on any clip length. Conventions:
 

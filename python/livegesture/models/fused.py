@@ -1,4 +1,4 @@
-"""Fused region forms (SPEC section 14): the four region eXperts as one step graph on a region axis.
+"""Fused region forms (docs/bundle.md#forms-and-precision): the four region eXperts as one step graph on a region axis.
 
 The canonical form runs one ``expert_<region>`` graph per region, about 150 small nodes each, and a
 LiveGesture token on the ``default`` config is bound by per-node dispatch. :class:`FusedExperts` computes

@@ -1,4 +1,4 @@
-"""Fused region forms (SPEC section 14), part two: the four region SVQ stream decoders as one step graph.
+"""Fused region forms (docs/bundle.md#forms-and-precision), part two: the four region SVQ stream decoders as one step graph.
 
 The canonical form runs one ``decoder_<region>`` graph per region (:meth:`livegesture.models.svq.SVQ.step`).
 Each is the projection head W^region on the token's codebook entry, then the causal stream decoder D_CS

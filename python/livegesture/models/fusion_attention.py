@@ -1,4 +1,4 @@
-"""The ``attention`` form of the fusion (SPEC section 14): ``fusion`` with its attention cores as the ONNX
+"""The ``attention`` form of the fusion (docs/bundle.md#forms-and-precision): ``fusion`` with its attention cores as the ONNX
 ``Attention`` op (opset 23).
 
 The canonical ``fusion`` graph computes every attention core from elementwise products, ReduceSums and small

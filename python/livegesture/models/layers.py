@@ -379,7 +379,7 @@ class WindowedAttention(nn.Module):
         """:meth:`step` (same inputs, caches and result) with the attention core as one :class:`AttentionOp`
         (the ONNX ``Attention`` op): the W keys are rotated back elementwise by their distance to the query
         (:func:`key_rotations`; the caches keep the keys before rotation, as in :meth:`step`), the query is not
-        rotated, scale 1/sqrt(hd). The form of the fusion graph ``fusion_attention`` (SPEC 14 form
+        rotated, scale 1/sqrt(hd). The form of the fusion graph ``fusion_attention`` (docs/bundle.md#forms-and-precision form
         ``attention``): tract runs the op as one fused kernel, 2.7-4.7x faster than :meth:`_step_queries` for the
         fusion's cross-attention; onnxruntime runs it slower than :meth:`step` (BENCHMARKS.md, "A tract form
         of the fusion")."""

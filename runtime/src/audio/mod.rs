@@ -37,7 +37,7 @@
 //! - [`wav`]: [`WavStream`] and [`read_wav_16k_mono`];
 //! - [`raw`]: [`RawPcmDecoder`] and [`RawPcmStream`] for headerless PCM;
 //! - here: the errors, the mono mix, and [`AudioSpan`] (how much input a source delivered, which
-//!   fixes the number of frames that cover it, SPEC 8).
+//!   fixes the number of frames that cover it, docs/output.md).
 
 use std::io;
 use std::path::PathBuf;
@@ -119,7 +119,7 @@ pub struct WavInfo {
 
 /// How much audio a source delivered, counted at its **own** sample rate (before any conversion).
 ///
-/// It fixes how many frames cover the audio (SPEC 8): [`AudioSpan::frames`]. The readers report it
+/// It fixes how many frames cover the audio (docs/output.md): [`AudioSpan::frames`]. The readers report it
 /// ([`WavStream::input_span`], [`RawPcmStream::input_span`]) and a stream's `finish` takes it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct AudioSpan {

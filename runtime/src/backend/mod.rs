@@ -94,7 +94,7 @@ pub trait GraphRunner: Send {
 /// Why: attention probabilities of far-away window slots and GELU tails of large negative inputs fall
 /// into the subnormal range (below 1.2e-38), where x86 arithmetic takes a slow microcode path; with
 /// real streams this made graphs up to 1.5x slower. Flushing changes values only below 1.2e-38, far
-/// under every parity bound (SPEC section 7). Other architectures run `f` unchanged.
+/// under every parity bound (docs/parity.md). Other architectures run `f` unchanged.
 pub fn flush_denormals<R>(f: impl FnOnce() -> R) -> R {
     #[cfg(target_arch = "x86_64")]
     {

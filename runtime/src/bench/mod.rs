@@ -1,4 +1,4 @@
-//! Benchmarks of the streaming pipeline (SPEC section 11; speed is measured here, never by timed tests).
+//! Benchmarks of the streaming pipeline (BENCHMARKS.md; speed is measured here, never by timed tests).
 //!
 //! [`run`] loads a bundle on one backend and measures, on the calling thread:
 //!
@@ -68,7 +68,7 @@ pub struct BenchConfig {
     pub batch_seconds: f64,
     /// Batched stepping with churn: at every step one stream leaves and a fresh one joins.
     pub churn: bool,
-    /// LiveGesture: the form of the region eXperts and decoders to measure (SPEC 14; auto = the
+    /// LiveGesture: the form of the region eXperts and decoders to measure (docs/bundle.md#forms-and-precision; auto = the
     /// bundle's form for the backend).
     pub form: crate::model::livegesture::FormChoice,
 }

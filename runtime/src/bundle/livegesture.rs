@@ -60,7 +60,7 @@ pub struct SamplingDefaults {
     pub prng: Option<String>,
 }
 
-/// One form of the chain's components (SPEC 14): which graphs compute the region eXperts, the
+/// One form of the chain's components (docs/bundle.md#forms-and-precision): which graphs compute the region eXperts, the
 /// fusion and the region SVQ decoders.
 ///
 /// `canonical`: one `expert_<region>` and one `decoder_<region>` graph per region, in region order.
@@ -111,7 +111,7 @@ pub struct LiveGestureManifest {
     pub regions: Vec<RegionSpec>,
     pub vocab: Vocab,
     pub sampling: SamplingDefaults,
-    /// The forms the bundle carries (SPEC 14), by name; absent: the canonical form only.
+    /// The forms the bundle carries (docs/bundle.md#forms-and-precision), by name; absent: the canonical form only.
     #[serde(default)]
     pub forms: BTreeMap<String, FormSpec>,
     /// The form each backend runs by default (`ort`, `tract`); absent: canonical.

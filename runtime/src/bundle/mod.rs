@@ -232,10 +232,10 @@ pub struct ReferenceInfo {
     pub rollout_audio: Option<String>,
 }
 
-/// The weight precisions a bundle may declare in `precision.weights` (SPEC 14).
+/// The weight precisions a bundle may declare in `precision.weights` (docs/bundle.md#forms-and-precision).
 pub const PRECISIONS: [&str; 4] = ["float32", "float16", "bfloat16", "int8"];
 
-/// `precision` of a reduced-precision bundle (SPEC 14, written by `export/quantize.py`).
+/// `precision` of a reduced-precision bundle (docs/bundle.md#forms-and-precision, written by `export/quantize.py`).
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 pub struct Precision {
     /// `float32`, `float16`, `bfloat16` or `int8` ([`PRECISIONS`]).
@@ -286,7 +286,7 @@ pub struct Manifest {
     pub files: BTreeMap<String, FileEntry>,
     #[serde(default)]
     pub provenance: Value,
-    /// Reduced-precision bundles (SPEC 14): the weights' precision, how the reference vectors were made and
+    /// Reduced-precision bundles (docs/bundle.md#forms-and-precision): the weights' precision, how the reference vectors were made and
     /// the measured error against the f32 model. Absent: an f32 bundle.
     #[serde(default)]
     pub precision: Option<Precision>,
@@ -410,7 +410,7 @@ impl Bundle {
             .map_or("float32", |p| p.weights.as_str())
     }
 
-    /// True for a reduced-precision bundle (SPEC 14): its reference vectors are not torch's.
+    /// True for a reduced-precision bundle (docs/bundle.md#forms-and-precision): its reference vectors are not torch's.
     pub fn is_reduced_precision(&self) -> bool {
         self.precision() != "float32"
     }

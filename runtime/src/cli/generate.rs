@@ -1,6 +1,6 @@
 //! `livegesture generate IN.wav -o OUT.npz`: a whole file, streamed through the bundle's model.
 //!
-//! The motion covers the whole audio (SPEC 8): `ceil(duration * 30)` frames, the last partial token
+//! The motion covers the whole audio (docs/output.md): `ceil(duration * 30)` frames, the last partial token
 //! completed with silence and cut at the audio's end.
 //!
 //! The WAV is read block by block (memory for audio does not grow with its length); frames are
@@ -88,7 +88,7 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
         bar.inc(chunk.len() as u64);
         bar.set_message(format!("{} frames", writer.frames()));
     }
-    // SPEC 8: the last partial token is completed with silence, frames cut at the audio's end
+    // docs/output.md: the last partial token is completed with silence, frames cut at the audio's end
     let span = wav.input_span();
     for f in &stream
         .finish(span)
@@ -101,7 +101,7 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("bvh"))
     {
-        livegesture::bvh::write_bvh(&a.output, &writer.motion()?)?; // SPEC 8: face stays in the npz
+        livegesture::bvh::write_bvh(&a.output, &writer.motion()?)?; // docs/output.md: face stays in the npz
     } else {
         writer.finish()?;
     }

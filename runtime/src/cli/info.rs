@@ -127,7 +127,7 @@ pub fn run(a: Args) -> Result<()> {
     );
     match &m.precision {
         Some(p) if b.is_reduced_precision() => println!(
-            "precision     {} weights (reduced-precision bundle, SPEC 14); reference vectors: {}",
+            "precision     {} weights (reduced-precision bundle, docs/bundle.md#forms-and-precision); reference vectors: {}",
             p.weights,
             p.reference.as_deref().unwrap_or("producer not stated")
         ),

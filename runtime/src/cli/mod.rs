@@ -42,7 +42,7 @@ pub use common::exit_code;
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
-    /// LiveGesture: form of the region eXperts, fusion and decoders (SPEC 14): auto (the bundle's
+    /// LiveGesture: form of the region eXperts, fusion and decoders (docs/bundle.md#forms-and-precision): auto (the bundle's
     /// form for the backend, see `info`), canonical (one graph per region), fused (one graph for the
     /// four regions) or attention (the fusion with the ONNX Attention op, `fusion_attention`).
     #[arg(
@@ -65,14 +65,14 @@ pub enum Command {
     Info(info::Args),
     #[cfg(feature = "parity")]
     /// Check a bundle's parity: every graph vs the torch reference vectors on ort and tract, the
-    /// whole seeded rollout, the log-mel frontend, chunk-size and batch invariance (SPEC section 7).
+    /// whole seeded rollout, the log-mel frontend, chunk-size and batch invariance (docs/parity.md).
     Parity(parity::Args),
     #[cfg(feature = "bench")]
     /// Benchmark a bundle on one core: step times per graph and whole chain, first-frame latency,
     /// state bytes, peak RSS, real-time streams per core with batched stepping.
     Bench(bench::Args),
     #[cfg(feature = "serve")]
-    /// Serve live sessions over WebSocket (SPEC 12), stepped together in batches; the browser page at /.
+    /// Serve live sessions over WebSocket (docs/serve.md), stepped together in batches; the browser page at /.
     Serve(serve::Args),
 }
 

@@ -1,4 +1,4 @@
-//! `livegesture parity`: the parity suite (SPEC section 7) on a bundle, as a table.
+//! `livegesture parity`: the parity suite (docs/parity.md) on a bundle, as a table.
 //!
 //! Runs [`livegesture::parity::run`] and prints one row per comparison (rows of one graph and
 //! comparison that all pass are summarised by their worst output unless `--all`), then the notes,

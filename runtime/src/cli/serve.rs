@@ -1,4 +1,4 @@
-//! `livegesture serve`: the WebSocket server of SPEC section 12 (see `docs/serve.md`).
+//! `livegesture serve`: the WebSocket server of docs/serve.md (see `docs/serve.md`).
 
 use std::net::SocketAddr;
 use std::time::Duration;

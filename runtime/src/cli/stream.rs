@@ -1,6 +1,6 @@
 //! `livegesture stream`: raw PCM on stdin, frames on stdout as soon as each token's audio is complete.
 //! At the end of the input the last partial token is completed with silence and cut at the audio's
-//! end, so the frames cover the whole input (SPEC 8).
+//! end, so the frames cover the whole input (docs/output.md).
 
 use std::io::{BufWriter, Write};
 
@@ -77,7 +77,7 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
                 sink.write_frame(&f)?;
             }
         }
-        // SPEC 8: at the end of the input, the last partial token is completed with silence
+        // docs/output.md: at the end of the input, the last partial token is completed with silence
         for f in stream.finish(input.input_span())? {
             sink.write_frame(&f)?;
         }

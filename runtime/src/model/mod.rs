@@ -9,7 +9,7 @@
 //! - [`MotionStream`] owns **all** state of one stream (as kyutai moshi's `StreamingModule`: audio
 //!   buffers, graph caches, PRNG, counters; no hidden globals): [`MotionStream::push_audio`] takes
 //!   16 kHz mono samples in chunks of any size and returns the frames they complete,
-//!   [`MotionStream::finish`] ends the stream so that its frames cover the whole input (SPEC 8),
+//!   [`MotionStream::finish`] ends the stream so that its frames cover the whole input (docs/output.md),
 //!   [`MotionStream::reset`] returns it to a cold start with the same options and seed.
 //!
 //! Input-rate conversion happens before a stream ([`crate::audio`]: WAV, raw PCM, resampling to
@@ -120,7 +120,7 @@ pub trait MotionStream: Send {
     /// Pushes 16 kHz mono samples (any chunk size, also empty) and returns the frames they complete.
     fn push_audio(&mut self, samples: &[f32]) -> Result<Vec<Frame>>;
 
-    /// Ends the stream (SPEC 8): completes the last partial unit (token, window) with silence and
+    /// Ends the stream (docs/output.md): completes the last partial unit (token, window) with silence and
     /// returns the remaining frames, cut so that the stream has emitted exactly
     /// `input.frames(fps)` frames in total. `input` is the audio the caller received, counted at its
     /// own rate. Errors when `input` does not match what was pushed (more than one unit of audio
@@ -172,7 +172,7 @@ pub fn describe(bundle: &Bundle) -> Result<Description> {
 /// Choices made when a bundle is loaded, among what the bundle carries.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct LoadOptions {
-    /// LiveGesture: the form of the region eXperts and decoders (SPEC 14; auto = the bundle's
+    /// LiveGesture: the form of the region eXperts and decoders (docs/bundle.md#forms-and-precision; auto = the bundle's
     /// form for the backend). DiffSHEG bundles carry one form: anything but auto is refused.
     pub form: livegesture::FormChoice,
 }

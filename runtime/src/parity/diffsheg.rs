@@ -1,4 +1,4 @@
-//! The parity checks of a DiffSHEG bundle (SPEC 13 + 7; export/BUNDLE.md "DiffSHEG bundles").
+//! The parity checks of a DiffSHEG bundle (docs/diffsheg.md + 7; export/BUNDLE.md "DiffSHEG bundles").
 //!
 //! | check | what | bound |
 //! |---|---|---|

@@ -73,7 +73,7 @@ pub(super) fn graph_rows(
     for c in &spec.caches {
         refv.get(&format!("step{last}.new_cache.{}", c.name))?;
     }
-    // SPEC 7's first row, torch step-by-step vs torch offline, is measured by the exporter (it needs
+    // docs/parity.md's first row, torch step-by-step vs torch offline, is measured by the exporter (it needs
     // the PyTorch model) and recorded in the manifest's `checks`: reported as recorded.
     if let Some(e) = bundle.manifest().checks[&spec.name]["torch_step_vs_offline_max_abs"].as_f64()
     {
@@ -91,7 +91,7 @@ pub(super) fn graph_rows(
             detail: Some("measured by export/export.py, read from manifest.json `checks`".into()),
         });
     }
-    // another form's graph (SPEC 14) against the canonical graphs it replaces, in torch: measured by
+    // another form's graph (docs/bundle.md#forms-and-precision) against the canonical graphs it replaces, in torch: measured by
     // the exporter too (`torch_fused_vs_canonical_max_abs` for the fused form's graphs,
     // `torch_form_vs_canonical_max_abs` for the others)
     let checks = &bundle.manifest().checks[&spec.name];
@@ -127,7 +127,7 @@ pub(super) fn graph_rows(
     }
     let outputs = spec.output_names();
     for (kind, run) in &runs {
-        // a reduced-precision bundle's reference vectors are onnxruntime's on its own graphs (SPEC 14)
+        // a reduced-precision bundle's reference vectors are onnxruntime's on its own graphs (docs/bundle.md#forms-and-precision)
         let (comparison, bound) = match kind {
             BackendKind::Ort => (format!("ort vs {}", bundle.reference_name()), ORT_VS_TORCH),
             BackendKind::Tract => (

@@ -1,4 +1,4 @@
-//! The parity suite (SPEC section 7): proves that torch, ONNX Runtime and tract agree on a bundle.
+//! The parity suite (docs/parity.md): proves that torch, ONNX Runtime and tract agree on a bundle.
 //!
 //! [`run`] checks any bundle against the torch reference vectors that travel with it
 //! (`export/BUNDLE.md`) and against itself:
@@ -11,9 +11,9 @@
 //! | `graph` | torch step-by-step vs torch offline: measured by the exporter (it needs PyTorch) and read from the manifest's `checks` | [`TORCH_STEP_VS_OFFLINE`] |
 //! | `graph` | another form's graph (`experts_fused`, `decoders_fused`, `fusion_attention`) vs the canonical graphs in torch: measured by the exporter, read from `checks` | [`TORCH_FUSED_VS_CANONICAL`] |
 //! | `rollout` | the whole seeded rollout (`reference/clip.wav` repeated `clip_repeats` times, the manifest's seed and sampling defaults): tokens identical at every step, frames (poses, trans, expressions, foot contact) | [`ROLLOUT_FRAMES`] |
-//! | `rollout` | a bundle with several forms (SPEC 14): on each backend that runs a form other than canonical (the manifest's `backend_forms`, or `--form`), the canonical form's rollout vs that form's: identical tokens, frames | [`ROLLOUT_FRAMES`] |
+//! | `rollout` | a bundle with several forms (docs/bundle.md#forms-and-precision): on each backend that runs a form other than canonical (the manifest's `backend_forms`, or `--form`), the canonical form's rollout vs that form's: identical tokens, frames | [`ROLLOUT_FRAMES`] |
 //! | `logmel` | the Rust log-mel frontend on `reference/clip.wav` vs `reference/logmel.npy` | [`LOGMEL`] |
-//! | `chunks` | chunks of 1 sample, 160, 3200, 16000 samples and the whole prefix give identical frames, the stream finished at the end of the prefix as `generate` does (SPEC 8: last partial token completed with silence, `ceil(duration x 30)` frames) (on a prefix of the clip, [`ParityOptions::chunk_seconds`]) | exact |
+//! | `chunks` | chunks of 1 sample, 160, 3200, 16000 samples and the whole prefix give identical frames, the stream finished at the end of the prefix as `generate` does (docs/output.md: last partial token completed with silence, `ceil(duration x 30)` frames) (on a prefix of the clip, [`ParityOptions::chunk_seconds`]) | exact |
 //! | `batch` | [`Pipeline::step_batch`] with 1, 2 and 5 streams (different seeds, audio, one without guidance) vs separate runs: identical tokens, frames | [`BATCH_FRAMES`] (ort), [`TRACT_BATCH_FRAMES`] (tract) |
 //!
 //! Every comparison is one [`Row`]: the check, the graph (or what is compared), the comparison
@@ -73,28 +73,28 @@ use crate::model::livegesture::{FormChoice, Pipeline, StepLogits, StreamOptions,
 use crate::output::Frame;
 use crate::sampling::{guide, Draw, SplitMix64, TokenDistribution};
 
-/// torch step-by-step vs torch offline causal forward (SPEC 7; measured at export, recorded in the
+/// torch step-by-step vs torch offline causal forward (docs/parity.md; measured at export, recorded in the
 /// manifest's `checks`).
 pub const TORCH_STEP_VS_OFFLINE: f64 = 1e-5;
-/// torch fused form vs the canonical graphs it replaces, every output and cache (SPEC 14; measured
+/// torch fused form vs the canonical graphs it replaces, every output and cache (docs/bundle.md#forms-and-precision; measured
 /// at export, recorded in the manifest's `checks`).
 pub const TORCH_FUSED_VS_CANONICAL: f64 = 1e-5;
-/// onnxruntime vs torch, every graph output (SPEC 7).
+/// onnxruntime vs torch, every graph output (docs/parity.md).
 pub const ORT_VS_TORCH: f64 = 1e-5;
-/// tract vs onnxruntime, every graph output (SPEC 7).
+/// tract vs onnxruntime, every graph output (docs/parity.md).
 pub const TRACT_VS_ORT: f64 = 1e-4;
 /// tract vs torch: implied by the two bounds above (triangle inequality).
 pub const TRACT_VS_TORCH: f64 = ORT_VS_TORCH + TRACT_VS_ORT;
-/// Rollout frames, any two of torch, ort, tract (SPEC 7).
+/// Rollout frames, any two of torch, ort, tract (docs/parity.md).
 pub const ROLLOUT_FRAMES: f64 = 1e-4;
-/// Rust log-mel frontend vs the Python one (SPEC 7).
+/// Rust log-mel frontend vs the Python one (docs/parity.md).
 pub const LOGMEL: f64 = 1e-4;
 /// Batched vs separate stepping, frames, on ort (which computes every row alike: exact in practice).
 pub const BATCH_FRAMES: f64 = 1e-6;
 /// Batched vs separate stepping, frames, on tract: tract optimises one plan per batch size and its
 /// kernels may sum in another order, so graph outputs differ by ~1e-7 between batch sizes, and the
 /// rot6d -> axis-angle conversion amplifies that for near-degenerate rot6d (random-weight bundles).
-/// The bound is tract's own tolerance (SPEC 7, "approximate").
+/// The bound is tract's own tolerance (docs/parity.md, "approximate").
 pub const TRACT_BATCH_FRAMES: f64 = TRACT_VS_ORT;
 
 /// The batched-vs-separate frame bound of a backend.
@@ -260,7 +260,7 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
     let want = |c: Check| opts.checks.contains(&c);
     if let Some(p) = &bundle.manifest().precision {
         if bundle.is_reduced_precision() {
-            // SPEC 14: a reduced-precision bundle is checked against its own reference vectors (no torch
+            // docs/bundle.md#forms-and-precision: a reduced-precision bundle is checked against its own reference vectors (no torch
             // model exists in its precision); its error against the f32 model is measured by the tool
             // that derived it and recorded in the manifest
             notes.push(format!(
@@ -390,7 +390,7 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
             }
         }
     }
-    // SPEC 14: a backend that runs a form other than canonical (the bundle's `backend_forms`, or
+    // docs/bundle.md#forms-and-precision: a backend that runs a form other than canonical (the bundle's `backend_forms`, or
     // `--form`) is checked against the canonical form on the rollout, on that backend. A backend that
     // runs the canonical form is checked by the other rows; the other forms are checked on it only
     // when `--form` makes it run them.

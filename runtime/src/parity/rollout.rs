@@ -15,7 +15,7 @@ pub(super) fn field(f: &Frame, k: usize) -> &[f32] {
 }
 
 /// Runs one stream over `audio` in chunks of `chunk` samples; with `finish`, ends it as `generate`
-/// does (SPEC 8: the last partial token completed with silence, frames cut at the audio's end).
+/// does (docs/output.md: the last partial token completed with silence, frames cut at the audio's end).
 pub(super) fn run_stream(
     p: &mut Pipeline,
     opts: &StreamOptions,
@@ -211,7 +211,7 @@ pub(super) fn rollout_rows(
             )),
         }
     }
-    // the forms against each other (SPEC 14): the canonical form's rollout vs the form a backend runs,
+    // the forms against each other (docs/bundle.md#forms-and-precision): the canonical form's rollout vs the form a backend runs,
     // on that backend: identical tokens, frames within the rollout bound
     for (kind, alt) in other_forms.iter_mut() {
         let Some(main) = runs.iter().find(|r| r.kind == *kind) else {

@@ -1,4 +1,4 @@
-//! `livegesture serve`: many live sessions over WebSocket (SPEC section 12), for any model family.
+//! `livegesture serve`: many live sessions over WebSocket (docs/serve.md), for any model family.
 //!
 //! What steps the sessions depends on the bundle's family ([`ServeModel`]):
 //!

@@ -1,4 +1,4 @@
-//! The wire protocol of SPEC section 12: query parameters, client messages, close codes, and
+//! The wire protocol of docs/serve.md: query parameters, client messages, close codes, and
 //! [`SessionInput`], everything a session does with the bytes a client sends (no socket, no
 //! scheduler: the `serve_protocol` fuzz target drives it directly).
 
@@ -219,7 +219,7 @@ pub struct SessionInput {
 pub struct InputEnd {
     /// The resampler's tail.
     pub tail: Vec<f32>,
-    /// All input received, at the client's rate (it fixes the frame count, SPEC 8).
+    /// All input received, at the client's rate (it fixes the frame count, docs/output.md).
     pub input: AudioSpan,
 }
 

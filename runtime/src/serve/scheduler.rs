@@ -10,7 +10,7 @@
 //! gets stepped alone.
 //!
 //! At the end of a session's audio ([`Cmd::End`]) the stream's own end rule applies, the one
-//! `generate` and `stream` use (SPEC 8, [`StreamBatch::finish_audio`] / [`Stream::finish_audio`]):
+//! `generate` and `stream` use (docs/output.md, [`StreamBatch::finish_audio`] / [`Stream::finish_audio`]):
 //! the last partial token is completed with silence and frames at or past
 //! [`AudioSpan::frames`] = `ceil(n_in * 30 / rate_in)` are dropped.
 
@@ -317,7 +317,7 @@ impl SessionTable for Scheduler {
         if s.dead || s.end_frames.is_some() {
             return;
         }
-        // SPEC 8, the streams' own rule: the last partial token completed with silence,
+        // docs/output.md, the streams' own rule: the last partial token completed with silence,
         // the frame count from the input's own samples and rate
         let r = match (s.id, s.parked.as_mut()) {
             (Some(id), _) => self.batch.finish_audio(id, input),
@@ -508,7 +508,7 @@ pub(super) trait SessionTable {
     fn join(&mut self, sid: u64, opts: &StreamOptions, link: SessionLink) -> Result<Joined>;
     /// The client's audio (16 kHz mono), arrived at `at`.
     fn push(&mut self, sid: u64, samples: &[f32], at: Instant);
-    /// The end of the audio (SPEC 8): the stream's own end rule, then done.
+    /// The end of the audio (docs/output.md): the stream's own end rule, then done.
     fn end(&mut self, sid: u64, input: AudioSpan);
     /// Shutdown: what has arrived is stepped, then close 1001.
     fn drain(&mut self, sid: u64);

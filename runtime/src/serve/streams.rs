@@ -12,7 +12,7 @@
 //! lock); a session whose window is running delays the others by that window's sampling time.
 //!
 //! At the end of the audio ([`Cmd::End`]) the stream's own end rule applies ([`MotionStream::finish`],
-//! SPEC 8): the last window runs on audio padded with silence and the motion covers exactly
+//! docs/output.md): the last window runs on audio padded with silence and the motion covers exactly
 //! [`AudioSpan::frames`] frames. On shutdown ([`Cmd::Drain`]) the windows whose audio has arrived have
 //! already run (their frames are queued before the drain is handled, commands are in order); the
 //! partial window is not run, and the session is closed with 1001.

@@ -1,4 +1,4 @@
-"""Independent clients (docs/clients/, written against SPEC 12 alone) get frames equal to `generate`,
+"""Independent clients (docs/clients/, written against docs/serve.md alone) get frames equal to `generate`,
 and refusals with reasons for bad parameters, malformed and oversize messages."""
 import asyncio
 import json

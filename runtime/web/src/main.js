@@ -1,5 +1,5 @@
 // LiveGesture browser page: microphone (getUserMedia + AudioWorklet) or a WAV file -> WebSocket
-// (/v1/stream, SPEC 12) -> live 3D skeleton; or a generated .npz / .bvh with its audio.
+// (/v1/stream, docs/serve.md) -> live 3D skeleton; or a generated .npz / .bvh with its audio.
 // The skeleton (names, parents, rest offsets) comes from the server's /skeleton.json, the Rust mirror
 // of python/livegesture/skeleton.py; joints are posed by forward kinematics from the frames' axis-angle.
 import * as THREE from 'three';

@@ -133,7 +133,7 @@ impl StreamBatch {
         m.state.push_audio(chunk)
     }
 
-    /// Ends stream `id`'s audio (SPEC 8): the mel blocks of its silence-completed last token (step
+    /// Ends stream `id`'s audio (docs/output.md): the mel blocks of its silence-completed last token (step
     /// them with [`Pipeline::step_stream_batch`](super::Pipeline::step_stream_batch) like any other)
     /// and the number of frames that covers `input`; keep only the frames whose index is below it
     /// ([`super::cut_frames`]). See [`Stream::finish_audio`].

@@ -16,7 +16,7 @@ fn is_branched(graph: &str) -> bool {
     graph.starts_with("expert_") || graph.starts_with("experts_") || graph.starts_with("fusion")
 }
 
-/// The graphs of the forms other than canonical (SPEC 14): a stream holds the caches of one form.
+/// The graphs of the forms other than canonical (docs/bundle.md#forms-and-precision): a stream holds the caches of one form.
 fn other_form_graphs(bundle: &Bundle) -> Result<Vec<String>> {
     let forms = bundle.livegesture()?.form_graphs();
     let canonical = forms.get("canonical").cloned();
@@ -148,7 +148,7 @@ pub fn describe(bundle: &Bundle) -> Result<Description> {
         (
             "forms".to_string(),
             format!(
-                "{} (SPEC 14); runs ort: {}, tract: {} (--form or $LIVEGESTURE_FORM overrides)",
+                "{} (docs/bundle.md#forms-and-precision); runs ort: {}, tract: {} (--form or $LIVEGESTURE_FORM overrides)",
                 forms
                     .iter()
                     .map(|(k, g)| format!(

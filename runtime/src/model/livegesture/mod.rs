@@ -40,7 +40,7 @@
 //! After an error inside a graph the caches are incomplete: the stream refuses further work until
 //! [`Pipeline::reset`], a batch until its streams have been removed.
 //!
-//! # The end of the audio (SPEC 8)
+//! # The end of the audio (docs/output.md)
 //!
 //! [`Pipeline::finish`] completes the last partial token with silence and cuts its frames at the
 //! audio's end, so a stream emits exactly [`AudioSpan::frames`] frames, `ceil(duration * 30)`, in
@@ -88,7 +88,7 @@ use caches::{Caches, SeparateCaches, StackedCaches};
 use chain::Stage;
 use stream::StreamState;
 
-/// Which form of the region eXperts, fusion and decoders a [`Pipeline`] runs (SPEC 14).
+/// Which form of the region eXperts, fusion and decoders a [`Pipeline`] runs (docs/bundle.md#forms-and-precision).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum FormChoice {
     /// The form the bundle's manifest names for the backend (`backend_forms`), else canonical.
@@ -240,7 +240,7 @@ impl Pipeline {
     }
 
     /// The form of the region eXperts, fusion and decoders this pipeline runs (`canonical`,
-    /// `fused` or `attention`, SPEC 14).
+    /// `fused` or `attention`, docs/bundle.md#forms-and-precision).
     pub fn form(&self) -> &str {
         &self.form
     }
@@ -343,7 +343,7 @@ impl Pipeline {
         mels.iter().map(|mel| self.step(stream, mel)).collect()
     }
 
-    /// Ends `stream` (SPEC 8): completes its last partial token with silence and returns the frames
+    /// Ends `stream` (docs/output.md): completes its last partial token with silence and returns the frames
     /// still missing, cut at the end of `input` (the audio the caller received, at its own rate), so
     /// that the stream has emitted exactly [`AudioSpan::frames`] frames. The stream then refuses more
     /// audio until [`Pipeline::reset`]. Errors when `input` does not match the audio pushed (see

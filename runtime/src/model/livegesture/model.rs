@@ -39,7 +39,7 @@ impl LiveGestureModel {
         Self::load_with_form(bundle, backend, FormChoice::Auto)
     }
 
-    /// As [`Self::load`], the region eXperts in the form `form` (SPEC 14).
+    /// As [`Self::load`], the region eXperts in the form `form` (docs/bundle.md#forms-and-precision).
     pub fn load_with_form(
         bundle: &Bundle,
         backend: &dyn Backend,

@@ -94,7 +94,7 @@ impl StreamState {
         self.frontend.push(chunk)
     }
 
-    /// Ends the stream's audio (SPEC 8): pushes the silence that completes its last partial token and
+    /// Ends the stream's audio (docs/output.md): pushes the silence that completes its last partial token and
     /// returns the mel blocks of the tokens still to step, and the number of frames that covers
     /// `input` ([`AudioSpan::frames`]); the caller steps the blocks and keeps the frames whose index
     /// is below that number. Errors (changing nothing) when `input` claims more than one token of
@@ -233,7 +233,7 @@ impl Stream {
         self.state.push_audio(chunk)
     }
 
-    /// Ends the stream's audio for stepping with [`Pipeline::step_batch`] (SPEC 8): the mel blocks of
+    /// Ends the stream's audio for stepping with [`Pipeline::step_batch`] (docs/output.md): the mel blocks of
     /// the silence-completed last token (none when the audio ended on a token boundary) and the
     /// number of frames that covers `input`; keep only frames whose index is below it
     /// ([`cut_frames`]). [`Pipeline::finish`] does all of this for one stream.
@@ -242,7 +242,7 @@ impl Stream {
     }
 }
 
-/// Drops the frames of `steps` whose index is `total` or more (the end of the audio, SPEC 8).
+/// Drops the frames of `steps` whose index is `total` or more (the end of the audio, docs/output.md).
 pub fn cut_frames(steps: &mut [TokenStep], total: u64) {
     for s in steps {
         s.frames.retain(|f| f.index < total);
