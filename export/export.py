@@ -10,7 +10,7 @@
 
 The bundle is written to a temporary folder beside ``--out`` and moved into place only after every check
 passed (see verify.py): a failed export leaves no half-written bundle. The format is documented in
-export/BUNDLE.md and described by export/manifest.schema.json.
+docs/bundle.md and described by export/manifest.schema.json.
 """
 from __future__ import annotations
 
