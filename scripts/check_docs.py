@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Docs check (run by scripts/test.sh): every relative link in the tracked Markdown files resolves, and no
-tracked text cites the outside specification ("SPEC 7") instead of the repository's own docs pages.
+tracked text cites the outside specification (the word SPEC followed by a section number) instead of the repository's own docs pages.
 
     python3 scripts/check_docs.py            # the repository's tracked files; exit 1 on any problem
     python3 scripts/check_docs.py FILE.md... # only these files (links are still resolved in the tree)
