@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The project's test command (README "Test"; .ci/run calls it). Installs what it needs, then runs:
+# The project's test command (README "The two commands"; .ci/run calls it). Installs what it needs, then runs:
 #   1. the Python test suite (PyTorch reference: step == offline, streaming contract, data, training,
 #      metrics, export);
 #   2. fresh exports of the tiny configs of both families (the exporter verifies every graph against torch);
