@@ -23,7 +23,7 @@ own motion of the split (the reference):
 - ``bc_mismatched_motion``, ``bc_gap_motion_swap``, ``bc_motion_swap_wins``: the motion swap, clip i's own
   audio against the motion of clip i+1 over the frames both have. The onset track is the same on both sides,
   so the gap is not the onset-density difference of two recordings (``livegesture.eval.generalise`` and
-  docs/eval/realspeech-metric-2026-11-25 explain why the audio swap has no power on dense real speech);
+  docs/evaluation.md explain why the audio swap has no power on dense real speech);
 - ``l1div_realisations`` (paper eq. 2, generated only, >= 2 realisations), ``l1div_beat2`` (the EMAGE
   code's L1div), ``l1div_across_clips``;
 - ``fgd`` (generated vs real motion of the split; for the reference, real split vs real train split)
