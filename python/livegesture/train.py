@@ -349,6 +349,9 @@ def stage_fuse(model, data, tcfg, device):
     return params, StageStep(sample, compute, device), None
 
 
+BUILDERS = {"svq1": stage_svq1, "svq2": stage_svq2, "experts": stage_experts, "fuse": stage_fuse}
+
+
 # ----------------------------------------------------------------------------- driver
 
 def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cpu", tcfg: TrainConfig | None = None,
@@ -409,7 +412,7 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
             **({"extra_data": [str(Path(d).resolve()) for d in extra_data]} if extra_data else {}),
             **({"init_from": str(init_from)} if init_from else {"svq_from": str(svq_from)} if svq_from else {})}
     prev = None
-    builders = {"svq1": stage_svq1, "svq2": stage_svq2, "experts": stage_experts, "fuse": stage_fuse}
+    builders = BUILDERS
     steps = {"svq1": tcfg.steps_svq1, "svq2": tcfg.steps_svq2, "experts": tcfg.steps_experts, "fuse": tcfg.steps_fuse}
     summary = {}
     stage_log = {}   # per stage, from its own checkpoint: a run may train its stages in different sittings
