@@ -24,7 +24,12 @@ motion tokenizer (svq1/svq2) and trains the experts and fuse stages further (giv
 
 ``OUT/final.pt`` is the finished checkpoint (``livegesture.checkpoint.load``); ``OUT/train_log.jsonl`` holds
 every logged loss. Runs on CPU or one GPU (``--device``), and data-parallel over several processes with
-``torchrun --nproc_per_node N -m livegesture.train ...`` (gradients and EMA statistics are all-reduced).
+``torchrun --nproc_per_node N -m livegesture.train ...`` (gradients and EMA statistics are all-reduced; on
+CUDA one GPU per process, ``cuda:LOCAL_RANK``, NCCL; on CPU gloo). On a GPU (``livegesture.trainkit``):
+batches are drawn ahead on a background thread into pinned memory (``--prefetch``, default 4; the same
+batches as drawn inline), bf16 autocast with float32 weights (``--amp bf16|off``, default bf16; the
+codebook stage svq2 stays float32), ``--compile`` for ``torch.compile``, and the loss is read back only at
+logging steps. ``python -m livegesture.bench_train`` measures the rates.
 """
 from __future__ import annotations
 
@@ -117,13 +122,14 @@ class StageStep:
 
 
 def run_stage(name, model, params, total, step_fn, tcfg, out: Path, logger, device, state_fn=None,
-              opts: RunOptions | None = None):
+              opts: RunOptions | None = None, step_hook=None):
     """Generic loop: Adam, gradient clipping, periodic resumable saves, tqdm progress with the loss.
 
     ``opts`` (:class:`livegesture.trainkit.RunOptions`, default: those of ``device``): batches prepared
     ahead on a background thread, pinned and copied asynchronously, bf16 autocast on CUDA, ``torch.compile``.
     The loss is read back from the device only at logging steps. ``state_fn(step, None)`` runs after each
-    optimiser step (the numpy generator belongs to the batch sampler)."""
+    optimiser step (the numpy generator belongs to the batch sampler). ``step_hook(step)`` (benchmarks) runs
+    after each step."""
     rank, world = dist_info()
     opts = opts or RunOptions.for_device(str(device))
     cuda = opts.cuda
@@ -163,6 +169,8 @@ def run_stage(name, model, params, total, step_fn, tcfg, out: Path, logger, devi
             if state_fn:
                 state_fn(step, None if split else rng)
             track.update(loss)
+            if step_hook:
+                step_hook(step)
             if step % tcfg.log_every == 0 or step == total - 1:
                 bar.set_postfix(loss=f"{track.value():.4f}")
                 logger.log(stage=name, step=step, loss=float(loss.detach()), **log_values(parts),

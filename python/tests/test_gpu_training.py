@@ -271,3 +271,23 @@ def test_torchrun_two_cpu_processes_train_both_families(tiny_corpus, tmp_path):
         assert r.returncode == 0, r.stderr[-3000:]
         m = ckpt.load(out / "final.pt")
         assert m.provenance["world_size"] == 2, m.provenance
+
+
+# ----------------------------------------------------------------------------- the benchmark script
+
+def test_bench_train_runs_on_cpu(tiny_corpus, tmp_path):
+    """The GPU benchmark (python -m livegesture.bench_train) on the tiny config, on CPU: one row per stage and
+    variant, positive rates."""
+    from livegesture.bench_train import main
+    out = tmp_path / "bench.json"
+    assert main(["--data", str(tiny_corpus), "--device", "cpu", "--configs", "tiny", "--warmup", "1", "--steps", "2",
+                 "--variants", "before,after", "--out", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [(r["family"], r["stage"], r["variant"]) for r in rows] == \
+        [("livegesture", s, v) for v in ("before", "after") for s in ("svq1", "svq2", "experts", "fuse")] + \
+        [("diffsheg", "diffsheg", v) for v in ("before", "after")]
+    assert all(r["steps_per_s"] > 0 and r["samples_per_s"] == pytest.approx(r["steps_per_s"] * r["windows_per_step"],
+                                                                           rel=0.02) for r in rows)
+    assert "| livegesture | tiny | fuse | after |" in out.with_suffix(".md").read_text()
+    with pytest.raises(SystemExit, match="variants"):
+        main(["--data", str(tiny_corpus), "--variants", "fastest"])

@@ -117,12 +117,13 @@ def losses(model: DiffSHEG, x0, mel, spk, t, eps, cond, tc: DiffSHEGTrainConfig,
 
 
 def train(config: str, data_dir: str, out: str, device: str = "cpu", overrides: dict | None = None,
-          init_from: str | None = None, opts: RunOptions | None = None) -> Path:
+          init_from: str | None = None, opts: RunOptions | None = None, step_hook=None) -> Path:
     """``init_from``: fine-tune a trained DiffSHEG checkpoint (its config, weights, motion and mel
     normalisation and style ids are kept; ``config`` must name the same config). Fresh Adam state and warm-up.
     ``opts``: how to run (:class:`livegesture.trainkit.RunOptions`; default: those of ``device``): batches
     drawn ahead on a background thread, bf16 autocast on CUDA, ``torch.compile``. Under ``torchrun`` the
-    processes train one model data-parallel (gradients averaged); process 0 writes."""
+    processes train one model data-parallel (gradients averaged); process 0 writes. ``step_hook(step)``
+    (benchmarks) runs after each step."""
     opts = opts or RunOptions.for_device(str(device))
     rank, world = dist_info()
     cfg = get_config(config)
@@ -233,6 +234,8 @@ def train(config: str, data_dir: str, out: str, device: str = "cpu", overrides: 
                     be.copy_(bm)
             done = step + 1
             track.update(loss)
+            if step_hook:
+                step_hook(step)
             if step % tc.log_every == 0 or step == tc.steps - 1:
                 bar.set_postfix(loss=f"{track.value():.4f}", eps=f"{float(parts['l_eps'].detach()):.4f}")
                 logger.log(stage="diffsheg", step=step, loss=float(loss.detach()), **log_values(parts),
