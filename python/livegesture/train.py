@@ -148,8 +148,10 @@ def run_stage(name, model, params, total, step_fn, tcfg, out: Path, logger, devi
     rng = np.random.default_rng(tcfg.seed * 1000 + STAGES.index(name) * 100 + rank + start)
     torch.manual_seed(tcfg.seed * 1000 + rank + start)
     split = isinstance(step_fn, StageStep)
+    if opts.compile:
+        compile_modules(model)
     if split:
-        compute = torch.compile(step_fn.compute) if opts.compile else step_fn.compute
+        compute = step_fn.compute
         feed = Prefetcher(step_fn.sample, rng, range(start, total), depth=opts.prefetch, pin=opts.pin)
     bar = tqdm(range(start, total), desc=name, disable=rank != 0, dynamic_ncols=True, mininterval=2.0)
     t0, track = time.time(), LossTrack()
@@ -185,6 +187,16 @@ def run_stage(name, model, params, total, step_fn, tcfg, out: Path, logger, devi
     if resume.exists() and rank == 0:
         resume.unlink()
     return track.value()
+
+
+def compile_modules(model):
+    """``torch.compile`` the modules a training step calls (in place: names and state dict unchanged). The
+    step functions themselves are not compiled: they take host numbers (masking ratios) that change every step."""
+    mods = [model.audio_encoder, model.fuse] + [model.experts[r] for r in REGION_NAMES] + \
+        [m for r in REGION_NAMES for m in (model.svq[r].encoder, model.svq[r].decoder)]
+    for m in mods:
+        if getattr(m, "_compiled_call_impl", None) is None:
+            m.compile()
 
 
 def stage_svq1(model, data, tcfg, device):

@@ -204,7 +204,9 @@ def train(config: str, data_dir: str, out: str, device: str = "cpu", overrides: 
         cond = (torch.rand(tc.batch, device=x0.device) >= tc.null_cond_prob).float()
         return losses(fwd, x0, batch["mel"], batch["spk"], batch["t"], eps, cond, tc, sab, s1mab)
 
-    fwd = torch.compile(model, dynamic=True) if opts.compile else model
+    if opts.compile:            # in place (state dict unchanged); window lengths vary: dynamic shapes
+        model.compile(dynamic=True)
+    fwd = model
     feed = Prefetcher(sample, rng, range(start, tc.steps), depth=opts.prefetch, pin=opts.pin)
     ema_p, model_p = list(ema.parameters()), [p.detach() for p in params]
     model.train()
