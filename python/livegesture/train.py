@@ -194,6 +194,10 @@ def compile_modules(model):
     step functions themselves are not compiled: they take host numbers (masking ratios) that change every step."""
     mods = [model.audio_encoder, model.fuse] + [model.experts[r] for r in REGION_NAMES] + \
         [m for r in REGION_NAMES for m in (model.svq[r].encoder, model.svq[r].decoder)]
+    # the four regions' modules share their classes' code: room for their shapes (windows, whole clips)
+    cfg = torch._dynamo.config
+    name = "recompile_limit" if hasattr(cfg, "recompile_limit") else "cache_size_limit"
+    setattr(cfg, name, max(64, getattr(cfg, name)))
     for m in mods:
         if getattr(m, "_compiled_call_impl", None) is None:
             m.compile()

@@ -291,3 +291,22 @@ def test_bench_train_runs_on_cpu(tiny_corpus, tmp_path):
     assert "| livegesture | tiny | fuse | after |" in out.with_suffix(".md").read_text()
     with pytest.raises(SystemExit, match="variants"):
         main(["--data", str(tiny_corpus), "--variants", "fastest"])
+
+
+# ----------------------------------------------------------------------------- a real GPU (skipped without one)
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_real_cuda_trains_both_families_with_bf16_and_prefetch(tiny_corpus, tmp_path):
+    from livegesture.diffsheg.train import train as train_diffsheg
+    from livegesture.stream import generate_clip
+    from livegesture.train import train
+    opts = RunOptions.for_device("cuda")
+    assert (opts.amp, opts.prefetch, opts.pin) == ("bf16", 4, True)
+    lg = ckpt.load(train("tiny", str(tiny_corpus), str(tmp_path / "lg"), device="cuda", overrides=LG_STEPS, opts=opts))
+    ds = ckpt.load(train_diffsheg("tiny", str(tiny_corpus), str(tmp_path / "ds"), device="cuda",
+                                  overrides={"steps": 3, "batch": 2}, opts=opts))
+    audio = np.random.default_rng(1).standard_normal(16000).astype(np.float32) * 0.1
+    for m in (lg, ds):
+        ref = generate_clip(m, audio, seed=1)
+        got = generate_clip(m.to("cuda"), audio, seed=1)
+        assert np.isfinite(got["poses"]).all() and got["poses"].shape == ref["poses"].shape
