@@ -253,8 +253,10 @@ def stage_svq2(model, data, tcfg, device):
             rec, _, cb = svq.quantize(x, update=True)
             losses[f"l1_{r}"] = F.l1_loss(rec, x)
             losses[f"cb_{r}"] = cb
-            with torch.no_grad():
-                recent[r] = svq.quantizer.pre(svq.encoder(x.transpose(1, 2)).transpose(1, 2)).reshape(-1, svq.cfg.code_dim)
+            if (step + 1) % tcfg.dead_code_every == 0:      # only the steps that reset dead codes read them
+                with torch.no_grad():
+                    e = svq.quantizer.pre(svq.encoder(x.transpose(1, 2)).transpose(1, 2))
+                    recent[r] = e.reshape(-1, svq.cfg.code_dim)
         total = sum(v for k, v in losses.items() if k.startswith("l1")) + \
             tcfg.cb_weight * sum(v for k, v in losses.items() if k.startswith("cb"))
         return total, losses
