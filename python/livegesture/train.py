@@ -300,7 +300,7 @@ def stage_experts(model, data, tcfg, device):
 
     def compute(step, batch):
         mel, tok = batch
-        audio = model.audio_encoder(mel)
+        audio = model.audio_encoder(mel).float()   # (bf16 under autocast) the eXperts take float32 inputs
         cond = cfg_cond(len(tok), tcfg.cfg_dropout, tok.device)
         losses = {}
         for i, r in enumerate(REGION_NAMES):
@@ -344,7 +344,7 @@ def stage_fuse(model, data, tcfg, device):
         B, T, R_ = tok.shape
         dev = tok.device
         with torch.no_grad():
-            audio = model.audio_encoder(mel)
+            audio = model.audio_encoder(mel).float()   # module inputs are float32 (bf16 outputs under autocast)
             clean_in = torch.stack([teacher_inputs(model, tok[..., i]) for i in range(R_)], -1)
             # uncertainty-guided masking: the least confident ground-truth history tokens are masked
             conf = []
@@ -364,7 +364,7 @@ def stage_fuse(model, data, tcfg, device):
             # random region masking: p_drop ramps up to region_drop_max (drawn with the batch)
             corrupted[:, 1:] = torch.where(batch["region_mask"][:, None, :], model.cfg.mask_token, corrupted[:, 1:])
             cond = cfg_cond(B, tcfg.cfg_dropout, dev)
-            hidden = torch.stack([model.experts[r](corrupted[..., i], audio, cond)[0]
+            hidden = torch.stack([model.experts[r](corrupted[..., i], audio, cond)[0].float()
                                   for i, r in enumerate(REGION_NAMES)], 2)   # (B, T, R, d)
         local = sum(F.cross_entropy(classifiers[i](hidden[:, :, i]).reshape(-1, model.cfg.codebook_size).float(),
                                     tok[..., i].reshape(-1)) for i in range(R_)) / R_
