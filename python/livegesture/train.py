@@ -253,8 +253,10 @@ def stage_svq2(model, data, tcfg, device):
             rec, _, cb = svq.quantize(x, update=True)
             losses[f"l1_{r}"] = F.l1_loss(rec, x)
             losses[f"cb_{r}"] = cb
-            with torch.no_grad():
-                recent[r] = svq.quantizer.pre(svq.encoder(x.transpose(1, 2)).transpose(1, 2)).reshape(-1, svq.cfg.code_dim)
+            if (step + 1) % tcfg.dead_code_every == 0:      # only the steps that reset dead codes read them
+                with torch.no_grad():
+                    e = svq.quantizer.pre(svq.encoder(x.transpose(1, 2)).transpose(1, 2))
+                    recent[r] = e.reshape(-1, svq.cfg.code_dim)
         total = sum(v for k, v in losses.items() if k.startswith("l1")) + \
             tcfg.cb_weight * sum(v for k, v in losses.items() if k.startswith("cb"))
         return total, losses
@@ -298,7 +300,7 @@ def stage_experts(model, data, tcfg, device):
 
     def compute(step, batch):
         mel, tok = batch
-        audio = model.audio_encoder(mel)
+        audio = model.audio_encoder(mel).float()   # (bf16 under autocast) the eXperts take float32 inputs
         cond = cfg_cond(len(tok), tcfg.cfg_dropout, tok.device)
         losses = {}
         for i, r in enumerate(REGION_NAMES):
@@ -342,7 +344,7 @@ def stage_fuse(model, data, tcfg, device):
         B, T, R_ = tok.shape
         dev = tok.device
         with torch.no_grad():
-            audio = model.audio_encoder(mel)
+            audio = model.audio_encoder(mel).float()   # module inputs are float32 (bf16 outputs under autocast)
             clean_in = torch.stack([teacher_inputs(model, tok[..., i]) for i in range(R_)], -1)
             # uncertainty-guided masking: the least confident ground-truth history tokens are masked
             conf = []
@@ -362,7 +364,7 @@ def stage_fuse(model, data, tcfg, device):
             # random region masking: p_drop ramps up to region_drop_max (drawn with the batch)
             corrupted[:, 1:] = torch.where(batch["region_mask"][:, None, :], model.cfg.mask_token, corrupted[:, 1:])
             cond = cfg_cond(B, tcfg.cfg_dropout, dev)
-            hidden = torch.stack([model.experts[r](corrupted[..., i], audio, cond)[0]
+            hidden = torch.stack([model.experts[r](corrupted[..., i], audio, cond)[0].float()
                                   for i, r in enumerate(REGION_NAMES)], 2)   # (B, T, R, d)
         local = sum(F.cross_entropy(classifiers[i](hidden[:, :, i]).reshape(-1, model.cfg.codebook_size).float(),
                                     tok[..., i].reshape(-1)) for i in range(R_)) / R_

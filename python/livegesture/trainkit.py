@@ -60,9 +60,10 @@ class RunOptions:
         return self.cuda and torch.cuda.is_available()
 
     def autocast(self, enabled: bool = True):
-        """bf16 autocast on CUDA when ``amp == "bf16"`` (and ``enabled``), else nothing."""
-        if enabled and self.amp == "bf16" and self.cuda:
-            return torch.autocast(device_type="cuda", dtype=torch.bfloat16)
+        """bf16 autocast when ``amp == "bf16"`` (and ``enabled``), else nothing. On CUDA by default; on CPU only
+        when asked for (``--amp bf16 --device cpu``: slow, but it runs the same mixed-precision code)."""
+        if enabled and self.amp == "bf16":
+            return torch.autocast(device_type="cuda" if self.cuda else "cpu", dtype=torch.bfloat16)
         return contextlib.nullcontext()
 
     def describe(self) -> dict:
