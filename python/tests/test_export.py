@@ -16,7 +16,9 @@ import export as exporter  # noqa: E402
 from verify import ExportCheckError  # noqa: E402
 
 from helpers import scrambled_model  # noqa: E402
+from livegesture.compare import assert_within  # noqa: E402
 from livegesture.models import layers  # noqa: E402
+from livegesture.stream import generate_clip  # noqa: E402
 from livegesture.models.expert import RegionExpert  # noqa: E402
 
 
@@ -88,11 +90,42 @@ def test_reference_vectors_replay_on_onnxruntime(bundle):
             assert err <= 1e-5, f"{g['name']}.{c['output']} after step {last}: {err}"
 
 
+def read_clip(path):
+    """The reference clip as the exporter used it (16-bit samples / 32768)."""
+    import wave
+    with wave.open(str(path), "rb") as w:
+        assert w.getsampwidth() == 2 and w.getnchannels() == 1
+        return (np.frombuffer(w.readframes(w.getnframes()), dtype="<i2") / 32768.0).astype(np.float32)
+
+
+def assert_rollout_reproduced(ro, again):
+    """A stored rollout equals a fresh run with the same model, clip and seed: identical tokens, every frame
+    value within 1e-6 (scaled; the same torch computation, so exact in practice)."""
+    assert np.array_equal(ro["tokens"], again["tokens"]), "tokens differ"
+    for k in ("poses", "trans", "expressions", "foot_contact"):
+        assert_within(ro[k], again[k], 1e-6, f"rollout '{k}'")
+
+
 def test_rollout_reference_is_reproducible(bundle):
     out, manifest, model = bundle
-    ro = np.load(out / "reference" / "rollout.npz")
+    ro = dict(np.load(out / "reference" / "rollout.npz"))
     assert ro["tokens"].shape == (manifest["reference"]["rollout_tokens"], 4)
     assert ro["poses"].shape == (4 * ro["tokens"].shape[0], 165)
+    # the values: the model run again on the clip the manifest names, with its seed
+    clip = read_clip(out / "reference" / "clip.wav")
+    again = generate_clip(model, np.tile(clip, int(ro["clip_repeats"])), seed=int(ro["seed"]))
+    assert_rollout_reproduced(ro, again)
+    # the comparison fails on a broken rollout: one pose moved, a NaN, one token changed
+    for k, i, how in (("poses", 11, "move"), ("expressions", 3, "nan"), ("tokens", 2, "token")):
+        bad = {**ro, k: ro[k].copy()}
+        if how == "move":
+            bad[k].flat[i] += 1e-3
+        elif how == "nan":
+            bad[k].flat[i] = np.nan
+        else:
+            bad[k].flat[i] += 1
+        with pytest.raises(AssertionError):
+            assert_rollout_reproduced(bad, again)
 
 
 def test_dropped_cache_update_is_caught(tmp_path, monkeypatch):

@@ -186,6 +186,32 @@ fn forms_agree(kind: BackendKind) {
     }
 }
 
+/// The forms' comparison fails when a NaN is on either side (bound 0 included), and passes on the
+/// clean pair.
+#[test]
+fn the_form_comparison_fails_on_nan_either_side() {
+    let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
+    let audio = audio(&bundle, 1.0);
+    let mut p = pipeline(&bundle, BackendKind::Tract, FormChoice::Canonical);
+    let opts = StreamOptions {
+        seed: 7,
+        ..Default::default()
+    };
+    let a = run(&mut p, &opts, &audio);
+    assert!(a.len() >= 3);
+    assert_same(&a, &a, 0.0, "clean");
+    let mut bad = a.clone();
+    bad[2].frames[1].expressions[5] = f32::NAN;
+    for bound in [0.0, 1e-4] {
+        common::assert_check_fails("forms, NaN in got", "non-finite", || {
+            assert_same(&bad, &a, bound, "probe")
+        });
+        common::assert_check_fails("forms, NaN in the reference", "non-finite", || {
+            assert_same(&a, &bad, bound, "probe")
+        });
+    }
+}
+
 #[test]
 fn fused_and_canonical_forms_agree_on_tract() {
     forms_agree(BackendKind::Tract);

@@ -113,6 +113,49 @@ fn step_diff(a: &TokenStep, b: &TokenStep) -> (f32, f32) {
     (f, l)
 }
 
+/// A batched step (`b`) agrees with the stream stepped alone (`a`): frames and logits within the
+/// backend's bounds (bit-identical on ort; tract's kernels round differently for different batch
+/// sizes, by ~1e-6 here, with step_batch alike, so there the bound of step_batch's test applies).
+/// Returns the frame and logit errors.
+fn assert_step_agrees(kind: BackendKind, what: &str, a: &TokenStep, b: &TokenStep) -> (f32, f32) {
+    let (df, dl) = step_diff(a, b);
+    let (bf, bl) = match kind {
+        BackendKind::Ort => (0.0, 0.0),
+        BackendKind::Tract => (1e-5, 1e-4),
+    };
+    assert!(
+        df <= bf && dl <= bl,
+        "{kind}: {what}: frames differ from stepping alone by {df:e}, logits by {dl:e} \
+         (bounds {bf:e}, {bl:e})"
+    );
+    (df, dl)
+}
+
+/// The batch-vs-alone comparison fails when a NaN is on either side, in a frame or in the logits.
+#[test]
+fn the_batch_comparison_fails_on_nan_either_side() {
+    let (bundle, mut p) = pipeline(BackendKind::Tract);
+    let mut s = p.new_stream(&opts(12, None, None, None)).unwrap();
+    let steps = p.push_steps(&mut s, &audio(&bundle, 0, 8000)).unwrap();
+    let a = steps[1].clone();
+    assert!(a.logits.is_some(), "the stream records its logits");
+    for kind in [BackendKind::Ort, BackendKind::Tract] {
+        assert_step_agrees(kind, "clean", &a, &a);
+        let mut bad_frame = a.clone();
+        bad_frame.frames[2].trans[1] = f32::NAN;
+        let mut bad_logit = a.clone();
+        bad_logit.logits.as_mut().unwrap().cond[3] = f32::NAN;
+        for (what, bad) in [("frame", &bad_frame), ("logits", &bad_logit)] {
+            common::assert_check_fails(&format!("{kind} batch, NaN in the batched {what}"), "non-finite", || {
+                assert_step_agrees(kind, "probe", &a, bad);
+            });
+            common::assert_check_fails(&format!("{kind} batch, NaN in the alone {what}"), "non-finite", || {
+                assert_step_agrees(kind, "probe", bad, &a);
+            });
+        }
+    }
+}
+
 /// Runs the scenario: every stream stepped alone over its whole life (`alone`); the streams in one
 /// StreamBatch joining and leaving between steps (`batched`); and twins of the batched streams,
 /// separately owned Streams stepped with `step_batch` in exactly the batch's composition and order
@@ -270,18 +313,9 @@ fn check_scenario(kind: BackendKind) {
             // frames and logits: bit-identical to stepping alone on ort; tract's kernels round
             // differently for different batch sizes (by ~1e-6 here, with step_batch alike), so there
             // the bound of step_batch's test applies
-            let (df, dl) = step_diff(a, b);
+            let (df, dl) = assert_step_agrees(kind, &format!("stream {i} token {t}"), a, b);
             worst_frame = worst_frame.max(df);
             worst_logit = worst_logit.max(dl);
-            let (bf, bl) = match kind {
-                BackendKind::Ort => (0.0, 0.0),
-                BackendKind::Tract => (1e-5, 1e-4),
-            };
-            assert!(
-                df <= bf && dl <= bl,
-                "{kind}: stream {i} token {t}: frames differ from stepping alone by {df:e}, logits by {dl:e} \
-                 (bounds {bf:e}, {bl:e})"
-            );
         }
     }
     eprintln!(

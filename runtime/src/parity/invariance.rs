@@ -198,3 +198,7 @@ pub(super) fn run_batched(
     }
     Ok(out)
 }
+
+#[cfg(test)]
+#[path = "invariance_tests.rs"]
+mod tests;

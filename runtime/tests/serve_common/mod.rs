@@ -165,6 +165,22 @@ pub fn assert_matches_generate(got: &[Frame], m: &Beat2Motion, bound: f32) {
     );
 }
 
+/// The frames as the npz `generate` writes ([`Beat2Motion`]), for tests of the comparisons.
+pub fn motion_of(frames: &[Frame]) -> Beat2Motion {
+    let rows = |f: fn(&Frame) -> &[f32], w: usize| {
+        ndarray::Array2::from_shape_vec(
+            (frames.len(), w),
+            frames.iter().flat_map(|x| f(x).to_vec()).collect(),
+        )
+        .unwrap()
+    };
+    Beat2Motion {
+        poses: rows(|f| &f.poses, 165),
+        trans: rows(|f| &f.trans, 3),
+        expressions: rows(|f| &f.expressions, 100),
+    }
+}
+
 #[derive(Debug, Default)]
 pub struct Outcome {
     pub ready: Option<serde_json::Value>,
@@ -282,18 +298,16 @@ pub fn within<F: std::future::Future>(secs: u64, f: F) -> F::Output {
 /// `livegesture serve` on `bundle` as a child process (tract, any free port, 256 pending tokens):
 /// the child, the address it listens on, and a thread collecting the rest of its log.
 pub fn spawn_serve(bundle: &Path) -> (Child, SocketAddr, JoinHandle<String>) {
+    spawn_serve_with(bundle, &["--max-pending-tokens", "256"])
+}
+
+/// [`spawn_serve`] with other options (`extra`, e.g. `--queue-frames 8`).
+pub fn spawn_serve_with(bundle: &Path, extra: &[&str]) -> (Child, SocketAddr, JoinHandle<String>) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_livegesture"))
         .env_remove("LIVEGESTURE_BUNDLE")
-        .args([
-            "serve",
-            "--addr",
-            "127.0.0.1:0",
-            "--backend",
-            "tract",
-            "--max-pending-tokens",
-            "256",
-            "--bundle",
-        ])
+        .args(["serve", "--addr", "127.0.0.1:0", "--backend", "tract"])
+        .args(extra)
+        .arg("--bundle")
         .arg(bundle)
         .stderr(Stdio::piped())
         .spawn()
