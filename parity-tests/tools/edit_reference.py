@@ -75,7 +75,10 @@ def main(argv=None) -> int:
         if rel in manifest.get("files", {}):
             manifest["files"][rel] = {"sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
                                       "bytes": path.stat().st_size}
-        info.update(array=a.array, index=a.index, before=before, after=float(arr.flat[a.index]))
+        after = float(arr.flat[a.index])
+        # JSON has no NaN or Inf: non-finite values are written as text
+        info.update(array=a.array, index=a.index, before=before if np.isfinite(before) else str(before),
+                    after=after if np.isfinite(after) else str(after))
     if a.drop_check:
         g, _, k = a.drop_check.partition(".")
         if k not in manifest.get("checks", {}).get(g, {}):
@@ -83,7 +86,7 @@ def main(argv=None) -> int:
         del manifest["checks"][g][k]
         info.update(dropped=f"checks.{g}.{k}")
     (dst / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
-    print(json.dumps(info))
+    print(json.dumps(info, allow_nan=False))
     return 0
 
 
