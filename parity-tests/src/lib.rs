@@ -251,15 +251,6 @@ pub fn require_ort() {
     }
 }
 
-/// Max abs difference of two equally shaped arrays.
-pub fn max_abs(a: &ndarray::Array2<f32>, b: &ndarray::Array2<f32>) -> f32 {
-    assert_eq!(a.dim(), b.dim(), "shapes differ");
-    a.iter()
-        .zip(b.iter())
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max)
-}
-
 /// The comparison of two equally shaped arrays ([`livegesture::compare`]: NaN or Inf on either side,
 /// nothing compared, or different shapes fail; the bound scales with the reference's magnitude).
 pub fn diff2(got: &ndarray::Array2<f32>, want: &ndarray::Array2<f32>) -> Diff {
@@ -306,8 +297,16 @@ pub fn frames_diff(got: &[Frame], want: &[Frame]) -> (&'static str, Diff) {
         .iter()
         .enumerate()
         .map(|(k, name)| {
-            let g: Vec<f32> = got.iter().flat_map(|f| frame_field(f, k)).copied().collect();
-            let w: Vec<f32> = want.iter().flat_map(|f| frame_field(f, k)).copied().collect();
+            let g: Vec<f32> = got
+                .iter()
+                .flat_map(|f| frame_field(f, k))
+                .copied()
+                .collect();
+            let w: Vec<f32> = want
+                .iter()
+                .flat_map(|f| frame_field(f, k))
+                .copied()
+                .collect();
             (*name, compare::diff(&g, &w))
         })
         .collect();

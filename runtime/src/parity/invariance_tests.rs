@@ -71,11 +71,17 @@ fn the_chunk_and_batch_comparisons_fail_on_broken_runs() {
         } else {
             *x + 3.0 * bound as f32
         };
-        assert!(!passes(&rows_of(check, &moved, &want, bound)), "{check}: moved value");
+        assert!(
+            !passes(&rows_of(check, &moved, &want, bound)),
+            "{check}: moved value"
+        );
         // a NaN on either side
         let mut nan = want.clone();
         nan[4].frames[1].expressions[9] = f32::NAN;
-        assert!(!passes(&rows_of(check, &nan, &want, bound)), "{check}: NaN in the run checked");
+        assert!(
+            !passes(&rows_of(check, &nan, &want, bound)),
+            "{check}: NaN in the run checked"
+        );
         assert!(
             !passes(&rows_of(check, &want, &nan, bound)),
             "{check}: NaN in the run it is checked against"
@@ -83,11 +89,17 @@ fn the_chunk_and_batch_comparisons_fail_on_broken_runs() {
         // a different token, a missing step, nothing at all
         let mut tok = want.clone();
         tok[2].tokens[1] += 1;
-        assert!(!passes(&rows_of(check, &tok, &want, bound)), "{check}: token");
+        assert!(
+            !passes(&rows_of(check, &tok, &want, bound)),
+            "{check}: token"
+        );
         assert!(
             !passes(&rows_of(check, &want[..5], &want, bound)),
             "{check}: a step missing"
         );
-        assert!(!passes(&rows_of(check, &[], &[], bound)), "{check}: nothing compared");
+        assert!(
+            !passes(&rows_of(check, &[], &[], bound)),
+            "{check}: nothing compared"
+        );
     }
 }

@@ -54,8 +54,16 @@ impl Row {
             error: m.err,
             compared: m.count,
             bound,
-            pass: m.err <= bound && m.problem.is_none(),
-            detail: m.problem.clone().or_else(|| m.location.clone()),
+            // a row with nothing compared proves nothing: it fails
+            pass: m.err <= bound && m.problem.is_none() && m.count > 0,
+            detail: m
+                .problem
+                .clone()
+                .or_else(|| m.location.clone())
+                .or_else(|| {
+                    (m.count == 0)
+                        .then(|| "nothing compared (0 values): the check proves nothing".into())
+                }),
         }
     }
 
