@@ -89,7 +89,7 @@ fi
 # the locked versions; not `npm ci`, which refuses the lock file where the registry serves only this
 # platform's build of rollup (404 for the other @rollup/rollup-* packages, as on this project's machine)
 (cd runtime/web && npm install --no-save --no-audit --no-fund --loglevel=error)
-timeout 300 node runtime/web/tests/browser.mjs target/release/livegesture models/default \
+timeout 600 node runtime/web/tests/browser.mjs target/release/livegesture models/default \
   models/default/reference/clip.wav target/browser
 
 stage "all tests passed"
