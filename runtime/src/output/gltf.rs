@@ -135,9 +135,9 @@ fn min_max(v: &[f32], width: usize) -> (Vec<f32>, Vec<f32>) {
     let mut lo = vec![f32::INFINITY; width];
     let mut hi = vec![f32::NEG_INFINITY; width];
     for row in v.chunks_exact(width) {
-        for k in 0..width {
-            lo[k] = lo[k].min(row[k]);
-            hi[k] = hi[k].max(row[k]);
+        for ((l, h), x) in lo.iter_mut().zip(hi.iter_mut()).zip(row) {
+            *l = l.min(*x);
+            *h = h.max(*x);
         }
     }
     (lo, hi)
@@ -153,7 +153,9 @@ pub fn axis_angle_to_gltf_quaternion(aa: [f32; 3]) -> [f32; 4] {
 /// The per-joint rotation keys (`T x 4` floats per joint), hemisphere-continuous over time.
 fn rotation_keys(motion: &Beat2Motion) -> Vec<Vec<f32>> {
     let t_len = motion.len();
-    let mut keys = vec![Vec::with_capacity(4 * t_len); N_JOINTS];
+    let mut keys: Vec<Vec<f32>> = (0..N_JOINTS)
+        .map(|_| Vec::with_capacity(4 * t_len))
+        .collect();
     for t in 0..t_len {
         let p = motion.poses.row(t);
         for (j, k) in keys.iter_mut().enumerate() {
