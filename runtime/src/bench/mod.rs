@@ -27,9 +27,10 @@ use ndarray::Array2;
 use serde::Serialize;
 
 use crate::backend::Backend;
-use crate::bundle::{Bundle, Family};
+use crate::bundle::Bundle;
 use crate::frontend::StreamingLogMel;
 use crate::model::livegesture::{state_bytes, Pipeline, StreamId, StreamOptions};
+use crate::model::{for_family, FamilyTool};
 
 pub mod diffsheg;
 mod machine;
@@ -262,13 +263,13 @@ pub fn run(
     cfg: &BenchConfig,
     mut progress: impl FnMut(&str),
 ) -> Result<BenchReport> {
-    // the figures below are the LiveGesture family's; [`run_family`] dispatches
-    if bundle.family() != Family::LiveGesture {
-        anyhow::bail!(
+    // the figures below are the LiveGesture family's ([`run_family`] runs the bundle's family's)
+    bundle.livegesture().with_context(|| {
+        format!(
             "{}: bench::run measures LiveGesture bundles; use bench::run_family",
             bundle.dir().display()
-        );
-    }
+        )
+    })?;
     let wall = Instant::now();
     let load_start = loadavg();
     let rec = Arc::new(Recorder::default());
@@ -551,12 +552,41 @@ pub fn run_family(
     d: &diffsheg::DiffshegBenchConfig,
     progress: impl FnMut(&str),
 ) -> Result<FamilyReport> {
-    Ok(match bundle.family() {
-        Family::LiveGesture => FamilyReport::LiveGesture(run(bundle, backend, cfg, progress)?),
-        Family::DiffSheg => {
-            FamilyReport::DiffSheg(diffsheg::run(bundle, backend, cfg, d, progress)?)
+    struct Bench<'a, P> {
+        backend: &'a dyn Backend,
+        cfg: &'a BenchConfig,
+        d: &'a diffsheg::DiffshegBenchConfig,
+        progress: P,
+    }
+    impl<P: FnMut(&str)> FamilyTool for Bench<'_, P> {
+        type Output = Result<FamilyReport>;
+        fn livegesture(self, bundle: &Bundle) -> Self::Output {
+            Ok(FamilyReport::LiveGesture(run(
+                bundle,
+                self.backend,
+                self.cfg,
+                self.progress,
+            )?))
         }
-    })
+        fn diffsheg(self, bundle: &Bundle) -> Self::Output {
+            Ok(FamilyReport::DiffSheg(diffsheg::run(
+                bundle,
+                self.backend,
+                self.cfg,
+                self.d,
+                self.progress,
+            )?))
+        }
+    }
+    for_family(
+        bundle,
+        Bench {
+            backend,
+            cfg,
+            d,
+            progress,
+        },
+    )
 }
 
 #[cfg(test)]

@@ -67,7 +67,7 @@ use rollout::{frame_rows_steps, rollout_rows, run_stream, token_row};
 
 use crate::audio::{read_wav_16k_mono, AudioSpan};
 use crate::backend::{self, Backend, BackendKind, BackendOptions, Tensor, TensorData};
-use crate::bundle::{Bundle, Family, GraphSpec};
+use crate::bundle::{Bundle, GraphSpec};
 use crate::frontend::logmel;
 use crate::model::livegesture::{FormChoice, Pipeline, StepLogits, StreamOptions, TokenStep};
 use crate::output::Frame;
@@ -222,6 +222,34 @@ impl Default for ParityOptions {
 
 // ------------------------------------------------------------------------------------------- run
 
+/// The checks of a family other than LiveGesture (whose checks are [`run`]'s own body): returns true
+/// when they ran.
+struct OtherFamilyChecks<'a, 'l> {
+    backends: &'a [(BackendKind, Box<dyn Backend>)],
+    opts: &'a ParityOptions,
+    rows: &'a mut Vec<Row>,
+    notes: &'a mut Vec<String>,
+    log: &'a mut (dyn FnMut(&str) + 'l),
+}
+
+impl crate::model::FamilyTool for OtherFamilyChecks<'_, '_> {
+    type Output = Result<bool>;
+    fn livegesture(self, _: &Bundle) -> Result<bool> {
+        Ok(false)
+    }
+    fn diffsheg(self, bundle: &Bundle) -> Result<bool> {
+        diffsheg::run(
+            bundle,
+            self.backends,
+            self.opts,
+            self.rows,
+            self.notes,
+            self.log,
+        )?;
+        Ok(true)
+    }
+}
+
 /// Runs the parity suite on the bundle in `dir`. `log` receives progress lines.
 ///
 /// Errors when the bundle is invalid ([`crate::bundle::BundleError`]), a reference file is missing
@@ -272,20 +300,26 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
         }
     }
 
-    // the checks below are the LiveGesture family's; DiffSHEG's are in `diffsheg`
-    match bundle.family() {
-        Family::LiveGesture => {}
-        Family::DiffSheg => {
-            diffsheg::run(&bundle, &backends, opts, &mut rows, &mut notes, log)?;
-            return Ok(Report {
-                bundle: bundle.dir().to_path_buf(),
-                backends: kinds.iter().map(|k| k.to_string()).collect(),
-                rows,
-                notes,
-                divergences,
-                seconds: t0.elapsed().as_secs_f64(),
-            });
-        }
+    // the checks below are the LiveGesture family's; another family's run in its own module
+    let other = crate::model::for_family(
+        &bundle,
+        OtherFamilyChecks {
+            backends: &backends,
+            opts,
+            rows: &mut rows,
+            notes: &mut notes,
+            log: &mut *log,
+        },
+    )?;
+    if other {
+        return Ok(Report {
+            bundle: bundle.dir().to_path_buf(),
+            backends: kinds.iter().map(|k| k.to_string()).collect(),
+            rows,
+            notes,
+            divergences,
+            seconds: t0.elapsed().as_secs_f64(),
+        });
     }
 
     let clip_rel = bundle

@@ -152,6 +152,17 @@ impl StreamState {
         }
     }
 
+    /// Samples received (in all) at which the next token's audio is complete; `u64::MAX` once
+    /// finished.
+    pub(super) fn next_token_samples(&self) -> u64 {
+        if self.end.is_some() {
+            return u64::MAX;
+        }
+        self.frontend
+            .config()
+            .token_end(self.frontend.tokens_emitted())
+    }
+
     /// Samples received, without the silence added by `finish`.
     pub(super) fn samples_received(&self) -> u64 {
         self.frontend.samples_received() - self.end.map_or(0, |e| e.1)
@@ -210,6 +221,12 @@ impl Stream {
     /// Audio samples received so far (not counting the silence added by [`Pipeline::finish`]).
     pub fn samples_received(&self) -> u64 {
         self.state.samples_received()
+    }
+
+    /// Samples received (in all) at which the next token's audio is complete (`u64::MAX` once
+    /// finished).
+    pub fn next_token_samples(&self) -> u64 {
+        self.state.next_token_samples()
     }
 
     /// True once [`Pipeline::finish`] (or [`Stream::finish_audio`]) ended the stream.
