@@ -14,7 +14,7 @@
 //! | `rollout` | a bundle with several forms (docs/bundle.md#forms-and-precision): on each backend that runs a form other than canonical (the manifest's `backend_forms`, or `--form`), the canonical form's rollout vs that form's: identical tokens, frames | [`ROLLOUT_FRAMES`] |
 //! | `logmel` | the Rust log-mel frontend on `reference/clip.wav` vs `reference/logmel.npy` | [`LOGMEL`] |
 //! | `chunks` | chunks of 1 sample, 160, 3200, 16000 samples and the whole prefix give identical frames, the stream finished at the end of the prefix as `generate` does (docs/output.md: last partial token completed with silence, `ceil(duration x 30)` frames) (on a prefix of the clip, [`ParityOptions::chunk_seconds`]) | exact |
-//! | `batch` | [`Pipeline::step_batch`] with 1, 2 and 5 streams (different seeds, audio, one without guidance) vs separate runs: identical tokens, frames | [`BATCH_FRAMES`] (ort), [`TRACT_BATCH_FRAMES`] (tract) |
+//! | `batch` | [`LiveGestureGraphs::step_batch`] with 1, 2 and 5 streams (different seeds, audio, one without guidance) vs separate runs: identical tokens, frames | [`BATCH_FRAMES`] (ort), [`TRACT_BATCH_FRAMES`] (tract) |
 //!
 //! Every comparison is one [`Row`]: the check, the graph (or what is compared), the comparison
 //! (`ort vs torch`, ...), the output, the step of the largest error, the error, the bound and the
@@ -69,7 +69,9 @@ use crate::audio::{read_wav_16k_mono, AudioSpan};
 use crate::backend::{self, Backend, BackendKind, BackendOptions, Tensor, TensorData};
 use crate::bundle::{Bundle, GraphSpec};
 use crate::frontend::logmel;
-use crate::model::livegesture::{FormChoice, Pipeline, StepLogits, StreamOptions, TokenStep};
+use crate::model::livegesture::{
+    FormChoice, LiveGestureGraphs, StepLogits, StreamOptions, TokenStep,
+};
 use crate::output::Frame;
 use crate::sampling::{guide, Draw, SplitMix64, TokenDistribution};
 
@@ -408,10 +410,10 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
     let need_pipeline = [Check::Rollout, Check::Chunks, Check::Batch]
         .into_iter()
         .any(want);
-    let mut pipelines: Vec<(BackendKind, Pipeline)> = Vec::new();
+    let mut pipelines: Vec<(BackendKind, LiveGestureGraphs)> = Vec::new();
     if need_pipeline {
         for (k, be) in &backends {
-            match Pipeline::with_form(&bundle, be.as_ref(), opts.form) {
+            match LiveGestureGraphs::with_form(&bundle, be.as_ref(), opts.form) {
                 Ok(p) => pipelines.push((*k, p)),
                 Err(e) => rows.push(Row::failed(
                     Check::Rollout,
@@ -428,7 +430,7 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
     // `--form`) is checked against the canonical form on the rollout, on that backend. A backend that
     // runs the canonical form is checked by the other rows; the other forms are checked on it only
     // when `--form` makes it run them.
-    let mut other_forms: Vec<(BackendKind, Pipeline)> = Vec::new();
+    let mut other_forms: Vec<(BackendKind, LiveGestureGraphs)> = Vec::new();
     if want(Check::Rollout) {
         let forms = bundle.livegesture()?.expert_forms();
         for (k, be) in &backends {
@@ -455,7 +457,7 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
             }
             for f in forms.keys().filter(|f| f.as_str() == "canonical") {
                 let choice: FormChoice = f.parse().map_err(|e: String| anyhow::anyhow!(e))?;
-                match Pipeline::with_form(&bundle, be.as_ref(), choice) {
+                match LiveGestureGraphs::with_form(&bundle, be.as_ref(), choice) {
                     Ok(p) => other_forms.push((*k, p)),
                     Err(e) => rows.push(Row::failed(
                         Check::Rollout,

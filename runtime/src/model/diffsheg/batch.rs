@@ -19,7 +19,7 @@ use std::sync::Arc;
 use anyhow::{anyhow, ensure, Result};
 
 use super::foppas::{guided_eps, MOTION_DIM};
-use super::graphs::RunnerGraphs;
+use super::graphs::DiffshegGraphs;
 use super::model::{lock, DiffshegModel, DiffshegStream};
 use super::stream::{Emitted, WindowStart};
 use crate::model::StreamJob;
@@ -133,7 +133,7 @@ fn fail_all(members: &mut [Member<'_>], started: &[(usize, WindowStart)], msg: S
 }
 
 /// Runs rounds of due windows until no stream has one.
-fn run_due_windows(g: &mut RunnerGraphs, members: &mut [Member<'_>]) {
+fn run_due_windows(g: &mut DiffshegGraphs, members: &mut [Member<'_>]) {
     loop {
         let mut groups: BTreeMap<usize, Vec<(usize, bool)>> = BTreeMap::new();
         for (k, m) in members.iter().enumerate() {
@@ -154,7 +154,12 @@ fn run_due_windows(g: &mut RunnerGraphs, members: &mut [Member<'_>]) {
 }
 
 /// One window of `n` frames in each of `group`'s streams, sharing every graph call.
-fn run_group(g: &mut RunnerGraphs, members: &mut [Member<'_>], n: usize, group: &[(usize, bool)]) {
+fn run_group(
+    g: &mut DiffshegGraphs,
+    members: &mut [Member<'_>],
+    n: usize,
+    group: &[(usize, bool)],
+) {
     let d = MOTION_DIM;
     let mut started: Vec<(usize, WindowStart)> = Vec::new();
     for &(k, last) in group {

@@ -11,7 +11,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use anyhow::{anyhow, bail, ensure, Context, Result};
 
 use super::foppas::{SamplerOptions, MOTION_DIM};
-use super::graphs::RunnerGraphs;
+use super::graphs::DiffshegGraphs;
 use super::schedule::Schedule;
 use super::stream::{Emitted, FoppasStream};
 use crate::audio::AudioSpan;
@@ -119,12 +119,12 @@ impl Shared {
 /// A loaded DiffSHEG bundle ([`MotionModel`] of the `diffsheg` family).
 #[derive(Debug, Clone)]
 pub struct DiffshegModel {
-    pub(super) graphs: Arc<Mutex<RunnerGraphs>>,
+    pub(super) graphs: Arc<Mutex<DiffshegGraphs>>,
     pub(super) shared: Arc<Shared>,
     backend: String,
 }
 
-pub(super) fn lock(g: &Mutex<RunnerGraphs>) -> Result<MutexGuard<'_, RunnerGraphs>> {
+pub(super) fn lock(g: &Mutex<DiffshegGraphs>) -> Result<MutexGuard<'_, DiffshegGraphs>> {
     g.lock().map_err(|_| {
         anyhow!("the model's graphs were left inconsistent by a panic in another stream")
     })
@@ -166,7 +166,7 @@ impl DiffshegModel {
             "graph 'speech_encoder' takes {n_mels} mel bands, the frontend makes {}",
             shared.frontend.n_mels
         );
-        let graphs = RunnerGraphs {
+        let graphs = DiffshegGraphs {
             encoder: load("speech_encoder")?,
             denoiser: load("denoiser")?,
             n_mels,
@@ -180,7 +180,7 @@ impl DiffshegModel {
     }
 
     /// The shared graphs (for parity and bench tools that run them directly).
-    pub fn graphs(&self) -> &Arc<Mutex<RunnerGraphs>> {
+    pub fn graphs(&self) -> &Arc<Mutex<DiffshegGraphs>> {
         &self.graphs
     }
 
@@ -238,7 +238,7 @@ impl MotionModel for DiffshegModel {
 /// One DiffSHEG stream ([`MotionStream`]).
 #[derive(Debug)]
 pub struct DiffshegStream {
-    pub(super) graphs: Arc<Mutex<RunnerGraphs>>,
+    pub(super) graphs: Arc<Mutex<DiffshegGraphs>>,
     pub(super) shared: Arc<Shared>,
     pub(super) inner: FoppasStream,
     pub(super) poisoned: bool,
@@ -252,7 +252,7 @@ impl DiffshegStream {
 
     fn guarded(
         &mut self,
-        f: impl FnOnce(&mut FoppasStream, &mut RunnerGraphs) -> Result<Vec<Emitted>>,
+        f: impl FnOnce(&mut FoppasStream, &mut DiffshegGraphs) -> Result<Vec<Emitted>>,
     ) -> Result<Vec<Frame>> {
         ensure!(
             !self.poisoned,

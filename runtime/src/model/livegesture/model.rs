@@ -1,11 +1,11 @@
 //! The LiveGesture family behind the family-independent traits ([`MotionModel`], [`MotionStream`]).
 //!
-//! [`LiveGestureModel`] shares one [`Pipeline`] (the loaded graphs) between its streams behind a
+//! [`LiveGestureModel`] shares one [`LiveGestureGraphs`] (the loaded graphs) between its streams behind a
 //! mutex: a graph run needs the runner exclusively (tract caches a plan per batch size, ort binds
 //! its outputs), and a stream steps only while it holds the lock, so streams on other threads wait
 //! for each other's token steps. To run many streams in parallel, load one model per thread; to
 //! step many streams in one graph run per graph per token, use [`MotionModel::step_many`] (the
-//! streams keep their own caches, stacked for each run and split after it: [`Pipeline::step_batch`]),
+//! streams keep their own caches, stacked for each run and split after it: [`LiveGestureGraphs::step_batch`]),
 //! or a [`super::StreamBatch`] directly (caches kept stacked between steps).
 
 use std::collections::VecDeque;
@@ -14,7 +14,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use anyhow::{anyhow, ensure, Result};
 use ndarray::Array2;
 
-use super::{FormChoice, Pipeline, Stream};
+use super::{FormChoice, LiveGestureGraphs, Stream};
 use crate::audio::AudioSpan;
 use crate::backend::Backend;
 use crate::bundle::{Bundle, Family};
@@ -24,13 +24,13 @@ use crate::output::Frame;
 /// A loaded LiveGesture bundle ([`MotionModel`] of the `livegesture` family).
 #[derive(Debug, Clone)]
 pub struct LiveGestureModel {
-    pipeline: Arc<Mutex<Pipeline>>,
+    graphs: Arc<Mutex<LiveGestureGraphs>>,
     backend: String,
     fps: u64,
     frames_per_token: u64,
 }
 
-fn lock(p: &Mutex<Pipeline>) -> Result<MutexGuard<'_, Pipeline>> {
+fn lock(p: &Mutex<LiveGestureGraphs>) -> Result<MutexGuard<'_, LiveGestureGraphs>> {
     p.lock().map_err(|_| {
         anyhow!("the model's graphs were left inconsistent by a panic in another stream")
     })
@@ -44,31 +44,33 @@ impl LiveGestureModel {
         backend: &dyn Backend,
         form: FormChoice,
     ) -> Result<Self> {
-        Ok(Self::from(Pipeline::with_form(bundle, backend, form)?))
+        Ok(Self::from(LiveGestureGraphs::with_form(
+            bundle, backend, form,
+        )?))
     }
 
-    /// The shared pipeline (for LiveGesture-specific work: token steps, batches).
-    pub fn pipeline(&self) -> &Arc<Mutex<Pipeline>> {
-        &self.pipeline
+    /// The shared graphs (for LiveGesture-specific work: token steps, batches).
+    pub fn graphs(&self) -> &Arc<Mutex<LiveGestureGraphs>> {
+        &self.graphs
     }
 }
 
-impl From<Pipeline> for LiveGestureModel {
+impl From<LiveGestureGraphs> for LiveGestureModel {
     /// The model of already loaded graphs.
-    fn from(pipeline: Pipeline) -> Self {
-        let f = pipeline.frontend();
+    fn from(graphs: LiveGestureGraphs) -> Self {
+        let f = graphs.frontend();
         Self {
-            backend: pipeline.backend_name().to_string(),
+            backend: graphs.backend_name().to_string(),
             fps: f.fps,
             frames_per_token: f.frames_per_token,
-            pipeline: Arc::new(Mutex::new(pipeline)),
+            graphs: Arc::new(Mutex::new(graphs)),
         }
     }
 }
 
-impl From<Pipeline> for Box<dyn MotionModel> {
-    fn from(pipeline: Pipeline) -> Self {
-        Box::new(LiveGestureModel::from(pipeline))
+impl From<LiveGestureGraphs> for Box<dyn MotionModel> {
+    fn from(graphs: LiveGestureGraphs) -> Self {
+        Box::new(LiveGestureModel::from(graphs))
     }
 }
 
@@ -93,9 +95,9 @@ impl MotionModel for LiveGestureModel {
                 set.join(", ")
             );
         }
-        let stream = lock(&self.pipeline)?.new_stream(opts)?;
+        let stream = lock(&self.graphs)?.new_stream(opts)?;
         Ok(Box::new(LiveGestureStream {
-            pipeline: Arc::clone(&self.pipeline),
+            graphs: Arc::clone(&self.graphs),
             stream,
             frames_per_token: self.frames_per_token,
         }))
@@ -103,7 +105,7 @@ impl MotionModel for LiveGestureModel {
 
     /// Pushes every job's audio into its stream's frontend, then steps token by token: each round
     /// runs every graph once for all streams that still have a completed token
-    /// ([`Pipeline::step_batch`]). A job that ends its stream adds the silence-completed last token
+    /// ([`LiveGestureGraphs::step_batch`]). A job that ends its stream adds the silence-completed last token
     /// and its frames are cut at the end of the input, as [`MotionStream::finish`] does.
     fn step_many(&self, jobs: &mut [StreamJob<'_>]) -> Vec<Result<Vec<Frame>>> {
         let mut results: Vec<Option<Result<Vec<Frame>>>> = jobs.iter().map(|_| None).collect();
@@ -113,7 +115,7 @@ impl MotionModel for LiveGestureModel {
                 .stream
                 .as_any_mut()
                 .downcast_mut::<LiveGestureStream>()
-                .is_some_and(|s| Arc::ptr_eq(&s.pipeline, &self.pipeline));
+                .is_some_and(|s| Arc::ptr_eq(&s.graphs, &self.graphs));
             if !ours {
                 results[i] = Some(job.run_alone());
                 continue;
@@ -135,7 +137,7 @@ impl MotionModel for LiveGestureModel {
             }
         }
         if !mine.is_empty() {
-            match lock(&self.pipeline) {
+            match lock(&self.graphs) {
                 Ok(mut p) => step_rounds(&mut p, &mut mine),
                 Err(e) => {
                     for m in &mut mine {
@@ -205,7 +207,7 @@ fn prepare(
 }
 
 /// Steps the streams' tokens in rounds, one token of every stream that has one per round.
-fn step_rounds(p: &mut Pipeline, mine: &mut [Pending<'_>]) {
+fn step_rounds(p: &mut LiveGestureGraphs, mine: &mut [Pending<'_>]) {
     loop {
         let mut owners = Vec::new();
         let mut blocks = Vec::new();
@@ -244,7 +246,7 @@ fn step_rounds(p: &mut Pipeline, mine: &mut [Pending<'_>]) {
 /// One LiveGesture stream ([`MotionStream`]): a [`Stream`] and the model it steps on.
 #[derive(Debug)]
 pub struct LiveGestureStream {
-    pipeline: Arc<Mutex<Pipeline>>,
+    graphs: Arc<Mutex<LiveGestureGraphs>>,
     stream: Stream,
     frames_per_token: u64,
 }
@@ -258,15 +260,15 @@ impl LiveGestureStream {
 
 impl MotionStream for LiveGestureStream {
     fn push_audio(&mut self, samples: &[f32]) -> Result<Vec<Frame>> {
-        lock(&self.pipeline)?.push(&mut self.stream, samples)
+        lock(&self.graphs)?.push(&mut self.stream, samples)
     }
 
     fn finish(&mut self, input: AudioSpan) -> Result<Vec<Frame>> {
-        lock(&self.pipeline)?.finish(&mut self.stream, input)
+        lock(&self.graphs)?.finish(&mut self.stream, input)
     }
 
     fn reset(&mut self) -> Result<()> {
-        lock(&self.pipeline)?.reset(&mut self.stream)
+        lock(&self.graphs)?.reset(&mut self.stream)
     }
 
     fn frames_emitted(&self) -> u64 {
