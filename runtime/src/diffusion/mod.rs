@@ -1,7 +1,7 @@
 //! The DiffSHEG sampler's settings ([`SamplerOptions`], [`MOTION_DIM`]) and its noise schedule
-//! ([`schedule`]): what a bundle's manifest fixes (the `diffusion` and `foppas` sections,
-//! [`crate::bundle::DiffshegManifest`]) and what the model samples with
-//! ([`crate::model::diffsheg`]). A leaf module, so that the bundle reader does not depend on the model.
+//! ([`schedule`]): what a bundle's manifest fixes (its `diffusion` and `foppas` sections, read by the
+//! bundle module) and what the DiffSHEG model samples with. A leaf module (it imports no other module
+//! of the crate), so that the bundle reader does not depend on the model.
 
 use anyhow::{bail, Result};
 

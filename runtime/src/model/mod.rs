@@ -35,7 +35,7 @@
 //! own (up to the backend's batch-size rounding, docs/parity.md). A family that can run several
 //! streams in one graph call does so; the default steps the streams one after another.
 //! [`MotionStream::next_unit_samples`] tells a scheduler when pushing a stream's audio will produce
-//! frames, so it can collect the streams that are due together (the server does: [`crate::serve`]).
+//! frames, so it can collect the streams that are due together (as `livegesture serve` does).
 //!
 //! # Adding a family
 //!

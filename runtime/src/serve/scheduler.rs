@@ -236,12 +236,11 @@ impl BatchScheduler {
             .fetch_add(samples.len() as u64, Ordering::Relaxed);
         if s.due_since.is_none() && s.samples_in < s.stream.next_unit_samples() {
             // fills the stream's buffers only
-            let t0 = Instant::now();
             let r = s.stream.push_audio(&samples);
             s.samples_done = s.samples_in;
             match r {
                 Ok(frames) => {
-                    self.deliver(sid, frames, t0, at);
+                    self.deliver(sid, frames, at);
                 }
                 Err(e) => {
                     let msg = format!("internal error in the audio frontend: {e:#}");
@@ -317,7 +316,7 @@ impl BatchScheduler {
             self.give_credits(sid);
             match r {
                 Ok(frames) => {
-                    if !self.deliver(sid, frames, t0, at) {
+                    if !self.deliver(sid, frames, at) {
                         continue;
                     }
                     if ended {
@@ -336,16 +335,15 @@ impl BatchScheduler {
         }
     }
 
-    /// Queues `frames` (from a step that started at `t0`, on audio that arrived at `at`); a full
-    /// queue is a slow client, cut off (returns false).
-    fn deliver(&mut self, sid: u64, frames: Vec<Frame>, t0: Instant, at: Instant) -> bool {
+    /// Queues `frames` (of audio that arrived at `at`); a full queue is a slow client, cut off
+    /// (returns false).
+    fn deliver(&mut self, sid: u64, frames: Vec<Frame>, at: Instant) -> bool {
         let Some(s) = self.sessions.get_mut(&sid) else {
             return false;
         };
         if frames.is_empty() || s.dead {
             return !s.dead;
         }
-        let _ = t0;
         let latency = Instant::now().saturating_duration_since(at).as_secs_f64();
         let units = (frames.len() as u64).div_ceil(s.frames_per_unit);
         s.stats.tokens += units;

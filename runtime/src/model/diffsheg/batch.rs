@@ -16,7 +16,7 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use anyhow::{anyhow, ensure, Result};
+use anyhow::{anyhow, Result};
 
 use super::foppas::{guided_eps, MOTION_DIM};
 use super::graphs::DiffshegGraphs;
@@ -55,13 +55,13 @@ pub(super) fn step_many(
         let Some(s) = job.stream.as_any_mut().downcast_mut::<DiffshegStream>() else {
             continue;
         };
-        let accepted = (|| {
-            ensure!(
-                !s.poisoned,
+        let accepted = if s.poisoned {
+            Err(anyhow!(
                 "the stream failed earlier; reset it before pushing more audio"
-            );
+            ))
+        } else {
             s.inner.accept(audio)
-        })();
+        };
         match accepted {
             Ok(()) => members.push(Member {
                 job: i,
