@@ -298,7 +298,13 @@ fn the_batch_comparison_fails_on_nan_either_side() {
 
 /// Output up to the token that completes before `cut` is the same for `audio` and `changed` (which
 /// differ from `cut` on), and later output differs (the later audio is used).
-fn check_look_ahead(p: &mut Pipeline, bundle: &Bundle, audio: &[f32], changed: &[f32], cut: usize) {
+fn check_look_ahead(
+    p: &mut LiveGestureGraphs,
+    bundle: &Bundle,
+    audio: &[f32],
+    changed: &[f32],
+    cut: usize,
+) {
     let opts = StreamOptions {
         seed: 5,
         ..Default::default()
