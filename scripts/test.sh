@@ -6,7 +6,9 @@
 #   3. the Rust build and the parity checks (torch vs ort vs tract) on that export and on models/default;
 #   4. the Rust tests (runtime numerics, bundles, pipeline, CLI, serve, parity suite incl. its must-fail cases);
 #   5. the serve protocol with independent Python/JS clients, BVH read back with a PyPI reader;
-#   6. the browser page in Debian's chromium with a fake microphone (screenshot in target/browser/).
+#   6. the browser page in Debian's chromium with a fake microphone (screenshot in target/browser/);
+#   7. the runtime compiled to WebAssembly: the static page in chromium (parity of both shipped bundles,
+#      a perturbed weight, the microphone, a WAV vs native tract; report in target/browser-wasm/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/env.sh
@@ -63,5 +65,20 @@ fi
 (cd runtime/web && npm install --no-save --no-audit --no-fund --loglevel=error)
 timeout 300 node runtime/web/tests/browser.mjs target/release/livegesture models/default \
   models/default/reference/clip.wav target/browser
+
+stage "wasm: the runtime in WebAssembly as a static page, parity and the microphone in chromium (docs/wasm.md)"
+# installs the wasm32 target and the wasm-bindgen CLI if missing; builds target/wasm-pkg and target/web-static
+scripts/build_web_static.sh models/default
+mkdir -p target/web-static/bundles target/browser-wasm
+scripts/copy_bundle.py models/diffsheg target/web-static/bundles/diffsheg
+rm -rf target/web-static/bundles/broken
+"$LIVEGESTURE_PY" parity-tests/tools/break_bundle.py target/test-bundles/tiny target/web-static/bundles/broken \
+  --graph expert_hands --perturb-weight
+./target/release/livegesture generate models/default/reference/clip.wav -o target/browser-wasm/native.npz \
+  --backend tract --seed 7
+timeout 1500 node runtime/web/tests/wasm.mjs --site target/web-static --out target/browser-wasm \
+  --wav models/default/reference/clip.wav --native target/browser-wasm/native.npz --seed 7 \
+  --parity bundle/ --parity bundles/diffsheg/ --broken bundles/broken/:expert_hands \
+  --serve target/release/livegesture
 
 stage "all tests passed"
