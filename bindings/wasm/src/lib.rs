@@ -49,6 +49,13 @@ pub fn last_panic() -> Option<String> {
     PANIC.with(|p| p.borrow().clone())
 }
 
+/// True when this module was built with WebAssembly SIMD (`+simd128`, from `.cargo/config.toml`):
+/// tract's and rustfft's 128-bit kernels.
+#[wasm_bindgen]
+pub fn simd() -> bool {
+    cfg!(target_feature = "simd128")
+}
+
 /// The runtime's version (the `livegesture` crate).
 #[wasm_bindgen]
 pub fn version() -> String {

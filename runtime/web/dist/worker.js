@@ -11,7 +11,7 @@
 //   generate {wav, seed, guidance?}          -> frames of a whole WAV file
 //   parity   {}                              -> {passed, failed, lines}
 // frames = {count, index: Float64Array, poses, trans, expressions, footContact: Float32Array, ms}
-import init, { BundleFiles, Model, lastPanic } from './wasm/livegesture_wasm.js';
+import init, { BundleFiles, Model, lastPanic, simd } from './wasm/livegesture_wasm.js';
 
 let ready = null;
 let model = null;
@@ -60,7 +60,7 @@ async function load({ bundleUrl, files, complete }) {
   streams.clear();
   if (model) model.free();
   model = Model.load(base.href.replace(/\/$/, ''), bf, !!complete);
-  return { family: model.family, fps: model.fps, precision: model.precision, bytes, files: want.length + 1, loadMs: performance.now() - t0 };
+  return { family: model.family, fps: model.fps, precision: model.precision, simd: simd(), bytes, files: want.length + 1, loadMs: performance.now() - t0 };
 }
 
 function stream(id) {

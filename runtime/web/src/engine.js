@@ -55,9 +55,10 @@ class Rpc {
 /** One stream of a model: its own state in the worker. */
 export class WasmStream {
   constructor(rpc, id) { this.rpc = rpc; this.id = id; }
-  /** Mono PCM in [-1, 1] (Float32Array) at `sampleRate` Hz; resolves to the frames it completes. */
+  /** Mono PCM at `sampleRate` Hz: a Float32Array in [-1, 1] or an Int16Array (scaled by 1/32768);
+   * resolves to the frames it completes. */
   push(pcm, sampleRate) {
-    const copy = new Float32Array(pcm);
+    const copy = pcm instanceof Int16Array ? Float32Array.from(pcm, (v) => v / 32768) : new Float32Array(pcm);
     return this.rpc.call('push', { stream: this.id, pcm: copy, sampleRate }, [copy.buffer]);
   }
   /** Ends the stream; the remaining frames (the stream then covers its whole input). */

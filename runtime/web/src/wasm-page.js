@@ -124,7 +124,7 @@ export function installTestHook() {
     },
     async info() {
       const model = await wasmModel();
-      return { family: model.family, precision: model.precision, bytes: model.bytes, files: model.files,
+      return { family: model.family, precision: model.precision, simd: model.simd, bytes: model.bytes, files: model.files,
         loadMs: model.loadMs, warmupMs: model.warmupMs, memoryBytes: await model.memoryBytes() };
     },
   };

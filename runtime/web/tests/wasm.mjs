@@ -77,6 +77,7 @@ try {
     await page.waitForFunction(() => window.lgState.status === 'idle' || window.lgState.error, null, { timeout: 180000 });
     const info = await page.evaluate(() => window.livegestureTest.info());
     note(`model in the page: ${JSON.stringify(info)}`);
+    if (info.simd !== true) fail('the WebAssembly module was built without SIMD (+simd128)');
     await page.click('#mic');
     await page.waitForFunction(() => window.lgState.frames >= 90 || window.lgState.error, null, { timeout: 120000 })
       .catch(async () => fail(`microphone: no frames within 120 s: ${JSON.stringify(await page.evaluate(() => window.lgState))}\n${lines.join('\n')}`));
