@@ -10,6 +10,8 @@
 #      importers (Debian's blender), the VRM retargeting's node tests;
 #   7. the browser page in Debian's chromium with a fake microphone, the skinned figure, a .glb in
 #      GLTFLoader and a VRM avatar following a WAV (screenshots in target/browser/).
+#   8. the runtime compiled to WebAssembly: the static page in chromium (parity of both shipped bundles,
+#      a perturbed weight, the microphone, a WAV vs native tract; report in target/browser-wasm/);
 # and first, the docs check (scripts/check_docs.py: relative links in the Markdown resolve).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -95,5 +97,20 @@ fi
 (cd runtime/web && npm install --no-save --no-audit --no-fund --loglevel=error)
 timeout 600 node runtime/web/tests/browser.mjs target/release/livegesture models/default \
   models/default/reference/clip.wav target/browser
+
+stage "wasm: the runtime in WebAssembly as a static page, parity and the microphone in chromium (docs/wasm.md)"
+# installs the wasm32 target and the wasm-bindgen CLI if missing; builds target/wasm-pkg and target/web-static
+scripts/build_web_static.sh models/default
+mkdir -p target/web-static/bundles target/browser-wasm
+scripts/copy_bundle.py models/diffsheg target/web-static/bundles/diffsheg
+rm -rf target/web-static/bundles/broken
+"$LIVEGESTURE_PY" parity-tests/tools/break_bundle.py target/test-bundles/tiny target/web-static/bundles/broken \
+  --graph expert_hands --perturb-weight
+./target/release/livegesture generate models/default/reference/clip.wav -o target/browser-wasm/native.npz \
+  --backend tract --seed 7
+timeout 1500 node runtime/web/tests/wasm.mjs --site target/web-static --out target/browser-wasm \
+  --wav models/default/reference/clip.wav --native target/browser-wasm/native.npz --seed 7 \
+  --parity bundle/ --parity bundles/diffsheg/ --broken bundles/broken/:expert_hands \
+  --serve target/release/livegesture
 
 stage "all tests passed"

@@ -3,7 +3,8 @@ import { defineConfig } from 'vite';
 // Fixed file names: the binary embeds dist/index.html, dist/assets/app.js and dist/worklet.js by name
 // (runtime/src/serve/web.rs), so a rebuild only changes their contents.
 export default defineConfig({
-  base: '/',
+  // relative URLs: the same build is served by `livegesture serve` at / and as a static folder at any path
+  base: './',
   build: {
     outDir: 'dist',
     emptyOutDir: true,

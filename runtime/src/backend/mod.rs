@@ -20,7 +20,7 @@ use std::str::FromStr;
 
 use anyhow::{ensure, Result};
 
-use crate::bundle::{shape_fits, shape_string, GraphSpec};
+use crate::bundle::{shape_fits, shape_string, Bundle, GraphSpec};
 
 #[cfg(feature = "ort")]
 pub mod ort;
@@ -190,6 +190,33 @@ pub trait Backend: Send + Sync {
 
     /// Loads the graph `spec` from `path`.
     fn load(&self, spec: &GraphSpec, path: &Path) -> Result<Box<dyn GraphRunner>>;
+
+    /// Loads the graph `spec` from the ONNX file's `bytes` (`path` names it in messages). Backends
+    /// that cannot load from memory refuse.
+    fn load_bytes(
+        &self,
+        spec: &GraphSpec,
+        path: &Path,
+        bytes: &[u8],
+    ) -> Result<Box<dyn GraphRunner>> {
+        let _ = bytes;
+        anyhow::bail!(
+            "{}: the {} backend cannot load a graph from memory (graph '{}')",
+            path.display(),
+            self.name(),
+            spec.name
+        )
+    }
+
+    /// Loads the graph `spec` of `bundle`: from memory for a bundle given as bytes
+    /// ([`Bundle::from_files`]), else from its file.
+    fn load_from(&self, bundle: &Bundle, spec: &GraphSpec) -> Result<Box<dyn GraphRunner>> {
+        let path = bundle.graph_path(spec);
+        match bundle.memory_file(&spec.file) {
+            Some(bytes) => self.load_bytes(spec, &path, bytes),
+            None => self.load(spec, &path),
+        }
+    }
 }
 
 /// Which backend to use.

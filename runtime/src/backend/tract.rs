@@ -41,6 +41,15 @@ impl Backend for TractBackend {
     fn load(&self, spec: &GraphSpec, path: &Path) -> Result<Box<dyn GraphRunner>> {
         Ok(Box::new(TractGraph::load(spec, path)?))
     }
+
+    fn load_bytes(
+        &self,
+        spec: &GraphSpec,
+        path: &Path,
+        bytes: &[u8],
+    ) -> Result<Box<dyn GraphRunner>> {
+        Ok(Box::new(TractGraph::load_bytes(spec, path, bytes)?))
+    }
 }
 
 /// A graph loaded with tract.
@@ -75,6 +84,32 @@ impl TractGraph {
             )
         };
         let model = tract_onnx::onnx().model_for_path(path).with_context(what)?;
+        Self::from_inference(spec, path, model)
+    }
+
+    /// Parses and declutters the ONNX file's `bytes` (`path` names it in messages).
+    pub fn load_bytes(spec: &GraphSpec, path: &Path, bytes: &[u8]) -> Result<Self> {
+        let what = || {
+            format!(
+                "tract: loading graph '{}' from {}",
+                spec.name,
+                path.display()
+            )
+        };
+        let model = tract_onnx::onnx()
+            .model_for_read(&mut std::io::Cursor::new(bytes))
+            .with_context(what)?;
+        Self::from_inference(spec, path, model)
+    }
+
+    fn from_inference(spec: &GraphSpec, path: &Path, model: InferenceModel) -> Result<Self> {
+        let what = || {
+            format!(
+                "tract: loading graph '{}' from {}",
+                spec.name,
+                path.display()
+            )
+        };
         let typed = model
             .into_typed()
             .and_then(|m| m.into_decluttered())

@@ -36,9 +36,11 @@
 //! `models/default` (see [`default_bundle_dir`]); the environment variable `LIVEGESTURE_BUNDLE`
 //! overrides it.
 
+use std::borrow::Cow;
 use std::collections::BTreeMap;
 use std::fmt;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
@@ -303,6 +305,9 @@ pub struct Manifest {
 pub struct Bundle {
     dir: PathBuf,
     manifest: Manifest,
+    /// The files of a bundle given in memory ([`Bundle::from_files`]), by path relative to the
+    /// bundle; `None` for a bundle read from its folder.
+    memory: Option<Arc<BTreeMap<String, Vec<u8>>>>,
 }
 
 fn sha256_hex(bytes: &[u8]) -> String {
@@ -322,10 +327,89 @@ impl Bundle {
             source,
         })?;
         let manifest = parse_manifest(&text, &mpath)?;
-        let bundle = Bundle { dir, manifest };
+        let bundle = Bundle {
+            dir,
+            manifest,
+            memory: None,
+        };
         bundle.verify_files()?;
         bundle.check_consistency()?;
         Ok(bundle)
+    }
+
+    /// Loads and verifies a bundle given as its files in memory (a browser has no folder to read):
+    /// `files` maps each path relative to the bundle (`manifest.json`, `fusion.onnx`, ...) to its
+    /// bytes. `name` stands for the bundle's folder in messages (for example the URL the files came
+    /// from). The same checks as [`Bundle::load`]: every file listed in the manifest must be among
+    /// `files` with the listed size and sha256. Files not listed are kept but never read.
+    pub fn from_files(
+        name: impl Into<PathBuf>,
+        files: BTreeMap<String, Vec<u8>>,
+    ) -> Result<Self, BundleError> {
+        Self::from_some_files(name, files, true)
+    }
+
+    /// Like [`Bundle::from_files`]; with `complete` false, a listed file that is not among `files`
+    /// is allowed unless it is a graph (a page that only runs the model need not download the
+    /// reference vectors): every file given is still checked, every graph must be given, and reading
+    /// a file not given later fails as [`BundleError::MissingFile`].
+    pub fn from_some_files(
+        name: impl Into<PathBuf>,
+        files: BTreeMap<String, Vec<u8>>,
+        complete: bool,
+    ) -> Result<Self, BundleError> {
+        let dir = name.into();
+        let mpath = dir.join("manifest.json");
+        let Some(raw) = files.get("manifest.json") else {
+            return Err(BundleError::NoManifest { dir });
+        };
+        let text = std::str::from_utf8(raw).map_err(|e| BundleError::Manifest {
+            path: mpath.clone(),
+            detail: format!("not UTF-8 text: {e}"),
+        })?;
+        let manifest = parse_manifest(text, &mpath)?;
+        let bundle = Bundle {
+            dir,
+            manifest,
+            memory: Some(Arc::new(files)),
+        };
+        bundle.verify_files_given(complete)?;
+        bundle.check_consistency()?;
+        Ok(bundle)
+    }
+
+    /// The bytes of the file `rel` (a path relative to the bundle): from memory for a bundle made
+    /// with [`Bundle::from_files`], else read from the folder. A missing file is
+    /// [`BundleError::MissingFile`].
+    pub fn read(&self, rel: &str) -> Result<Cow<'_, [u8]>, BundleError> {
+        let path = self.dir.join(rel);
+        match &self.memory {
+            Some(files) => files
+                .get(rel)
+                .map(|b| Cow::Borrowed(b.as_slice()))
+                .ok_or(BundleError::MissingFile { path }),
+            None => match std::fs::read(&path) {
+                Ok(b) => Ok(Cow::Owned(b)),
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                    Err(BundleError::MissingFile { path })
+                }
+                Err(source) => Err(BundleError::Io { path, source }),
+            },
+        }
+    }
+
+    /// The bytes of `rel` when the bundle is held in memory ([`Bundle::from_files`]); `None` for a
+    /// bundle read from a folder (its files are read where they are used) or a file not given.
+    pub fn memory_file(&self, rel: &str) -> Option<&[u8]> {
+        self.memory
+            .as_ref()
+            .and_then(|m| m.get(rel))
+            .map(Vec::as_slice)
+    }
+
+    /// True for a bundle given in memory ([`Bundle::from_files`]).
+    pub fn is_in_memory(&self) -> bool {
+        self.memory.is_some()
     }
 
     /// The bundle folder.
@@ -445,7 +529,13 @@ impl Bundle {
 
     /// Checks size and sha256 of every listed file, that graph files are listed, and the ONNX I/O.
     fn verify_files(&self) -> Result<(), BundleError> {
-        let mut graph_bytes: BTreeMap<&str, Vec<u8>> = BTreeMap::new();
+        self.verify_files_given(true)
+    }
+
+    /// [`Bundle::verify_files`]; with `complete` false, listed files that are not graphs may be
+    /// absent from an in-memory bundle ([`Bundle::from_some_files`]).
+    fn verify_files_given(&self, complete: bool) -> Result<(), BundleError> {
+        let mut graph_bytes: BTreeMap<&str, Cow<'_, [u8]>> = BTreeMap::new();
         let graph_files: Vec<&str> = self
             .manifest
             .graphs
@@ -459,13 +549,11 @@ impl Bundle {
                 );
             }
             let path = self.dir.join(rel);
-            let bytes = match std::fs::read(&path) {
-                Ok(b) => b,
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-                    return Err(BundleError::MissingFile { path })
-                }
-                Err(source) => return Err(BundleError::Io { path, source }),
-            };
+            let optional = !complete && !graph_files.contains(&rel.as_str());
+            if optional && self.memory.as_ref().is_some_and(|m| !m.contains_key(rel)) {
+                continue;
+            }
+            let bytes = self.read(rel)?;
             if let Some(expected) = entry.bytes {
                 if expected != bytes.len() as u64 {
                     return Err(BundleError::SizeMismatch {
@@ -490,7 +578,11 @@ impl Bundle {
         for g in &self.manifest.graphs {
             let path = self.graph_path(g);
             let Some(bytes) = graph_bytes.get(g.file.as_str()) else {
-                if !path.exists() {
+                let exists = match &self.memory {
+                    Some(files) => files.contains_key(&g.file),
+                    None => path.exists(),
+                };
+                if !exists {
                     return Err(BundleError::MissingFile { path });
                 }
                 return Err(BundleError::Unlisted { path });

@@ -44,6 +44,10 @@ pub struct Args {
     /// Seconds to wait for sessions to drain on SIGINT/SIGTERM.
     #[arg(long, default_value_t = 10.0)]
     pub drain_timeout: f64,
+    /// Also serve this folder's files: the static page with the WebAssembly runtime and a bundle
+    /// (scripts/build_web_static.sh -> target/web-static), so /?engine=wasm runs in the browser.
+    #[arg(long, value_name = "DIR")]
+    pub web_dir: Option<std::path::PathBuf>,
 }
 
 fn secs(name: &str, v: f64) -> Result<Duration> {
@@ -76,7 +80,17 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
         idle_timeout: secs("idle-timeout", a.idle_timeout)?,
         batch_wait: secs("batch-wait-ms", a.batch_wait_ms / 1e3)?,
         drain_timeout: secs("drain-timeout", a.drain_timeout)?,
+        web_dir: a.web_dir.clone(),
     };
+    if let Some(d) = &a.web_dir {
+        if !d.join("wasm").is_dir() {
+            return Err(InputError(format!(
+                "--web-dir {}: no wasm/ folder here; expected the static page of scripts/build_web_static.sh",
+                d.display()
+            ))
+            .into());
+        }
+    }
     let bundle = a.model.bundle()?;
     check_form(&bundle, form)?;
     let backend_opts = a.model.backend_options()?;

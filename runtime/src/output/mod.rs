@@ -284,6 +284,7 @@ pub trait FrameSink {
 /// Writes `path` atomically with `write`: a temporary file `.<name>.XXXX.tmp` in the same directory,
 /// synced, made world-readable (0644 on Unix), then renamed over `path`. On error the temporary file is
 /// removed and `path` is untouched. Every file output of the crate (npz, BVH) goes through it.
+#[cfg(feature = "files")]
 pub(crate) fn write_atomically(
     path: &std::path::Path,
     write: impl FnOnce(&mut std::io::BufWriter<&std::fs::File>) -> Result<()>,
@@ -328,6 +329,18 @@ pub(crate) fn write_atomically(
         )
     })?;
     Ok(())
+}
+
+/// Without the `files` feature (the WebAssembly build) no file is written: a clear refusal.
+#[cfg(not(feature = "files"))]
+pub(crate) fn write_atomically(
+    path: &std::path::Path,
+    _write: impl FnOnce(&mut std::io::BufWriter<&std::fs::File>) -> Result<()>,
+) -> Result<()> {
+    anyhow::bail!(
+        "output: cannot write {}: this build of livegesture writes no files (built without the `files` feature)",
+        path.display()
+    )
 }
 
 #[cfg(test)]

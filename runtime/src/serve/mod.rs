@@ -63,6 +63,10 @@ pub struct ServeConfig {
     pub batch_wait: Duration,
     /// On shutdown, how long to wait for sessions to finish before exiting anyway.
     pub drain_timeout: Duration,
+    /// A folder whose files are also served (paths the server does not answer itself): the static
+    /// build of the page with the WebAssembly runtime and a bundle (`scripts/build_web_static.sh`,
+    /// docs/wasm.md), so that `/?engine=wasm` runs the model in the browser.
+    pub web_dir: Option<std::path::PathBuf>,
 }
 
 impl Default for ServeConfig {
@@ -75,6 +79,7 @@ impl Default for ServeConfig {
             idle_timeout: Duration::from_secs(30),
             batch_wait: Duration::from_millis(30),
             drain_timeout: Duration::from_secs(10),
+            web_dir: None,
         }
     }
 }

@@ -9,14 +9,19 @@ import { createFigure } from './figure.js';
 import { createFacePanel } from './facepanel.js';
 import { setupAvatarControls } from './avatarui.js';
 import { loadGltfMotion } from './gltfmotion.js';
+import { engineFromUrl } from './engine.js';
+import { WasmSession, installTestHook, wasmModel } from './wasm-page.js';
 
 const $ = (id) => document.getElementById(id);
 const N = 55;
 const RECORD = 1104;
+// `?engine=wasm`: the runtime runs in this browser (wasm-page.js), else on the server (WebSocket)
+const ENGINE = engineFromUrl();
 
 // state the browser test reads (runtime/web/tests/browser.mjs)
 const state = (window.lgState = {
   status: 'idle', frames: 0, lastIndex: -1, moved: 0, latencyMs: null, error: null, webgl: false,
+  engine: ENGINE, firstLatencyMs: null,
 });
 
 let SK = null; // { names, parents, offsets }
@@ -121,11 +126,29 @@ function setStatus(s, kind = s) {
 
 let ws = null, sentSamples = 0, sentLog = [], rate = 16000, latencies = [];
 let stopSource = null;
+let wasm = null; // the WasmSession in wasm mode
+
+function onFrame(f) {
+  state.frames++; state.lastIndex = f.index;
+  $('frames').textContent = state.frames;
+  if (f.index % 4 === 3) tokenLatency(f.index);
+  showFrame(f);
+}
 
 function openSession(inputRate) {
   rate = inputRate;
   sentSamples = 0; sentLog = []; latencies = []; first = null;
-  state.frames = 0; state.moved = 0;
+  state.frames = 0; state.moved = 0; state.firstLatencyMs = null;
+  if (ENGINE === 'wasm') {
+    setStatus('connecting');
+    wasm = new WasmSession(rate, {
+      onReady: (label) => { setStatus('live'); $('model').textContent = label; },
+      onFrame,
+      onDone: (n) => setStatus(`done: ${n} frames`, 'idle'),
+      onError: (m) => { state.error = m; setStatus(`error: ${m}`, 'error'); stopInput(); },
+    });
+    return;
+  }
   const proto = location.protocol === 'https:' ? 'wss' : 'ws';
   ws = new WebSocket(`${proto}://${location.host}/v1/stream?rate=${Math.round(rate)}&channels=1&format=f32le&output=binary`);
   ws.binaryType = 'arraybuffer';
@@ -139,11 +162,7 @@ function openSession(inputRate) {
       return;
     }
     if (ev.data.byteLength !== RECORD) return;
-    const f = decodeRecord(ev.data);
-    state.frames++; state.lastIndex = f.index;
-    $('frames').textContent = state.frames;
-    if (f.index % 4 === 3) tokenLatency(f.index);
-    showFrame(f);
+    onFrame(decodeRecord(ev.data));
   };
   ws.onclose = (ev) => {
     if (state.status === 'live' || state.status === 'connected' || state.status === 'connecting')
@@ -159,6 +178,7 @@ function tokenLatency(index) {
   while (sentLog.length && sentLog[0].upTo < need) sentLog.shift();
   if (!sentLog.length) return;
   latencies.push(performance.now() - sentLog[0].t);
+  if (state.firstLatencyMs === null) state.firstLatencyMs = latencies[0];
   if (latencies.length > 40) latencies.shift();
   const s = [...latencies].sort((a, b) => a - b);
   state.latencyMs = s[Math.floor(s.length / 2)];
@@ -166,13 +186,15 @@ function tokenLatency(index) {
 }
 
 function sendSamples(f32) {
-  if (!ws || ws.readyState !== WebSocket.OPEN) return;
-  ws.send(f32.buffer.slice(f32.byteOffset, f32.byteOffset + f32.byteLength));
+  if (wasm) wasm.send(f32);
+  else if (!ws || ws.readyState !== WebSocket.OPEN) return;
+  else ws.send(f32.buffer.slice(f32.byteOffset, f32.byteOffset + f32.byteLength));
   sentSamples += f32.length;
   sentLog.push({ t: performance.now(), upTo: sentSamples / rate });
 }
 
 function endSession() {
+  if (wasm) { wasm.end(); wasm = null; }
   if (ws && ws.readyState === WebSocket.OPEN) ws.send(JSON.stringify({ type: 'end' }));
   stopInput();
 }
@@ -186,7 +208,7 @@ let audioCtx = null;
 async function context() {
   if (!audioCtx) {
     audioCtx = new AudioContext();
-    await audioCtx.audioWorklet.addModule('/worklet.js');
+    await audioCtx.audioWorklet.addModule(new URL('worklet.js', document.baseURI));
   }
   if (audioCtx.state === 'suspended') await audioCtx.resume();
   return audioCtx;
@@ -365,7 +387,7 @@ function playFile() {
 
 async function main() {
   initView();
-  SK = await (await fetch('/skeleton.json')).json();
+  SK = await (await fetch(new URL('skeleton.json', document.baseURI))).json();
   fk = createFK(SK);
   figure = createFigure(scene, SK);
   face = createFacePanel($('face'), state);
@@ -385,6 +407,13 @@ async function main() {
   $('wav').onchange = (e) => e.target.files[0] && playWav(e.target.files[0]);
   $('motion').onchange = (e) => e.target.files[0] && loadMotion(e.target.files[0]);
   $('playFile').onclick = playFile;
+  if (ENGINE === 'wasm') {
+    installTestHook();
+    $('model').textContent = 'loading (this browser)';
+    wasmModel((s) => setStatus(s, 'idle')).then(
+      (m) => { $('model').textContent = `${m.family}, ${m.precision} (wasm tract, this browser)`; setStatus('idle'); },
+      (e) => { state.error = String(e); setStatus(`model: ${e.message || e}`, 'error'); });
+  }
   state.ready = true;
 }
 

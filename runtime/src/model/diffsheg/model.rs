@@ -136,11 +136,9 @@ impl DiffshegModel {
         let shared = Shared::new(bundle)?;
         let load = |name: &str| -> Result<_> {
             let spec = bundle.graph(name)?;
-            backend
-                .load(spec, &bundle.graph_path(spec))
-                .with_context(|| {
-                    format!("loading graph '{name}' with the {} backend", backend.name())
-                })
+            backend.load_from(bundle, spec).with_context(|| {
+                format!("loading graph '{name}' with the {} backend", backend.name())
+            })
         };
         let enc_spec = bundle.graph("speech_encoder")?;
         let n_mels = enc_spec

@@ -36,11 +36,9 @@ impl Stage {
         regions: &[String],
     ) -> Result<Self> {
         let spec = bundle.graph(name)?.clone();
-        let runner = backend
-            .load(&spec, &bundle.graph_path(&spec))
-            .with_context(|| {
-                format!("loading graph '{name}' with the {} backend", backend.name())
-            })?;
+        let runner = backend.load_from(bundle, &spec).with_context(|| {
+            format!("loading graph '{name}' with the {} backend", backend.name())
+        })?;
         let mut roles = Vec::new();
         for i in &spec.inputs {
             let role = match i.name.as_str() {

@@ -1,0 +1,346 @@
+//! The LiveGesture runtime in the browser: the runtime core (bundle verification, tract, both model
+//! families, resampling, the log-mel frontend, the sampler, frame assembly) compiled to
+//! `wasm32-unknown-unknown`, with a wasm-bindgen API that mirrors the Rust streaming API
+//! (docs/wasm.md):
+//!
+//! ```js
+//! const files = new BundleFiles();
+//! files.add('manifest.json', bytes); files.add('audio_encoder.onnx', bytes); // ...
+//! const model = Model.load('models/default', files);   // sha256 of every listed file checked
+//! const stream = model.stream(7, undefined);           // seed, guidance (undefined: the bundle's)
+//! const f = stream.push(pcm, 48000);                   // Float32Array at any rate -> Frames
+//! const last = stream.finish();                        // frames covering the whole input
+//! stream.reset();
+//! ```
+//!
+//! Errors come back as JS exceptions carrying the runtime's message. A panic cannot be caught on
+//! wasm32 (it aborts the instance): [`last_panic`] returns its message so the worker can report it.
+
+use std::cell::RefCell;
+use std::collections::BTreeMap;
+
+use livegesture::audio::{AudioSpan, Resampler16k};
+use livegesture::backend::tract::TractBackend;
+use livegesture::bundle::Bundle;
+use livegesture::model::{self, MotionModel, MotionStream, StreamOptions};
+use livegesture::output::Frame;
+use wasm_bindgen::prelude::*;
+
+mod parity;
+mod wav;
+
+thread_local! {
+    static PANIC: RefCell<Option<String>> = const { RefCell::new(None) };
+}
+
+/// Installs a panic hook that keeps the message for [`last_panic`] (wasm-bindgen's start function).
+#[wasm_bindgen(start)]
+pub fn start() {
+    std::panic::set_hook(Box::new(|info| {
+        let msg = info.to_string();
+        PANIC.with(|p| *p.borrow_mut() = Some(msg));
+    }));
+}
+
+/// The message of the panic that aborted this instance, if one did (the instance must then be
+/// recreated).
+#[wasm_bindgen(js_name = lastPanic)]
+pub fn last_panic() -> Option<String> {
+    PANIC.with(|p| p.borrow().clone())
+}
+
+/// True when this module was built with WebAssembly SIMD (`+simd128`, from `.cargo/config.toml`):
+/// tract's and rustfft's 128-bit kernels.
+#[wasm_bindgen]
+pub fn simd() -> bool {
+    cfg!(target_feature = "simd128")
+}
+
+/// The runtime's version (the `livegesture` crate).
+#[wasm_bindgen]
+pub fn version() -> String {
+    env!("CARGO_PKG_VERSION").to_string()
+}
+
+/// The project's skeleton as JSON (`names`, `parents`, `offsets` in metres, `units`): what the page
+/// poses, the same as `livegesture serve`'s `/skeleton.json`.
+#[wasm_bindgen(js_name = skeletonJson)]
+pub fn skeleton_json() -> String {
+    use livegesture::skeleton::{rest_offsets, JOINT_NAMES, PARENTS};
+    serde_json::json!({
+        "names": &JOINT_NAMES[..],
+        "parents": &PARENTS[..],
+        "offsets": rest_offsets().to_vec(),
+        "units": "m",
+    })
+    .to_string()
+}
+
+fn js_err(e: impl std::fmt::Display) -> JsError {
+    JsError::new(&e.to_string())
+}
+
+fn anyhow_err(e: anyhow::Error) -> JsError {
+    JsError::new(&format!("{e:#}"))
+}
+
+/// A seed from JavaScript: a non-negative integer up to 2^53 (exactly representable).
+fn seed_from(seed: f64) -> Result<u64, JsError> {
+    if !(seed.is_finite() && seed >= 0.0 && seed.fract() == 0.0 && seed <= 9_007_199_254_740_992.0)
+    {
+        return Err(js_err(format!(
+            "seed is {seed}; expected an integer from 0 to 2^53"
+        )));
+    }
+    Ok(seed as u64)
+}
+
+/// The files of a bundle, gathered in memory before [`Model::load`] verifies them.
+#[wasm_bindgen]
+#[derive(Default)]
+pub struct BundleFiles {
+    files: BTreeMap<String, Vec<u8>>,
+}
+
+#[wasm_bindgen]
+impl BundleFiles {
+    #[wasm_bindgen(constructor)]
+    pub fn new() -> BundleFiles {
+        BundleFiles::default()
+    }
+
+    /// Adds the file `path` (relative to the bundle, as `manifest.json` lists it) with its bytes.
+    pub fn add(&mut self, path: String, bytes: Vec<u8>) {
+        self.files.insert(path, bytes);
+    }
+
+    /// Number of files added.
+    #[wasm_bindgen(getter)]
+    pub fn count(&self) -> usize {
+        self.files.len()
+    }
+}
+
+/// Frames out of a stream, row-major: `poses` (n x 165), `trans` (n x 3), `expressions` (n x 100),
+/// `footContact` (n x 4), `index` (n).
+#[wasm_bindgen]
+#[derive(Default)]
+pub struct Frames {
+    index: Vec<f64>,
+    poses: Vec<f32>,
+    trans: Vec<f32>,
+    expressions: Vec<f32>,
+    foot_contact: Vec<f32>,
+}
+
+impl Frames {
+    fn extend(&mut self, frames: &[Frame]) {
+        for f in frames {
+            self.index.push(f.index as f64);
+            self.poses.extend_from_slice(&f.poses);
+            self.trans.extend_from_slice(&f.trans);
+            self.expressions.extend_from_slice(&f.expressions);
+            self.foot_contact.extend_from_slice(&f.foot_contact);
+        }
+    }
+}
+
+#[wasm_bindgen]
+impl Frames {
+    /// Number of frames.
+    #[wasm_bindgen(getter)]
+    pub fn count(&self) -> usize {
+        self.index.len()
+    }
+    /// Frame indices from the start of the stream.
+    #[wasm_bindgen(getter)]
+    pub fn index(&self) -> Vec<f64> {
+        self.index.clone()
+    }
+    /// SMPL-X axis-angle, 55 joints x 3 per frame.
+    #[wasm_bindgen(getter)]
+    pub fn poses(&self) -> Vec<f32> {
+        self.poses.clone()
+    }
+    /// Root translation in metres, 3 per frame.
+    #[wasm_bindgen(getter)]
+    pub fn trans(&self) -> Vec<f32> {
+        self.trans.clone()
+    }
+    /// Expression coefficients, 100 per frame.
+    #[wasm_bindgen(getter)]
+    pub fn expressions(&self) -> Vec<f32> {
+        self.expressions.clone()
+    }
+    /// Foot contact of joints 7, 8, 10, 11, 4 per frame.
+    #[wasm_bindgen(getter, js_name = footContact)]
+    pub fn foot_contact(&self) -> Vec<f32> {
+        self.foot_contact.clone()
+    }
+}
+
+/// A verified bundle loaded on tract: makes streams.
+#[wasm_bindgen]
+pub struct Model {
+    bundle: Bundle,
+    model: Box<dyn MotionModel>,
+}
+
+#[wasm_bindgen]
+impl Model {
+    /// Verifies the bundle's files (every file `manifest.json` lists, with its size and sha256) and
+    /// loads its graphs on tract. `name` stands for the bundle in messages (e.g. its URL). With
+    /// `complete` false, listed files other than graphs may be left out (a page that only runs
+    /// the model need not download the reference vectors; `parity` then fails naming them).
+    pub fn load(name: String, files: BundleFiles, complete: bool) -> Result<Model, JsError> {
+        let bundle = Bundle::from_some_files(name, files.files, complete).map_err(js_err)?;
+        let model = model::load(&bundle, &TractBackend::new()).map_err(anyhow_err)?;
+        Ok(Model { bundle, model })
+    }
+
+    /// The model family (`livegesture`, `diffsheg`).
+    #[wasm_bindgen(getter)]
+    pub fn family(&self) -> String {
+        self.model.family().name().to_string()
+    }
+
+    /// Output frames per second (30).
+    #[wasm_bindgen(getter)]
+    pub fn fps(&self) -> f64 {
+        self.model.fps() as f64
+    }
+
+    /// The weights' precision (`float32`, `float16`, ...).
+    #[wasm_bindgen(getter)]
+    pub fn precision(&self) -> String {
+        self.bundle.precision().to_string()
+    }
+
+    /// A fresh stream with `seed` and classifier-free guidance `guidance` (undefined: the bundle's
+    /// default).
+    pub fn stream(&self, seed: f64, guidance: Option<f64>) -> Result<Stream, JsError> {
+        let opts = StreamOptions {
+            seed: seed_from(seed)?,
+            guidance,
+            ..Default::default()
+        };
+        let inner = self.model.new_stream(&opts).map_err(anyhow_err)?;
+        Ok(Stream {
+            inner,
+            resampler: None,
+        })
+    }
+
+    /// A whole WAV file (8/16/24/32-bit PCM or 32-bit float, any rate and channel count) through a
+    /// fresh stream: `ceil(duration x fps)` frames.
+    pub fn generate(
+        &self,
+        wav: &[u8],
+        seed: f64,
+        guidance: Option<f64>,
+    ) -> Result<Frames, JsError> {
+        let audio = wav::decode_mono(wav).map_err(anyhow_err)?;
+        let mut s = self.stream(seed, guidance)?;
+        let mut out = Frames::default();
+        for chunk in audio.samples.chunks(4096) {
+            let f = s.push_inner(chunk, audio.sample_rate).map_err(anyhow_err)?;
+            out.extend(&f);
+        }
+        let f = s.finish_inner().map_err(anyhow_err)?;
+        out.extend(&f);
+        Ok(out)
+    }
+
+    /// The parity checks of docs/wasm.md on this bundle (every graph against its reference
+    /// vectors, the whole reference rollout); a JSON string `{passed, failed, lines}`.
+    pub fn parity(&self) -> Result<String, JsError> {
+        let report = parity::run(&self.bundle).map_err(anyhow_err)?;
+        Ok(report.to_json())
+    }
+}
+
+/// One stream: its own state (audio buffers, caches, random generator, resampler).
+#[wasm_bindgen]
+pub struct Stream {
+    inner: Box<dyn MotionStream>,
+    /// Made on the first push at that push's rate.
+    resampler: Option<Resampler16k>,
+}
+
+impl Stream {
+    fn push_inner(&mut self, pcm: &[f32], sample_rate: u32) -> anyhow::Result<Vec<Frame>> {
+        let r = match &mut self.resampler {
+            Some(r) => {
+                anyhow::ensure!(
+                    r.input_rate() == sample_rate,
+                    "push: sample rate {sample_rate} Hz, but this stream's audio is at {} Hz; reset the stream to change the rate",
+                    r.input_rate()
+                );
+                r
+            }
+            None => self
+                .resampler
+                .insert(Resampler16k::new(sample_rate, "push")?),
+        };
+        let audio = r.push(pcm)?;
+        self.inner.push_audio(&audio)
+    }
+
+    fn finish_inner(&mut self) -> anyhow::Result<Vec<Frame>> {
+        let (tail, span) = match &mut self.resampler {
+            Some(r) => {
+                let span = r.input_span();
+                (r.finish()?, span)
+            }
+            None => (Vec::new(), AudioSpan::at_16k(0)),
+        };
+        let mut frames = self.inner.push_audio(&tail)?;
+        frames.extend(self.inner.finish(span)?);
+        Ok(frames)
+    }
+}
+
+#[wasm_bindgen]
+impl Stream {
+    /// Pushes mono PCM in [-1, 1] at `sample_rate` Hz (any chunk size; one rate per stream until
+    /// reset); returns the frames it completes.
+    pub fn push(&mut self, pcm: &[f32], sample_rate: u32) -> Result<Frames, JsError> {
+        let f = self.push_inner(pcm, sample_rate).map_err(anyhow_err)?;
+        let mut out = Frames::default();
+        out.extend(&f);
+        Ok(out)
+    }
+
+    /// Ends the stream: the remaining frames, so that the stream has emitted
+    /// `ceil(samples x fps / rate)` frames in total.
+    pub fn finish(&mut self) -> Result<Frames, JsError> {
+        let f = self.finish_inner().map_err(anyhow_err)?;
+        let mut out = Frames::default();
+        out.extend(&f);
+        Ok(out)
+    }
+
+    /// Back to a cold start with the same seed and options (also after an error or finish).
+    pub fn reset(&mut self) -> Result<(), JsError> {
+        self.resampler = None;
+        self.inner.reset().map_err(anyhow_err)
+    }
+
+    /// Frames emitted so far.
+    #[wasm_bindgen(getter, js_name = framesEmitted)]
+    pub fn frames_emitted(&self) -> f64 {
+        self.inner.frames_emitted() as f64
+    }
+
+    /// Frames emitted together (a token of 4 frames for LiveGesture, a window step for DiffSHEG).
+    #[wasm_bindgen(getter, js_name = framesPerUnit)]
+    pub fn frames_per_unit(&self) -> f64 {
+        self.inner.frames_per_unit() as f64
+    }
+
+    /// The guidance scale in use.
+    #[wasm_bindgen(getter)]
+    pub fn guidance(&self) -> f64 {
+        self.inner.guidance()
+    }
+}

@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# The browser page as a static folder that any static file host can serve (docs/wasm.md):
+#   target/web-static/            index.html (engine "this browser" by default), assets/, worklet.js,
+#                                 worker.js, skeleton.json
+#   target/web-static/wasm/       the runtime in WebAssembly (scripts/build_wasm.sh)
+#   target/web-static/bundle/     the bundle (default models/default; or the folder given as $1)
+# Nothing is fetched from anywhere but this folder. Host it with e.g.
+#   python3 -m http.server -d target/web-static 8080   ->  http://localhost:8080/
+# Uses the committed runtime/web/dist (rebuild it with `cd runtime/web && npm install --no-save && npm run build`).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bundle="${1:-models/default}"
+out=target/web-static
+
+[ -f "$bundle/manifest.json" ] || { echo "build_web_static.sh: $bundle: no manifest.json (not a bundle)" >&2; exit 2; }
+[ -n "${SKIP_WASM_BUILD:-}" ] || scripts/build_wasm.sh
+[ -f target/wasm-pkg/livegesture_wasm_bg.wasm ] || { echo "build_web_static.sh: target/wasm-pkg is missing; run scripts/build_wasm.sh" >&2; exit 1; }
+
+rm -rf "$out"
+mkdir -p "$out/wasm" "$out/bundle"
+cp -r runtime/web/dist/. "$out/"
+# the static page has no server: the engine is this browser unless ?engine= says otherwise
+sed -i 's|<meta charset="utf-8">|<meta charset="utf-8">\n<meta name="livegesture-engine" content="wasm">|' "$out/index.html"
+cp target/wasm-pkg/livegesture_wasm.js target/wasm-pkg/livegesture_wasm_bg.wasm "$out/wasm/"
+# the skeleton the page poses, from the runtime itself
+node --input-type=module -e "
+import { readFileSync, writeFileSync } from 'node:fs';
+const m = await import('$PWD/target/wasm-pkg/livegesture_wasm.js');
+m.initSync({ module: readFileSync('target/wasm-pkg/livegesture_wasm_bg.wasm') });
+writeFileSync('$out/skeleton.json', m.skeletonJson());
+"
+scripts/copy_bundle.py "$bundle" "$out/bundle"
+du -sh "$out" "$out/wasm" "$out/bundle"
