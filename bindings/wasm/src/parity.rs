@@ -19,7 +19,7 @@ use livegesture::backend::tract::TractBackend;
 use livegesture::backend::{Backend, Tensor, TensorData};
 use livegesture::bundle::{Bundle, Family, GraphSpec};
 use livegesture::compare::{diff, Diff};
-use livegesture::model::livegesture::Pipeline;
+use livegesture::model::livegesture::LiveGestureGraphs;
 use livegesture::model::{self, StreamOptions};
 use ndarray::{ArrayD, IxDyn};
 use ndarray_npy::NpzReader;
@@ -289,7 +289,7 @@ fn livegesture_rollout(bundle: &Bundle, backend: &dyn Backend, report: &mut Repo
     let want_tokens = refv.get("tokens")?;
     let regions = want_tokens.shape.get(1).copied().unwrap_or(1);
     let want_tokens = want_tokens.as_i64("tokens")?.to_vec();
-    let mut p = Pipeline::new(bundle, backend)?;
+    let mut p = LiveGestureGraphs::new(bundle, backend)?;
     let opts = StreamOptions {
         seed,
         ..Default::default()
