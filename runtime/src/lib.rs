@@ -9,6 +9,8 @@
 //! - [`model`]: the family-independent streaming API ([`model::MotionModel`],
 //!   [`model::MotionStream`], [`model::load`] picks the family's implementation) and the families
 //!   ([`model::livegesture`]: streams, batched token steps);
+//! - [`generate`]: the whole-input path (`livegesture generate` and every binding's `generate`) and
+//!   [`generate::PcmStream`], a stream fed with PCM at any sample rate (the bindings' streams);
 //! - [`audio`]: WAV and raw PCM input, converted to 16 kHz mono, and [`audio::AudioSpan`] (how many
 //!   frames cover an input);
 //! - [`frontend`]: the log-mel audio frontend (the Python training frontend's definition, within 1e-4);
@@ -32,6 +34,7 @@ pub mod bench;
 pub mod bundle;
 pub mod bvh;
 pub mod frontend;
+pub mod generate;
 pub mod model;
 pub mod output;
 #[cfg(feature = "parity")]
