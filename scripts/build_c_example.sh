@@ -11,5 +11,5 @@ mkdir -p target/c
 # the system libraries the Rust standard library needs (rustc --print native-static-libs)
 "${CC:-cc}" -std=c11 -Wall -Wextra -Werror -O2 ${CFLAGS:-} -I bindings/c/include \
   examples/c/generate.c target/release/liblivegesture_c.a \
-  -lgcc_s -lutil -lrt -lpthread -lm -ldl -lc -o target/c/generate
+  -lgcc_s -lutil -lrt -lpthread -lm -ldl -lc -Wl,-z,noexecstack -o target/c/generate
 echo "built target/c/generate" >&2

@@ -35,11 +35,6 @@ pub const LG_EXPR_DIM: usize = 100;
 /// Motion frames per second.
 pub const LG_FPS: u32 = 30;
 
-const _: () = assert!(LG_POSE_DIM == livegesture::output::POSE_DIM);
-const _: () = assert!(LG_TRANS_DIM == livegesture::output::TRANS_DIM);
-const _: () = assert!(LG_EXPR_DIM == livegesture::output::EXPR_DIM);
-const _: () = assert!(LG_FPS == livegesture::output::FPS);
-
 /// The result of every call. On anything but `LG_STATUS_OK`, `lg_last_error()` says what went wrong.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -534,6 +529,14 @@ mod tests {
             lg_stream_free(s);
             lg_model_free(m);
         }
+    }
+
+    #[test]
+    fn constants_are_the_librarys() {
+        assert_eq!(LG_POSE_DIM, livegesture::output::POSE_DIM);
+        assert_eq!(LG_TRANS_DIM, livegesture::output::TRANS_DIM);
+        assert_eq!(LG_EXPR_DIM, livegesture::output::EXPR_DIM);
+        assert_eq!(LG_FPS, livegesture::output::FPS);
     }
 
     #[test]
