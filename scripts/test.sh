@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The project's test command (README "Test"; .ci/run calls it). Installs what it needs, then runs:
+# The project's test command (README "The two commands"; .ci/run calls it). Installs what it needs, then runs:
 #   1. the Python test suite (PyTorch reference: step == offline, streaming contract, data, training,
 #      metrics, export);
 #   2. fresh exports of the tiny configs of both families (the exporter verifies every graph against torch);
@@ -7,13 +7,17 @@
 #   4. the Rust tests (runtime numerics, bundles, pipeline, CLI, serve, parity suite incl. its must-fail cases);
 #   5. the bindings: the Python module's wheel (maturin) and the C example, against the CLI;
 #   6. the serve protocol with independent Python/JS clients, BVH read back with a PyPI reader;
-#   7. the browser page in Debian's chromium with a fake microphone (screenshot in target/browser/).
+#   7. the browser page in Debian's chromium with a fake microphone (screenshot in target/browser/);
+# and first, the docs check (scripts/check_docs.py: relative links in the Markdown resolve).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/env.sh
 
 t0=$SECONDS
 stage() { echo; echo "=== $* ($(( SECONDS - t0 )) s elapsed)"; }
+
+stage "docs: every relative link in the Markdown resolves, no outside-specification reference"
+"$LIVEGESTURE_PY" scripts/check_docs.py
 
 stage "python tests"
 "$LIVEGESTURE_PY" -m pytest -q python/tests
@@ -52,8 +56,9 @@ fi
 
 stage "bindings: the Python module (wheel built by maturin) and the C example vs the CLI"
 "$LIVEGESTURE_VENV/bin/pip" install -q maturin==1.16.0
-# pip builds the wheel in the checkout with the venv's maturin: cargo reuses the workspace's target/
-"$LIVEGESTURE_VENV/bin/pip" install -q --no-build-isolation --no-deps --force-reinstall ./bindings/python
+# pip builds the wheel in the checkout with the venv's maturin (found on PATH) into the workspace's target/
+PATH="$LIVEGESTURE_VENV/bin:$PATH" "$LIVEGESTURE_VENV/bin/pip" install -q --no-build-isolation --no-deps \
+  --force-reinstall ./bindings/python
 scripts/build_c_example.sh
 # Debian's mono compiles and runs the C# P/Invoke declarations of docs/c.md (bindings/tests/test_csharp.py)
 if ! command -v mcs >/dev/null 2>&1 || ! command -v mono >/dev/null 2>&1; then
