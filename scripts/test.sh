@@ -5,10 +5,11 @@
 #   2. fresh exports of the tiny configs of both families (the exporter verifies every graph against torch);
 #   3. the Rust build and the parity checks (torch vs ort vs tract) on that export and on models/default;
 #   4. the Rust tests (runtime numerics, bundles, pipeline, CLI, serve, parity suite incl. its must-fail cases);
-#   5. the serve protocol with independent Python/JS clients, BVH read back with a PyPI reader;
-#   6. avatars: glTF and BVH of a real recording through the Khronos glTF validator and Blender's
+#   5. the bindings: the C example and C# declarations (mono) against the CLI;
+#   6. the serve protocol with independent Python/JS clients, BVH read back with a PyPI reader;
+#   7. avatars: glTF and BVH of a real recording through the Khronos glTF validator and Blender's
 #      importers (Debian's blender), the VRM retargeting's node tests;
-#   7. the browser page in Debian's chromium with a fake microphone, the skinned figure, a .glb in
+#   8. the browser page in Debian's chromium with a fake microphone, the skinned figure, a .glb in
 #      GLTFLoader and a VRM avatar following a WAV (screenshots in target/browser/).
 #   8. the runtime compiled to WebAssembly: the static page in chromium (parity of both shipped bundles,
 #      a perturbed weight, the microphone, a WAV vs native tract; report in target/browser-wasm/);
@@ -57,6 +58,18 @@ if command -v cargo-nextest >/dev/null 2>&1; then
 else
   cargo test --workspace --release --no-fail-fast
 fi
+
+stage "bindings: the C example and the C# P/Invoke declarations vs the CLI"
+# the C library was built by the workspace build above (target/release/liblivegesture_c.{a,so})
+scripts/build_c_example.sh --prebuilt
+# Debian's mono compiles and runs the C# P/Invoke declarations of docs/c.md (bindings/tests/test_csharp.py)
+if ! command -v mcs >/dev/null 2>&1 || ! command -v mono >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ]; then _sudo=""; else _sudo="sudo"; fi
+  $_sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $_sudo apt-get install -y -qq mono-mcs >/dev/null
+fi
+# (bindings/tests/test_python.py needs the Python module, not yet built here: docs/python.md)
+LIVEGESTURE_BIN="$PWD/target/release/livegesture" "$LIVEGESTURE_PY" -m pytest -q \
+  bindings/tests/test_c_example.py bindings/tests/test_csharp.py
 
 stage "serve and BVH: independent Python/JS clients vs generate, BVH read back by the bvh package"
 "$LIVEGESTURE_VENV/bin/pip" install -q websockets==15.0.1 bvh==0.3

@@ -13,6 +13,8 @@
 //!   family's implementation) and the families ([`model::livegesture`], [`model::diffsheg`]);
 //! - [`diffusion`]: DiffSHEG's sampler settings and noise schedule (read from the manifest, used by
 //!   the model);
+//! - [`generate`]: the whole-input path (`livegesture generate` and every binding's `generate`) and
+//!   [`generate::PcmStream`], a stream fed with PCM at any sample rate (the bindings' streams);
 //! - [`audio`]: WAV and raw PCM input, converted to 16 kHz mono, and [`audio::AudioSpan`] (how many
 //!   frames cover an input);
 //! - [`compare`]: the one NaN-safe comparison of two tensors against a scaled bound (docs/parity.md),
@@ -41,6 +43,7 @@ pub mod bvh;
 pub mod compare;
 pub mod diffusion;
 pub mod frontend;
+pub mod generate;
 pub mod model;
 pub mod output;
 #[cfg(feature = "parity")]

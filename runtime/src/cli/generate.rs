@@ -10,10 +10,11 @@
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use livegesture::audio::WavStream;
+use livegesture::generate;
 use livegesture::model::livegesture::FormChoice;
 use livegesture::output::{FrameSink, NpzFrameWriter};
 
@@ -110,27 +111,15 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
     };
     let mut writer = NpzFrameWriter::new(&a.output);
     let input = a.input.display().to_string();
-    while let Some(chunk) = wav.next_chunk()? {
-        let frames = stream.push_audio(&chunk).with_context(|| {
-            format!(
-                "{input}: generating motion at {:.2} s",
-                stream.samples_received() as f64 / 16000.0
-            )
-        })?;
-        for f in &frames {
+    // the one whole-input path (livegesture::generate), shared with the Python and C bindings
+    let span = generate::stream_wav(stream.as_mut(), &mut wav, &input, &mut |frames, pushed| {
+        for f in frames {
             writer.write_frame(f)?;
         }
-        bar.inc(chunk.len() as u64);
+        bar.set_position(pushed.min(total));
         bar.set_message(format!("{} frames", writer.frames()));
-    }
-    // docs/output.md: the last partial token is completed with silence, frames cut at the audio's end
-    let span = wav.input_span();
-    for f in &stream
-        .finish(span)
-        .with_context(|| format!("{input}: finishing the motion at the end of the audio"))?
-    {
-        writer.write_frame(f)?;
-    }
+        Ok(())
+    })?;
     bar.finish_and_clear();
     // docs/output.md, docs/avatars.md: face expressions stay in the npz
     match format {
