@@ -59,6 +59,7 @@ ROOT = HERE.parent
 sys.path.insert(0, str(ROOT / "python"))
 sys.path.insert(0, str(ROOT / "bench"))
 
+from livegesture.compare import diff  # noqa: E402
 from livegesture.sampling import guide  # noqa: E402
 from ort_python_peer import Chain, Streams, reference, token_mels  # noqa: E402
 
@@ -240,7 +241,7 @@ def graph_reference(sess, spec: dict, ref: dict) -> tuple[dict, dict]:
         for o in spec["outputs"]:
             got = res[o["name"]]
             new[f"step{s}.output.{o['name']}"] = got
-            e = float(np.abs(got.astype(np.float64) - ref[f"step{s}.output.{o['name']}"].astype(np.float64)).max())
+            e = diff(got, ref[f"step{s}.output.{o['name']}"]).max_abs   # NaN-safe: inf when not finite
             err[o["name"]] = max(err.get(o["name"], 0.0), e)
         caches = {c["input"]: res[c["output"]] for c in spec["caches"]}
         if s == n_steps - 1:
@@ -248,7 +249,7 @@ def graph_reference(sess, spec: dict, ref: dict) -> tuple[dict, dict]:
                 got = res[c["output"]]
                 new[f"step{s}.new_cache.{c['name']}"] = got
                 if got.dtype.kind == "f":
-                    e = float(np.abs(got.astype(np.float64) - ref[f"step{s}.new_cache.{c['name']}"].astype(np.float64)).max())
+                    e = diff(got, ref[f"step{s}.new_cache.{c['name']}"]).max_abs
                     err["caches (last step)"] = max(err.get("caches (last step)", 0.0), e)
     return new, err
 
@@ -275,7 +276,7 @@ def rollout(chain: Chain, mels: np.ndarray, seed: int, n: int, forced: np.ndarra
             lf = f32.last_logits
             gq = guide(lq[0], lq[1], chain.guidance) if chain.guided else lq[0].astype(np.float64)
             gf = guide(lf[0], lf[1], f32.guidance) if f32.guided else lf[0].astype(np.float64)
-            logit_err = max(logit_err, float(np.abs(gq - gf).max()))
+            logit_err = max(logit_err, diff(gq, gf).max_abs)
         tokens.append(tok[0])
         frames.append(fr[0])
     out = {"tokens": np.stack(tokens).astype(np.int64)}
@@ -297,7 +298,7 @@ class LoggingChain(Chain):
 
 def build(src: Path, out: Path, precision: str, per_channel: bool, log=print, activations: str = "dynamic") -> dict:
     import onnxruntime as ort
-    from export import export_provenance, file_table, sha256, staged_folder
+    from bundle_writer import export_provenance, file_table, sha256, staged_folder
     if precision not in WEIGHTS:
         raise ValueError(f"--precision {precision}: supported are {', '.join(PRECISIONS)}")
     weights = WEIGHTS[precision]
@@ -380,7 +381,7 @@ def build(src: Path, out: Path, precision: str, per_channel: bool, log=print, ac
                        "DequantizeLinear to f32 in the graph; f32 products (row-independent)"),
             "per_channel": per_channel if not cast else None,
             "activations": "float32" if cast else activations,
-            "source": {"bundle": str(src), "manifest_sha256": sha256(src / "manifest.json"),
+            "source": {"bundle": src.name, "manifest_sha256": sha256(src / "manifest.json"),
                        "config": manifest["model"].get("config_name"),
                        "training": manifest.get("provenance", {}).get("training", "trained checkpoint")},
             "reference": (f"onnxruntime {ort.__version__} (Python, CPU) on the reduced graphs: graph reference vectors "
