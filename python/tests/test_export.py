@@ -291,7 +291,7 @@ def test_export_checks_scale_with_the_magnitude():
     bad[0, 2, 1] += 0.01
     step, err, scale, detail = verify._first_bad_step(bad, off, 1, verify.STEP_VS_OFFLINE)
     assert step == 2 and abs(err - 0.01) < 1e-4 and scale > 39
-    with pytest.raises(ExportCheckError, match=r"graph 'g', output 'o', step 2: .* x scale 39"):
+    with pytest.raises(ExportCheckError, match=r"graph 'g', output 'o', step 2: .* x scale 4\d"):
         verify.fail("g", "o", step, err, verify.STEP_VS_OFFLINE, "torch step-by-step vs offline", scale, detail)
     nan = st.clone()
     nan[1, 4, 0] = float("nan")
