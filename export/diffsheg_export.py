@@ -1,6 +1,6 @@
 """DiffSHEG bundles: ``speech_encoder`` and ``denoiser`` graphs, manifest, reference vectors, seeded FOPPAS
 rollout, export-time checks. Called by export.py (``--family diffsheg`` or a diffsheg checkpoint); the format
-is documented in export/BUNDLE.md, section "DiffSHEG bundles".
+is documented in docs/bundle.md, section "DiffSHEG bundles".
 
 Checks (each failure names the graph, the output, the call and the error; the bundle is not written):
 1. ONNX structure: onnx.checker, opset 17, no If/Loop/Scan, static ranks, batch axis dynamic, the only other
@@ -33,7 +33,7 @@ from bundle_writer import (OPSET, export_provenance, file_table, manifest_head, 
 from verify import ExportCheckError
 
 ORT_VS_TORCH = 1e-5
-ROLLOUT_ORT_BOUND = 1e-3     # normalised motion, whole rollout; see BUNDLE.md for the measured values
+ROLLOUT_ORT_BOUND = 1e-3     # normalised motion, whole rollout; see docs/bundle.md for the measured values
 ROLLOUT_SEED = 1234
 GRAPHS = ("speech_encoder", "denoiser")
 

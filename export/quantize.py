@@ -1,11 +1,11 @@
 #!/usr/bin/env python
 """Derive a reduced-precision bundle from an f32 LiveGesture bundle (issue 15 deliverable 3, docs/bundle.md#forms-and-precision).
 
-    python export/quantize.py --bundle models/default --precision f16 --out /tmp/default-f16
-    python export/quantize.py --bundle models/default --precision int8 --out /tmp/default-int8
-    python export/quantize.py --bundle /tmp/paper-bundle --precision int8 --out /tmp/paper-int8
+    python export/quantize.py --bundle models/default --precision f16 --out target/default-f16
+    python export/quantize.py --bundle models/default --precision int8 --out target/default-int8
+    python export/quantize.py --bundle target/paper-bundle --precision int8 --out target/paper-int8
     # after scripts/eval_bundle.sh on both bundles (same corpus, seeds, backend): the metrics beside f32
-    python export/quantize.py --record-metrics /tmp/default-f16 --metrics-f32 F32/eval.json \
+    python export/quantize.py --record-metrics target/default-f16 --metrics-f32 F32/eval.json \
         --metrics-reduced F16/eval.json --metrics-command "scripts/eval_bundle.sh ..."
 
 `f16` / `bf16` (manifest ``float16`` / ``bfloat16``): weight storage only. Every float32 initializer and

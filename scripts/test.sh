@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The project's test command (README "Test"; .ci/run calls it). Installs what it needs, then runs:
+# The project's test command (README "The two commands"; .ci/run calls it). Installs what it needs, then runs:
 #   1. the Python test suite (PyTorch reference: step == offline, streaming contract, data, training,
 #      metrics, export);
 #   2. fresh exports of the tiny configs of both families (the exporter verifies every graph against torch);
@@ -7,13 +7,17 @@
 #      with the oldest supported and the newest ONNX Runtime (JUnit reports in target/parity/);
 #   4. the Rust tests (runtime numerics, bundles, pipeline, CLI, serve, parity suite incl. its must-fail cases);
 #   5. the serve protocol with independent Python/JS clients, BVH read back with a PyPI reader;
-#   6. the browser page in Debian's chromium with a fake microphone (screenshot in target/browser/).
+#   6. the browser page in Debian's chromium with a fake microphone (screenshot in target/browser/);
+# and first, the docs check (scripts/check_docs.py: relative links in the Markdown resolve).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/env.sh
 
 t0=$SECONDS
 stage() { echo; echo "=== $* ($(( SECONDS - t0 )) s elapsed)"; }
+
+stage "docs: every relative link in the Markdown resolves, no outside-specification reference"
+"$LIVEGESTURE_PY" scripts/check_docs.py
 
 stage "python tests"
 "$LIVEGESTURE_PY" -m pytest -q python/tests

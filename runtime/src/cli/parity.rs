@@ -25,7 +25,7 @@ use super::common::{BackendArg, InputError};
 #[derive(Debug, clap::Args)]
 #[command(
     after_help = "Examples:\n  livegesture parity --bundle models/default\n  \
-    livegesture parity --bundle /tmp/tiny-bundle --backends tract --checks graph,logmel --json parity.json\n  \
+    livegesture parity --bundle target/tiny-bundle --backends tract --checks graph,logmel --json parity.json\n  \
     livegesture parity --bundle new-export --against models/default --junit parity.xml"
 )]
 pub struct Args {

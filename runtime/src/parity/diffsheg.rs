@@ -1,4 +1,4 @@
-//! The parity checks of a DiffSHEG bundle (docs/diffsheg.md + 7; export/BUNDLE.md "DiffSHEG bundles").
+//! The parity checks of a DiffSHEG bundle (docs/diffsheg.md, docs/parity.md; docs/bundle.md "DiffSHEG bundles").
 //!
 //! | check | what | bound |
 //! |---|---|---|

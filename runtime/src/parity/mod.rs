@@ -1,7 +1,7 @@
 //! The parity suite (docs/parity.md): proves that torch, ONNX Runtime and tract agree on a bundle.
 //!
 //! [`run`] checks any bundle against the torch reference vectors that travel with it
-//! (`export/BUNDLE.md`) and against itself:
+//! (`docs/bundle.md`) and against itself:
 //!
 //! | check | what | bound |
 //! |---|---|---|
