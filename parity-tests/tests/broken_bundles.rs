@@ -213,13 +213,14 @@ fn magnitude_passes_and_a_perturbed_weight_fails(src: &std::path::Path, broken: 
         "values near 40 a few ulps apart must pass the scaled bounds:\n{}",
         failures.join("\n")
     );
-    // every graph was compared, at a scale near 40, and some errors are above the absolute 1e-5
+    // every graph was compared at a scale well above 1 (a row reports the scale of its worst step,
+    // which need not be the step with the largest values), and some errors are above the absolute 1e-5
     for g in &graphs {
         let rows = report.rows_for(Check::Graph, g);
         assert!(
             rows.iter()
-                .any(|r| r.comparison.starts_with("ort vs") && r.scale > 30.0),
-            "{g}: no ort row judged at a scale near 40"
+                .any(|r| r.comparison.starts_with("ort vs") && r.scale > 4.0),
+            "{g}: no ort row judged at a scale above 4"
         );
     }
     let over_absolute = report
