@@ -33,7 +33,9 @@ from bundle_writer import (OPSET, export_provenance, file_table, manifest_head, 
 from verify import ExportCheckError
 
 ORT_VS_TORCH = 1e-5
-ROLLOUT_ORT_BOUND = 1e-3     # normalised motion, whole rollout; see docs/bundle.md for the measured values
+# normalised motion, whole rollout, onnxruntime vs torch: the project's rollout frame bound (docs/parity.md), not the
+# former 1e-3; measured on models/diffsheg 6.1e-6 (checks.rollout), on the tiny export 9.5e-7
+ROLLOUT_ORT_BOUND = 1e-4
 ROLLOUT_SEED = 1234
 GRAPHS = ("speech_encoder", "denoiser")
 

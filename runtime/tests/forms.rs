@@ -15,10 +15,10 @@ use std::process::{Command, Output};
 use livegesture::audio::read_wav_16k_mono;
 use livegesture::backend::{self, BackendKind, BackendOptions};
 use livegesture::bundle::Bundle;
-use livegesture::model::livegesture::{FormChoice, Pipeline, StreamOptions, TokenStep};
+use livegesture::model::livegesture::{FormChoice, LiveGestureGraphs, StreamOptions, TokenStep};
 use livegesture::parity::{batch_bound, Check};
 
-fn pipeline(bundle: &Bundle, kind: BackendKind, form: FormChoice) -> Pipeline {
+fn pipeline(bundle: &Bundle, kind: BackendKind, form: FormChoice) -> LiveGestureGraphs {
     if kind == BackendKind::Ort {
         common::require_ort();
     }
@@ -27,7 +27,7 @@ fn pipeline(bundle: &Bundle, kind: BackendKind, form: FormChoice) -> Pipeline {
         ..Default::default()
     })
     .expect("backend");
-    Pipeline::with_form(bundle, be.as_ref(), form).expect("pipeline")
+    LiveGestureGraphs::with_form(bundle, be.as_ref(), form).expect("pipeline")
 }
 
 /// `seconds` of the reference clip (repeated).
@@ -40,7 +40,7 @@ fn audio(bundle: &Bundle, seconds: f64) -> Vec<f32> {
         .collect()
 }
 
-fn run(p: &mut Pipeline, opts: &StreamOptions, audio: &[f32]) -> Vec<TokenStep> {
+fn run(p: &mut LiveGestureGraphs, opts: &StreamOptions, audio: &[f32]) -> Vec<TokenStep> {
     let mut s = p.new_stream(opts).expect("stream");
     let mut out = Vec::new();
     for c in audio.chunks(16000) {
@@ -49,8 +49,9 @@ fn run(p: &mut Pipeline, opts: &StreamOptions, audio: &[f32]) -> Vec<TokenStep> 
     out
 }
 
-/// Identical tokens; frames within `bound` (0: bit-identical).
-fn assert_same(a: &[TokenStep], b: &[TokenStep], bound: f32, what: &str) {
+/// Identical tokens; frames within `bound` (scaled, `livegesture::compare`; 0: bit-identical), `b`
+/// the reference side.
+fn assert_same(a: &[TokenStep], b: &[TokenStep], bound: f64, what: &str) {
     assert_eq!(a.len(), b.len(), "{what}: step counts differ");
     for (x, y) in a.iter().zip(b) {
         assert_eq!(
@@ -58,26 +59,10 @@ fn assert_same(a: &[TokenStep], b: &[TokenStep], bound: f32, what: &str) {
             "{what}: tokens differ at step {}",
             x.token_index
         );
-        for (fx, fy) in x.frames.iter().zip(&y.frames) {
-            assert_eq!(fx.index, fy.index);
-            for (name, u, v) in [
-                ("poses", &fx.poses[..], &fy.poses[..]),
-                ("trans", &fx.trans[..], &fy.trans[..]),
-                ("expressions", &fx.expressions[..], &fy.expressions[..]),
-            ] {
-                let err = u
-                    .iter()
-                    .zip(v.iter())
-                    .map(|(p, q)| (p - q).abs())
-                    .fold(0.0f32, f32::max);
-                assert!(
-                    err <= bound,
-                    "{what}: {name} differ by {err:e} at frame {} (bound {bound:e})",
-                    fx.index
-                );
-            }
-        }
     }
+    let fa: Vec<_> = a.iter().flat_map(|s| s.frames.clone()).collect();
+    let fb: Vec<_> = b.iter().flat_map(|s| s.frames.clone()).collect();
+    common::assert_frames_within(&fa, &fb, bound, what);
 }
 
 #[test]
@@ -107,7 +92,7 @@ fn the_tiny_bundle_carries_every_form() {
         (FormChoice::Attention, "attention"),
         (FormChoice::Auto, lg.default_form("tract")),
     ] {
-        let p = Pipeline::with_form(&bundle, be.as_ref(), choice).unwrap();
+        let p = LiveGestureGraphs::with_form(&bundle, be.as_ref(), choice).unwrap();
         assert_eq!(p.form(), name);
     }
 }
@@ -179,10 +164,36 @@ fn forms_agree(kind: BackendKind) {
             assert_same(
                 std::slice::from_ref(st),
                 std::slice::from_ref(&want),
-                batch_bound(kind) as f32,
+                batch_bound(kind),
                 &format!("{kind} fused batch vs canonical alone, stream {i}"),
             );
         }
+    }
+}
+
+/// The forms' comparison fails when a NaN is on either side (bound 0 included), and passes on the
+/// clean pair.
+#[test]
+fn the_form_comparison_fails_on_nan_either_side() {
+    let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
+    let audio = audio(&bundle, 1.0);
+    let mut p = pipeline(&bundle, BackendKind::Tract, FormChoice::Canonical);
+    let opts = StreamOptions {
+        seed: 7,
+        ..Default::default()
+    };
+    let a = run(&mut p, &opts, &audio);
+    assert!(a.len() >= 3);
+    assert_same(&a, &a, 0.0, "clean");
+    let mut bad = a.clone();
+    bad[2].frames[1].expressions[5] = f32::NAN;
+    for bound in [0.0, 1e-4] {
+        common::assert_check_fails("forms, NaN in got", "non-finite", || {
+            assert_same(&bad, &a, bound, "probe")
+        });
+        common::assert_check_fails("forms, NaN in the reference", "non-finite", || {
+            assert_same(&a, &bad, bound, "probe")
+        });
     }
 }
 
@@ -405,7 +416,7 @@ fn a_bundle_without_the_attention_form_runs_the_canonical_fusion() {
             ..Default::default()
         })
         .unwrap();
-        let e = Pipeline::with_form(&b, be.as_ref(), FormChoice::Attention)
+        let e = LiveGestureGraphs::with_form(&b, be.as_ref(), FormChoice::Attention)
             .err()
             .expect("the attention form is refused");
         let e = format!("{e:#}");

@@ -198,7 +198,7 @@ fn livegesture_rollout(
         ..Default::default()
     };
     let run = |b: &Bundle| -> Result<(Vec<TokenStep>, String)> {
-        let mut p = Pipeline::with_form(b, backend, FormChoice::Auto)?;
+        let mut p = LiveGestureGraphs::with_form(b, backend, FormChoice::Auto)?;
         let form = p.form().to_string();
         Ok((run_stream(&mut p, &opts, &audio, 16000, false)?, form))
     };

@@ -87,16 +87,7 @@ pub(super) fn graph_rows(
     // a graph of another form (docs/bundle.md#forms-and-precision) is checked against the canonical
     // graphs it replaces; every other graph against the torch offline forward. A missing record fails,
     // naming the key it looked for.
-    let is_form_graph = bundle.livegesture().is_ok_and(|lg| {
-        let forms = lg.form_graphs();
-        let in_form = |f: &crate::bundle::livegesture::FormGraphs| {
-            f.experts.contains(&spec.name)
-                || f.decoders.contains(&spec.name)
-                || f.fusion == spec.name
-        };
-        !forms.get("canonical").is_some_and(in_form)
-            && forms.iter().any(|(k, f)| k != "canonical" && in_form(f))
-    });
+    let is_form_graph = is_form_graph(bundle, &spec.name);
     let form_keys = [
         (
             "torch_fused_vs_canonical_max_abs",
@@ -162,11 +153,38 @@ pub(super) fn graph_rows(
         runs.push((*kind, r));
     }
     let outputs = spec.output_names();
+    // a reduced-precision bundle's reference vectors are the f32 bundle's (torch on the f32 weights),
+    // checked with the bound export/quantize.py measured and stated per graph
+    // (docs/bundle.md#forms-and-precision)
+    let reduced_key = "reduced_vs_f32_torch_bound";
+    let reduced = bundle
+        .is_reduced_precision()
+        .then(|| checks[reduced_key].as_f64());
     for (kind, run) in &runs {
-        // a reduced-precision bundle's reference vectors are onnxruntime's on its own graphs (docs/bundle.md#forms-and-precision)
-        let (comparison, bound) = match kind {
-            BackendKind::Ort => (format!("ort vs {}", bundle.reference_name()), ORT_VS_TORCH),
-            BackendKind::Tract => (
+        let (comparison, bound) = match (kind, reduced) {
+            (_, Some(None)) => {
+                rows.push(Row::failed(
+                    Check::Graph,
+                    &spec.name,
+                    format!("{kind} vs f32 torch"),
+                    "(all)",
+                    ORT_VS_TORCH,
+                    format!(
+                        "manifest.json has no checks.{}.{reduced_key}: a reduced-precision bundle states \
+                         its bound against the f32 torch reference vectors (export/quantize.py)",
+                        spec.name
+                    ),
+                ));
+                continue;
+            }
+            (BackendKind::Ort, Some(Some(b))) => ("ort vs f32 torch".to_string(), b),
+            (BackendKind::Tract, Some(Some(b))) => {
+                ("tract vs f32 torch".to_string(), b + TRACT_VS_ORT)
+            }
+            (BackendKind::Ort, None) => {
+                (format!("ort vs {}", bundle.reference_name()), ORT_VS_TORCH)
+            }
+            (BackendKind::Tract, None) => (
                 format!("tract vs {}", bundle.reference_name()),
                 TRACT_VS_TORCH,
             ),
@@ -248,4 +266,21 @@ pub(super) fn graph_rows(
         ));
     }
     Ok(())
+}
+
+/// Whether `name` is a graph of a form other than the canonical one only (`experts_fused`,
+/// `decoders_fused`, `fusion_attention`, ...): its torch figure is the form-vs-canonical one.
+fn is_form_graph(bundle: &Bundle, name: &str) -> bool {
+    let Ok(lg) = bundle.livegesture() else {
+        return false;
+    };
+    let forms = lg.form_graphs();
+    let in_form = |f: &crate::bundle::FormGraphs| {
+        f.experts.iter().chain(&f.decoders).any(|g| g == name) || f.fusion == name
+    };
+    let canonical = forms.get("canonical").is_some_and(in_form);
+    !canonical
+        && forms
+            .iter()
+            .any(|(k, f)| k.as_str() != "canonical" && in_form(f))
 }
