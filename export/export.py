@@ -15,15 +15,8 @@ docs/bundle.md and described by export/manifest.schema.json.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import datetime as _dt
-import hashlib
 import json
-import os
-import shutil
-import subprocess
 import sys
-import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -35,24 +28,26 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent / "python"))
 
-import livegesture  # noqa: E402
 from livegesture import checkpoint as ckpt  # noqa: E402
+from livegesture.compare import diff  # noqa: E402
 from livegesture.frontend import logmel  # noqa: E402
-from livegesture.regions import REGION_NAMES, region_layout  # noqa: E402
+from livegesture.regions import REGION_NAMES  # noqa: E402
 from livegesture.sampling import __doc__ as SAMPLER_DOC  # noqa: E402
 from livegesture.stream import generate_clip  # noqa: E402
 
+from livegesture.forms.decoders_fused import FUSED_DECODERS, check_fused_decoders  # noqa: E402
+from livegesture.forms.experts_fused import FUSED_EXPERTS, check_fused_experts  # noqa: E402
+from livegesture.forms.fusion_attention import ATTENTION_FORM, FUSION_ATTENTION, check_fusion_attention  # noqa: E402
+from livegesture.models.layers import ATTENTION_DOMAIN  # noqa: E402
+
 from graphs import (ATTENTION_OPSET, StepGraph, attention_components, call_step, component, data_io,  # noqa: E402
                     fused_components, random_inputs, to_attention_opset)
-from livegesture.models.fusion_attention import ATTENTION_FORM, FUSION_ATTENTION, check_fusion_attention  # noqa: E402
-from livegesture.models.layers import ATTENTION_DOMAIN  # noqa: E402
-from livegesture.models.fused import FUSED_EXPERTS, check_fused_experts  # noqa: E402
-from livegesture.models.fused_decoders import FUSED_DECODERS, check_fused_decoders  # noqa: E402
+from bundle_writer import (OPSET, SCHEMA_VERSION, absolute_paths, checkpoint_record, export_provenance,  # noqa: E402
+                           file_table, manifest_head, reference_audio, relative_paths, save_stamped, sha256,
+                           staged_folder, write_manifest, write_wav)
 from verify import (ExportCheckError, check_onnx_structure, check_ort_vs_torch, check_step_vs_offline,  # noqa: E402
                     fail)
 
-SCHEMA_VERSION = 1
-OPSET = 17
 REFERENCE_STEPS = 10
 REFERENCE_BATCH = 2
 ROLLOUT_SEED = 1234
@@ -69,68 +64,9 @@ FORMS = ("canonical", "fused", "attention")
 DEFAULT_BACKEND_FORMS = {"ort": "fused", "tract": "attention"}
 
 
-def sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-@contextlib.contextmanager
-def staged_folder(out: Path):
-    """A temporary folder beside ``out`` to write a bundle into; when the block ends without an error it replaces
-    ``out`` (``os.replace``, atomic), and it is removed whatever happens, so no half-written bundle remains."""
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    os.chmod(tmp, 0o755)
-    try:
-        yield tmp
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
-
-
-def manifest_head(family: str, name: str, cfg, model, rates: dict) -> dict:
-    """The manifest's first keys, the same for every family: schema, format, family, model (config and
-    parameter counts per graph component), rates (the frontend's sample rate, fps and token sizes, then the
-    family's own ``rates``), frontend, regions."""
-    f = cfg.frontend
-    return {
-        "schema_version": SCHEMA_VERSION,
-        "format": "livegesture-bundle",
-        "family": family,
-        "model": {"name": name, "config_name": cfg.name, "config": cfg.to_dict(),
-                  "parameters": {g: int(sum(p.numel() for p in c.parameters())) for g, c in model.components().items()}},
-        "rates": {"sample_rate": f.sample_rate, "fps": f.fps, "frames_per_token": f.frames_per_token,
-                  "mel_frames_per_token": f.mel_frames_per_token, **rates},
-        "frontend": f.to_dict(),
-        "regions": region_layout(),
-    }
-
-
 def cache_entries(comp) -> list[dict]:
     return [{"name": s.name, "input": f"cache.{s.name}", "output": f"new_cache.{s.name}", "dtype": s.dtype,
              "shape": ["batch", *s.shape], "init": s.init} for s in comp.cache_specs()]
-
-
-def save_stamped(m, path: Path, model, graph: str, family: str | None = None):
-    """Saves the exported ONNX model ``m`` to ``path`` with the project's metadata (``livegesture.*``:
-    schema version, the family when given, graph, component class, config, package version; in that order)
-    and producer name."""
-    import onnx
-    meta = {"livegesture.schema_version": str(SCHEMA_VERSION)}
-    if family is not None:
-        meta["livegesture.family"] = family
-    meta.update({"livegesture.graph": graph, "livegesture.component": type(component(model, graph)).__name__,
-                 "livegesture.config": model.cfg.name, "livegesture.version": livegesture.__version__})
-    for k, v in meta.items():
-        p = m.metadata_props.add()
-        p.key, p.value = k, v
-    m.producer_name = "livegesture-export"
-    onnx.save(m, str(path))
 
 
 def export_graph(model, graph: str, path: Path):
@@ -157,7 +93,7 @@ def export_graph(model, graph: str, path: Path):
     if got_in != names_in:
         raise ExportCheckError(f"graph '{graph}': exported inputs {got_in} differ from {names_in} "
                                "(an input the step does not use was dropped)")
-    save_stamped(m, path, model, graph)
+    save_stamped(m, path, model, graph, component_name=type(component(model, graph)).__name__)
 
 
 @torch.no_grad()
@@ -185,62 +121,6 @@ def graph_reference(model, graph: str, seed: int) -> dict[str, np.ndarray]:
     return out
 
 
-def reference_audio(path: str | None, seconds: float) -> tuple[np.ndarray, str]:
-    """The reference speech clip (16 kHz mono float32) and a description of where it came from."""
-    if path:
-        from scipy.io import wavfile
-        from scipy.signal import resample_poly
-        sr, x = wavfile.read(path)
-        x = x.astype(np.float32) / (32768.0 if x.dtype == np.int16 else 1.0)
-        if x.ndim == 2:
-            x = x.mean(1)
-        if sr != 16000:
-            g = np.gcd(sr, 16000)
-            x = resample_poly(x, 16000 // g, sr // g).astype(np.float32)
-        return x, f"file {Path(path).name}"
-    # no clip given: a deterministic speech-like signal (harmonics with a syllabic envelope)
-    rng = np.random.RandomState(0)
-    t = np.arange(int(16000 * seconds)) / 16000
-    env = np.clip(np.sin(2 * np.pi * 2.3 * t), 0, None) * (0.6 + 0.4 * np.sin(2 * np.pi * 0.31 * t))
-    f0 = 140 + 40 * np.sin(2 * np.pi * 0.5 * t)
-    x = env * np.sin(2 * np.pi * np.cumsum(f0) / 16000) + 0.02 * rng.randn(len(t))
-    desc = "synthetic harmonic signal with a syllabic envelope (no --reference-wav given)"
-    reps = int(np.ceil(seconds * 16000 / max(len(x), 1)))
-    x = np.tile(x, reps)[: int(seconds * 16000)]
-    return (0.5 * x / (np.abs(x).max() + 1e-9)).astype(np.float32), desc
-
-
-def write_wav(path: Path, x: np.ndarray):
-    from scipy.io import wavfile
-    wavfile.write(str(path), 16000, np.clip(np.round(x * 32767), -32768, 32767).astype(np.int16))
-
-
-def git_commit() -> str:
-    try:
-        return subprocess.check_output(["git", "-C", str(HERE), "rev-parse", "HEAD"], text=True,
-                                       stderr=subprocess.DEVNULL).strip()
-    except Exception:  # noqa: BLE001
-        return "unknown"
-
-
-def file_table(tmp: Path) -> dict:
-    """sha256 and size of every file of a bundle folder (the manifest's ``files``)."""
-    return {str(p.relative_to(tmp)): {"sha256": sha256(p), "bytes": p.stat().st_size}
-            for p in sorted(tmp.rglob("*")) if p.is_file()}
-
-
-def write_manifest(tmp: Path, manifest: dict):
-    with open(tmp / "manifest.json", "w") as f:
-        json.dump(manifest, f, indent=1)
-        f.write("\n")
-
-
-def export_provenance(extra: dict | None = None) -> dict:
-    return {"date": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-            "git_commit": git_commit(), "torch": torch.__version__, "onnx_opset": OPSET,
-            "livegesture": livegesture.__version__, **(extra or {})}
-
-
 def build_bundle(model, out: Path, *, provenance: dict, reference_wav: str | None, ref_seconds: float,
                  rollout_tokens: int, log=print, builder=None, **kw) -> dict:
     """Write the bundle into a temporary folder beside ``out``, then move it into place (atomic).
@@ -258,9 +138,9 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
     (tmp / "reference").mkdir()
     files, graphs, checks = {}, [], {}
 
-    def export_checked(graph, comp, entry: dict) -> float:
+    def export_checked(graph, comp, entry: dict) -> tuple[float, float]:
         """Export one graph, check its structure and ort vs torch, write its reference vectors and its
-        manifest entry (``entry`` adds to it); returns the ort-vs-torch error."""
+        manifest entry (``entry`` adds to it); returns the ort-vs-torch (error, scale) of the worst comparison."""
         path = tmp / f"{graph}.onnx"
         export_graph(model, graph, path)
         check_onnx_structure(str(path), graph, OPSET)
@@ -274,11 +154,13 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
 
     for graph, comp in model.components().items():
         t0 = time.time()
-        e_off = check_step_vs_offline(model, graph)
+        e_off, s_off = check_step_vs_offline(model, graph)
         region = graph.split("_", 1)[1] if "_" in graph and graph != "audio_encoder" else None
-        e_ort = export_checked(graph, comp, {"region": region})
-        checks[graph] = {"torch_step_vs_offline_max_abs": e_off, "ort_vs_torch_max_abs": e_ort}
-        log(f"  {graph:<16} step-vs-offline {e_off:.2e}  ort-vs-torch {e_ort:.2e}  ({time.time() - t0:.1f}s)")
+        e_ort, s_ort = export_checked(graph, comp, {"region": region})
+        checks[graph] = {"torch_step_vs_offline_max_abs": e_off, "torch_step_vs_offline_scale": s_off,
+                         "ort_vs_torch_max_abs": e_ort, "ort_vs_torch_scale": s_ort}
+        log(f"  {graph:<16} step-vs-offline {e_off:.2e} (scale {s_off:.3g})  ort-vs-torch {e_ort:.2e} "
+            f"(scale {s_ort:.3g})  ({time.time() - t0:.1f}s)")
 
     # the fused forms (docs/bundle.md#forms-and-precision): checked against the canonical torch steps, then like every graph
     fused_graphs = []
@@ -290,26 +172,31 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
     for graph, comp in (fused_components(model).items() if "fused" in forms else ()):
         t0 = time.time()
         check, n_steps, what = against[graph]
-        e_can, out_name, step = check(model, steps=n_steps)
-        if e_can > FUSED_VS_CANONICAL:
-            fail(graph, out_name, step, e_can, FUSED_VS_CANONICAL, f"torch fused form vs the canonical {what}")
-        e_ort = export_checked(graph, comp, {"region": None, "form": "fused"})
+        e_can, out_name, step, s_can = check(model, steps=n_steps)
+        if not e_can <= FUSED_VS_CANONICAL * s_can:
+            fail(graph, out_name, step, e_can, FUSED_VS_CANONICAL, f"torch fused form vs the canonical {what}", s_can)
+        e_ort, s_ort = export_checked(graph, comp, {"region": None, "form": "fused"})
         fused_graphs.append(graph)
-        checks[graph] = {"torch_fused_vs_canonical_max_abs": e_can, "ort_vs_torch_max_abs": e_ort}
-        log(f"  {graph:<16} fused-vs-canonical {e_can:.2e}  ort-vs-torch {e_ort:.2e}  ({time.time() - t0:.1f}s)")
+        checks[graph] = {"torch_fused_vs_canonical_max_abs": e_can, "torch_fused_vs_canonical_scale": s_can,
+                         "ort_vs_torch_max_abs": e_ort, "ort_vs_torch_scale": s_ort}
+        log(f"  {graph:<16} fused-vs-canonical {e_can:.2e} (scale {s_can:.3g})  ort-vs-torch {e_ort:.2e} "
+            f"(scale {s_ort:.3g})  ({time.time() - t0:.1f}s)")
 
     attention_graphs = []   # after the fused forms: the earlier graphs' reference seeds stay as they were
     for graph, comp in (attention_components(model).items() if ATTENTION_FORM in forms else ()):
         # the attention form's fusion (docs/bundle.md#forms-and-precision): checked against the canonical torch fusion step, then like
         # every graph (its file is opset 23)
         t0 = time.time()
-        e_can, out_name, step = check_fusion_attention(model, steps=max(cfg.fuse_window, cfg.audio_window) + 5)
-        if e_can > FUSED_VS_CANONICAL:
-            fail(graph, out_name, step, e_can, FUSED_VS_CANONICAL, "torch attention form vs the canonical fusion")
-        e_ort = export_checked(graph, comp, {"region": None, "form": ATTENTION_FORM})
+        e_can, out_name, step, s_can = check_fusion_attention(model, steps=max(cfg.fuse_window, cfg.audio_window) + 5)
+        if not e_can <= FUSED_VS_CANONICAL * s_can:
+            fail(graph, out_name, step, e_can, FUSED_VS_CANONICAL, "torch attention form vs the canonical fusion",
+                 s_can)
+        e_ort, s_ort = export_checked(graph, comp, {"region": None, "form": ATTENTION_FORM})
         attention_graphs.append(graph)
-        checks[graph] = {"torch_form_vs_canonical_max_abs": e_can, "ort_vs_torch_max_abs": e_ort}
-        log(f"  {graph:<16} form-vs-canonical {e_can:.2e}  ort-vs-torch {e_ort:.2e}  ({time.time() - t0:.1f}s)")
+        checks[graph] = {"torch_form_vs_canonical_max_abs": e_can, "torch_form_vs_canonical_scale": s_can,
+                         "ort_vs_torch_max_abs": e_ort, "ort_vs_torch_scale": s_ort}
+        log(f"  {graph:<16} form-vs-canonical {e_can:.2e} (scale {s_can:.3g})  ort-vs-torch {e_ort:.2e} "
+            f"(scale {s_ort:.3g})  ({time.time() - t0:.1f}s)")
 
     # reference clip, its log-mel frames, and a whole seeded rollout of >= rollout_tokens steps
     clip, clip_desc = reference_audio(reference_wav, ref_seconds)
@@ -339,11 +226,15 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
             raise ExportCheckError(f"torch rollout, {form} form vs canonical: graphs "
                                    f"{', '.join(map(repr, form_graphs))}, output 'tokens', step {bad}: tokens differ "
                                    f"({form} {rf['tokens'][bad].tolist()}, canonical {ro['tokens'][bad].tolist()})")
-        e_frames = max(float(np.abs(rf[k].astype(np.float64) - ro[k]).max()) for k in
-                       ("poses", "trans", "expressions", "foot_contact"))
-        if e_frames > ROLLOUT_FRAMES:
-            fail(", ".join(form_graphs), "rollout frames", -1, e_frames, ROLLOUT_FRAMES,
-                 f"torch rollout, {form} form vs canonical")
+        # each frame field over the whole rollout, judged at its scale (docs/parity.md)
+        worst = None
+        for k in ("poses", "trans", "expressions", "foot_contact"):
+            d = diff(rf[k], ro[k])
+            if not d.within(ROLLOUT_FRAMES):
+                fail(", ".join(form_graphs), f"rollout {k}", -1, d.max_abs, ROLLOUT_FRAMES,
+                     f"torch rollout, {form} form vs canonical", d.scale, d.describe())
+            worst = d if worst is None else worst.worst(d)
+        e_frames = worst.max_abs
         log(f"  rollout {form:<8} {len(rf['tokens'])} tokens identical, frames max abs {e_frames:.2e} "
             f"({time.time() - t0:.1f}s)")
         return {"rollout_tokens_identical": int(len(ro["tokens"])), "rollout_frames_max_abs": e_frames}
@@ -459,7 +350,9 @@ def main(argv=None):
                   f"{getattr(model, 'family', 'livegesture')} checkpoint", file=sys.stderr)
             return 2
         provenance = dict(getattr(model, "provenance", {}))
-        provenance.setdefault("checkpoint", Path(args.checkpoint).name)
+        trained_as = provenance.pop("checkpoint", None)
+        if trained_as is not None and trained_as != Path(args.checkpoint).name:
+            provenance["checkpoint_when_trained"] = trained_as
     else:
         try:
             model = ckpt.random_model(args.config, args.random_seed, family=args.family or "livegesture")
@@ -474,6 +367,12 @@ def main(argv=None):
         except (OSError, ValueError) as e:
             print(f"export failed: --provenance {args.provenance}: {e}", file=sys.stderr)
             return 2
+    if args.checkpoint:
+        # the checkpoint by file name and content, never by a path of this machine
+        provenance["checkpoint"] = checkpoint_record(Path(args.checkpoint))
+    provenance["export_command"] = " ".join(["python export/export.py", *(sys.argv[1:] if argv is None else argv)])
+    # a bundle names files, never where they were on the machine that trained or exported it
+    provenance = relative_paths(provenance)
     out = Path(args.out).resolve()
     family = getattr(model, "family", "livegesture")
     sampler = {k: v for k, v in (("guidance", args.guidance), ("jumps", args.jumps)) if v is not None}

@@ -14,9 +14,9 @@ from __future__ import annotations
 import torch
 import torch.nn as nn
 
-from livegesture.models.fused import FUSED_EXPERTS, FusedExperts
-from livegesture.models.fused_decoders import FUSED_DECODERS, FusedDecoders
-from livegesture.models.fusion_attention import FUSION_ATTENTION, FusionAttention
+from livegesture.forms.experts_fused import FUSED_EXPERTS, FusedExperts
+from livegesture.forms.decoders_fused import FUSED_DECODERS, FusedDecoders
+from livegesture.forms.fusion_attention import FUSION_ATTENTION, FusionAttention
 from livegesture.models.layers import ATTENTION_DOMAIN
 from livegesture.models.model import LiveGesture
 from livegesture.regions import REGION_NAMES

@@ -310,7 +310,7 @@ def rollout(chain: Chain, mels: np.ndarray, seed: int, n: int, forced: np.ndarra
             lf = f32.last_logits
             gq = guide(lq[0], lq[1], chain.guidance) if chain.guided else lq[0].astype(np.float64)
             gf = guide(lf[0], lf[1], f32.guidance) if f32.guided else lf[0].astype(np.float64)
-            logit_err = max(logit_err, float(np.abs(gq - gf).max()))
+            logit_err = max(logit_err, diff(gq, gf).max_abs)
         tokens.append(tok[0])
         frames.append(fr[0])
     out = {"tokens": np.stack(tokens).astype(np.int64)}
@@ -332,7 +332,7 @@ class LoggingChain(Chain):
 
 def build(src: Path, out: Path, precision: str, per_channel: bool, log=print, activations: str = "dynamic") -> dict:
     import onnxruntime as ort
-    from export import export_provenance, file_table, sha256, staged_folder
+    from bundle_writer import export_provenance, file_table, sha256, staged_folder
     if precision not in WEIGHTS:
         raise ValueError(f"--precision {precision}: supported are {', '.join(PRECISIONS)}")
     weights = WEIGHTS[precision]
@@ -423,7 +423,7 @@ def build(src: Path, out: Path, precision: str, per_channel: bool, log=print, ac
                        "DequantizeLinear to f32 in the graph; f32 products (row-independent)"),
             "per_channel": per_channel if not cast else None,
             "activations": "float32" if cast else activations,
-            "source": {"bundle": str(src), "manifest_sha256": sha256(src / "manifest.json"),
+            "source": {"bundle": src.name, "manifest_sha256": sha256(src / "manifest.json"),
                        "config": manifest["model"].get("config_name"),
                        "training": manifest.get("provenance", {}).get("training", "trained checkpoint")},
             "reference": ("graph reference vectors: the f32 bundle's (torch on the f32 weights), checked with the bound "

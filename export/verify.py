@@ -1,15 +1,21 @@
-"""Export-time checks. Each failure names the graph, the output, the step and the error.
+"""Export-time checks. Each failure names the graph, the output, the step, the error and the scale it was judged at.
 
-1. torch step-by-step vs torch offline causal forward (docs/parity.md: max abs 1e-5), over a sequence
-   longer than every window: catches a step that reads the future or drops a cache update;
+Every bound is docs/parity.md's, scaled by the reference tensor's magnitude: ``max|a - b| <= bound x
+max(1, max|ref|)`` per graph, output and step (:mod:`livegesture.compare`, the one comparison helper; a NaN or
+Inf on either side fails).
+
+1. torch step-by-step vs torch offline causal forward (1e-5 scaled, the offline forward the reference), over a
+   sequence longer than every window: catches a step that reads the future or drops a cache update;
 2. the ONNX graph: onnx.checker, opset >= 17, no If/Loop, static ranks, batch axis dynamic;
-3. onnxruntime vs the torch step over chained steps with batch sizes 1, 2 and 5 (max abs 1e-5).
+3. onnxruntime vs the torch step over chained steps with batch sizes 1, 2 and 5 (1e-5 scaled, torch the
+   reference).
 """
 from __future__ import annotations
 
 import numpy as np
 import torch
 
+from livegesture.compare import diff
 from livegesture.models.model import LiveGesture
 from livegesture.regions import REGION_NAMES
 
@@ -23,24 +29,30 @@ class ExportCheckError(RuntimeError):
     pass
 
 
-def fail(graph, output, step, err, bound, what):
+def fail(graph, output, step, err, bound, what, scale: float = 1.0, detail: str = ""):
     raise ExportCheckError(f"{what}: graph '{graph}', output '{output}', step {step}: max abs error {err:.3g} "
-                           f"exceeds the bound {bound:g}")
+                           f"exceeds the bound {bound:g} x scale {scale:.4g} = {bound * scale:.3g}"
+                           + (f" ({detail})" if detail else ""))
 
 
 def _first_bad_step(a: torch.Tensor, b: torch.Tensor, time_axis: int, bound: float):
-    err = (a - b).abs()
-    per_step = err.transpose(0, time_axis).reshape(err.shape[time_axis], -1).max(dim=1).values
-    bad = (per_step > bound).nonzero()
-    if len(bad):
-        s = int(bad[0])
-        return s, float(per_step[s])
-    return None, float(per_step.max())
+    """The first step along ``time_axis`` whose slice of ``a`` differs from ``b`` (the reference) by more than
+    ``bound`` x its scale, as (step, error, scale, detail); else (None, worst error, its scale, ""), the worst
+    relative to its scale."""
+    worst = (-1.0, 1.0)
+    for s in range(a.shape[time_axis]):
+        d = diff(a.select(time_axis, s), b.select(time_axis, s))
+        if not d.within(bound):
+            return s, d.max_abs, d.scale, d.describe()
+        if worst[0] < 0 or d.scaled_error > worst[0] / worst[1]:
+            worst = (d.max_abs, d.scale)
+    return None, worst[0], worst[1], ""
 
 
 @torch.no_grad()
-def check_step_vs_offline(model: LiveGesture, graph: str, seed: int = 0) -> float:
-    """Returns the max abs error; raises ExportCheckError naming the first failing step."""
+def check_step_vs_offline(model: LiveGesture, graph: str, seed: int = 0) -> tuple[float, float]:
+    """Returns (error, scale) of the worst step relative to its scale; raises ExportCheckError naming the first
+    failing step, its error and scale."""
     cfg = model.cfg
     T = max(cfg.history, cfg.audio_window, cfg.fuse_window) + 5
     g = torch.Generator().manual_seed(seed)
@@ -68,10 +80,10 @@ def check_step_vs_offline(model: LiveGesture, graph: str, seed: int = 0) -> floa
     else:
         off = comp.decode(stack("token")).reshape(B, T, cfg.frontend.frames_per_token, -1)
         name, st = "motion", torch.stack([o["motion"] for o in outs], 1)
-    step, err = _first_bad_step(off, st, 1, STEP_VS_OFFLINE)
+    step, err, scale, detail = _first_bad_step(st, off, 1, STEP_VS_OFFLINE)
     if step is not None:
-        fail(graph, name, step, err, STEP_VS_OFFLINE, "torch step-by-step vs offline causal forward")
-    return err
+        fail(graph, name, step, err, STEP_VS_OFFLINE, "torch step-by-step vs offline causal forward", scale, detail)
+    return err, scale
 
 
 def check_onnx_structure(path: str, graph: str, min_opset: int = 17):
@@ -95,7 +107,9 @@ def check_onnx_structure(path: str, graph: str, min_opset: int = 17):
 
 @torch.no_grad()
 def check_ort_vs_torch(model: LiveGesture, graph: str, path: str, n_steps: int = 8, batches=(1, 2, 5),
-                       seed: int = 0) -> float:
+                       seed: int = 0) -> tuple[float, float]:
+    """onnxruntime vs the torch step; returns (error, scale) of the worst comparison relative to its scale, or
+    raises ExportCheckError naming the first failing graph, output, step, error and scale."""
     import onnxruntime as ort
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = 1
@@ -103,7 +117,7 @@ def check_ort_vs_torch(model: LiveGesture, graph: str, path: str, n_steps: int =
     comp = component(model, graph)
     specs = comp.cache_specs()
     out_names = [o.name for o in sess.get_outputs()]
-    worst = 0.0
+    worst = (0.0, 1.0)   # (error, scale) of the worst comparison relative to its scale
     for B in batches:
         g = torch.Generator().manual_seed(seed + B)
         t_cache = comp.init_cache(B)
@@ -121,9 +135,13 @@ def check_ort_vs_torch(model: LiveGesture, graph: str, path: str, n_steps: int =
                 if got.shape != want.shape:
                     raise ExportCheckError(f"onnxruntime vs torch: graph '{graph}', output '{name}', step {step}, "
                                            f"batch {B}: shape {got.shape}, expected {want.shape}")
-                err = float(np.abs(got.astype(np.float64) - want.astype(np.float64)).max()) if got.size else 0.0
-                if err > ORT_VS_TORCH:
-                    fail(graph, name, step, err, ORT_VS_TORCH, f"onnxruntime vs torch (batch {B})")
-                worst = max(worst, err)
+                if not got.size:
+                    continue
+                d = diff(got, want)
+                if not d.within(ORT_VS_TORCH):
+                    fail(graph, name, step, d.max_abs, ORT_VS_TORCH, f"onnxruntime vs torch (batch {B})", d.scale,
+                         d.describe())
+                if d.scaled_error > worst[0] / worst[1]:
+                    worst = (d.max_abs, d.scale)
             o_cache = {s.name: res[f"new_cache.{s.name}"] for s in specs}   # ORT chains its own caches
     return worst

@@ -3,7 +3,8 @@
 #   1. the Python test suite (PyTorch reference: step == offline, streaming contract, data, training,
 #      metrics, export);
 #   2. fresh exports of the tiny configs of both families (the exporter verifies every graph against torch);
-#   3. the Rust build and the parity checks (torch vs ort vs tract) on that export and on models/default;
+#   3. the Rust build and the parity checks (torch vs ort vs tract) on those exports and on the shipped bundles
+#      with the oldest supported and the newest ONNX Runtime (JUnit reports in target/parity/);
 #   4. the Rust tests (runtime numerics, bundles, pipeline, CLI, serve, parity suite incl. its must-fail cases);
 #   5. the bindings: the C example and C# declarations (mono) against the CLI;
 #   6. the serve protocol with independent Python/JS clients, BVH read back with a PyPI reader;
@@ -43,14 +44,37 @@ cargo fmt --all -- --check
 stage "rust build (release)"
 cargo build --release --workspace --all-targets
 
-stage "parity: fresh tiny export, both backends"
-./target/release/livegesture parity --bundle target/test-bundles/tiny --backends ort,tract
-stage "parity: models/default, both backends"
-./target/release/livegesture parity --bundle models/default --backends ort,tract
-stage "parity: fresh DiffSHEG tiny export, both backends"
-./target/release/livegesture parity --bundle target/test-bundles/diffsheg-tiny --backends ort,tract
-stage "parity: models/diffsheg, both backends"
-./target/release/livegesture parity --bundle models/diffsheg --backends ort,tract
+# every parity run also writes its JUnit report (target/parity/*.xml) for CI systems to read
+mkdir -p target/parity
+ORT_OLDEST="$("$LIVEGESTURE_PY" -c 'import onnxruntime; print(onnxruntime.__version__)')"
+stage "parity: fresh tiny export, both backends (ONNX Runtime $ORT_OLDEST)"
+./target/release/livegesture parity --bundle target/test-bundles/tiny --backends ort,tract \
+  --junit target/parity/tiny.xml
+stage "parity: fresh DiffSHEG tiny export, both backends (ONNX Runtime $ORT_OLDEST)"
+./target/release/livegesture parity --bundle target/test-bundles/diffsheg-tiny --backends ort,tract \
+  --junit target/parity/diffsheg-tiny.xml
+
+# The shipped bundles on the oldest supported ONNX Runtime (the venv's, python/requirements.txt) and the
+# newest on PyPI, installed beside it with `pip install --target` (cached): `parity` prints the version
+# the library reports, which must be the one asked for.
+ORT_NEWEST=1.32.0
+ORT_NEWEST_DIR="$(dirname "$LIVEGESTURE_VENV")/onnxruntime-$ORT_NEWEST"
+if [ ! -f "$ORT_NEWEST_DIR/.complete" ]; then
+  rm -rf "$ORT_NEWEST_DIR"
+  "$LIVEGESTURE_VENV/bin/pip" install -q --no-deps --target "$ORT_NEWEST_DIR" "onnxruntime==$ORT_NEWEST"
+  touch "$ORT_NEWEST_DIR/.complete"
+fi
+ORT_NEWEST_LIB="$(ls "$ORT_NEWEST_DIR"/onnxruntime/capi/libonnxruntime.so.1* | head -n1)"
+for ort in "$ORT_OLDEST:$ORT_DYLIB_PATH" "$ORT_NEWEST:$ORT_NEWEST_LIB"; do
+  version="${ort%%:*}"; lib="${ort#*:}"
+  for bundle in default diffsheg; do
+    stage "parity: models/$bundle, both backends, ONNX Runtime $version"
+    ORT_DYLIB_PATH="$lib" ./target/release/livegesture parity --bundle "models/$bundle" --backends ort,tract \
+      --junit "target/parity/$bundle-ort-$version.xml" | tee target/parity/last.txt
+    grep -q "^runtimes: .*ONNX Runtime $version " target/parity/last.txt || {
+      echo "parity did not run ONNX Runtime $version ($lib)" >&2; exit 1; }
+  done
+done
 
 stage "rust tests"
 if command -v cargo-nextest >/dev/null 2>&1; then

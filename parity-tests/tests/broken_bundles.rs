@@ -170,3 +170,138 @@ fn frozen_cache_update_is_caught() {
         .expect("tract vs ort rollout row");
     assert!(cross.pass, "{}", cross.failure_line());
 }
+
+// ------------------------------------------------------------------ bounds scale with magnitude
+
+/// `tools/break_bundle.py SRC DST --graph all --magnify M --ulps K`: every graph's data outputs
+/// scaled to values near `M`, the reference a few float32 ulps away (see the tool's docs).
+fn magnify(src: &std::path::Path, dst: &std::path::Path, target: f64, ulps: u32) {
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tools")
+        .join("break_bundle.py");
+    let args: Vec<std::ffi::OsString> = vec![
+        src.into(),
+        dst.into(),
+        "--graph".into(),
+        "all".into(),
+        format!("--magnify={target}").into(),
+        format!("--ulps={ulps}").into(),
+    ];
+    let text = livegesture_parity_tests::run_python("tools/break_bundle.py", &script, &args);
+    eprintln!("break_bundle: {}", text.trim());
+}
+
+/// docs/parity.md: every bound scales with the reference tensor's magnitude. Each graph of `src`
+/// (every form it carries) with outputs near 40 and a reference 3 float32 ulps away passes its
+/// graph rows, though the absolute error is above 1e-5 (the absolute bound of before would have
+/// failed it); the same bundle with one weight of `broken` perturbed still fails, naming that graph,
+/// against the reference on both backends, at the scale it was judged at.
+fn magnitude_passes_and_a_perturbed_weight_fails(src: &std::path::Path, broken: &str) {
+    let tmp = tempfile::tempdir().unwrap();
+    let big = tmp.path().join("magnified");
+    magnify(src, &big, 40.0, 3);
+    let report = run_parity(&big, &[Check::Graph]);
+    let graphs: std::collections::BTreeSet<String> = livegesture::bundle::Bundle::load(&big)
+        .unwrap()
+        .graphs()
+        .iter()
+        .map(|g| g.name.clone())
+        .collect();
+    let failures: Vec<String> = report.failures().iter().map(|r| r.failure_line()).collect();
+    assert!(
+        failures.is_empty(),
+        "values near 40 a few ulps apart must pass the scaled bounds:\n{}",
+        failures.join("\n")
+    );
+    // every graph was compared at a scale well above 1 (a row reports the scale of its worst step,
+    // which need not be the step with the largest values), and some errors are above the absolute 1e-5
+    for g in &graphs {
+        let rows = report.rows_for(Check::Graph, g);
+        assert!(
+            rows.iter()
+                .any(|r| r.comparison.starts_with("ort vs") && r.scale > 4.0),
+            "{g}: no ort row judged at a scale above 4"
+        );
+    }
+    let over_absolute = report
+        .rows
+        .iter()
+        .filter(|r| r.comparison.starts_with("ort vs") && r.error > r.bound && r.pass)
+        .count();
+    assert!(
+        over_absolute > 0,
+        "no row had an absolute error above its bound: the test does not exercise the scale"
+    );
+
+    let bad = tmp.path().join("magnified-perturbed");
+    let change = break_bundle(&big, &bad, broken, &Breakage::PerturbWeight { delta: 0.05 });
+    eprintln!("break_bundle: {change}");
+    let report = run_parity(&bad, &[Check::Graph]);
+    let failed: std::collections::BTreeSet<&str> =
+        report.failures().iter().map(|r| r.what.as_str()).collect();
+    assert_eq!(failed, [broken].into_iter().collect(), "graphs that failed");
+    for backend in ["ort", "tract"] {
+        let row = report
+            .rows_for(Check::Graph, broken)
+            .into_iter()
+            .find(|r| r.comparison.starts_with(&format!("{backend} vs ")) && !r.pass)
+            .unwrap_or_else(|| {
+                panic!("{backend}: the perturbed weight in {broken} was not caught")
+            });
+        let line = row.failure_line();
+        for part in [broken, row.output.as_str(), "step", "x scale"] {
+            assert!(line.contains(part), "'{part}' not in: {line}");
+        }
+    }
+}
+
+#[test]
+fn livegesture_every_form_scaled_bound_passes_near_40_and_catches_a_perturbed_weight() {
+    // the tiny export carries every form: canonical, fused (experts_fused, decoders_fused) and
+    // attention (fusion_attention); the perturbed one is the fused eXperts
+    let names: Vec<String> = livegesture::bundle::Bundle::load(tiny_bundle())
+        .unwrap()
+        .graphs()
+        .iter()
+        .map(|g| g.name.clone())
+        .collect();
+    for form_graph in ["experts_fused", "decoders_fused", "fusion_attention"] {
+        assert!(
+            names.iter().any(|n| n == form_graph),
+            "{form_graph} missing"
+        );
+    }
+    magnitude_passes_and_a_perturbed_weight_fails(&tiny_bundle(), "experts_fused");
+}
+
+#[test]
+fn livegesture_canonical_graph_scaled_bound_catches_a_perturbed_weight() {
+    magnitude_passes_and_a_perturbed_weight_fails(&tiny_bundle(), BROKEN);
+}
+
+#[test]
+fn diffsheg_scaled_bound_passes_near_40_and_catches_a_perturbed_weight() {
+    magnitude_passes_and_a_perturbed_weight_fails(
+        &livegesture_parity_tests::diffsheg_tiny_bundle(),
+        "denoiser",
+    );
+}
+
+#[test]
+fn f16_scaled_bound_passes_near_40_and_catches_a_perturbed_weight() {
+    let tmp = tempfile::tempdir().unwrap();
+    let f16 = tmp.path().join("tiny-f16");
+    let script = livegesture_parity_tests::repo_root()
+        .join("export")
+        .join("quantize.py");
+    let args: Vec<std::ffi::OsString> = vec![
+        "--bundle".into(),
+        tiny_bundle().into(),
+        "--precision".into(),
+        "f16".into(),
+        "--out".into(),
+        f16.clone().into(),
+    ];
+    livegesture_parity_tests::run_python("export/quantize.py", &script, &args);
+    magnitude_passes_and_a_perturbed_weight_fails(&f16, "fusion_attention");
+}

@@ -33,10 +33,10 @@ class LiveGestureStream:
 
     ``push(chunk)`` accepts float samples at 16 kHz (any chunk size) and returns the frames completed.
     ``form``: ``canonical`` runs the four region eXperts and SVQ decoders one by one, ``fused`` runs the eXperts as
-    one step on a region axis (:class:`livegesture.models.fused.FusedExperts`) and the decoders as one step with the
-    regions side by side (:class:`livegesture.models.fused_decoders.FusedDecoders`), ``attention`` runs the canonical
+    one step on a region axis (:class:`livegesture.forms.experts_fused.FusedExperts`) and the decoders as one step with the
+    regions side by side (:class:`livegesture.forms.decoders_fused.FusedDecoders`), ``attention`` runs the canonical
     eXperts and decoders and the fusion with its attention cores as the ONNX ``Attention`` op
-    (:class:`livegesture.models.fusion_attention.FusionAttention`), docs/bundle.md#forms-and-precision; all give the same tokens and frames.
+    (:class:`livegesture.forms.fusion_attention.FusionAttention`), docs/bundle.md#forms-and-precision; all give the same tokens and frames.
     """
 
     def __init__(self, model: LiveGesture, seed: int = 0, guidance: float | None = None,
@@ -49,11 +49,11 @@ class LiveGestureStream:
         self.fused = self.fused_decoders = None
         self.fuse = model.fuse
         if form == "attention":
-            from .models.fusion_attention import FusionAttention
+            from .forms.fusion_attention import FusionAttention
             self.fuse = FusionAttention(model.fuse).eval().to(self.device)
         if form == "fused":
-            from .models.fused import FusedExperts
-            from .models.fused_decoders import FusedDecoders
+            from .forms.experts_fused import FusedExperts
+            from .forms.decoders_fused import FusedDecoders
             self.fused = FusedExperts([model.experts[r] for r in REGION_NAMES]).eval().to(self.device)
             self.fused_decoders = FusedDecoders([model.svq[r] for r in REGION_NAMES]).eval().to(self.device)
         self.model = model.eval()

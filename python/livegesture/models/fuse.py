@@ -132,7 +132,7 @@ class XARFuse(nn.Module):
         """hidden {region: (B, d)}, audio (B, audio_dim), cond (B,) -> ({'logits': (B, R, K)}, new_cache).
 
         ``attention_op``: the attention cores as the ONNX ``Attention`` op (``step_op`` of the attention layers;
-        the docs/bundle.md#forms-and-precision form ``attention``, graph ``fusion_attention``, :mod:`livegesture.models.fusion_attention`):
+        the docs/bundle.md#forms-and-precision form ``attention``, graph ``fusion_attention``, :mod:`livegesture.forms.fusion_attention`):
         same inputs, caches and outputs."""
         d, R = self.cfg.d_model, self.R
         B = audio.shape[0]

@@ -49,15 +49,24 @@ def check_shape(component: str, name: str, x: torch.Tensor, expected: tuple, dty
         raise ValueError(f"{component}: input '{name}' has dtype {x.dtype}, expected {dtype}")
 
 
-def worst_difference(worst: tuple[float, str, int], pairs, step: int) -> tuple[float, str, int]:
-    """``worst`` (max abs difference, output name, step) updated with ``pairs`` of (name, a, b) tensors at
-    ``step``: the largest |a - b| in float64, the first one met on ties. Start from ``(-1.0, name, 0)``. Used
-    by the checks of a form against the canonical graphs (``check_fused_experts``, ``check_fused_decoders``,
-    ``check_fusion_attention``)."""
+def worst_difference(worst: tuple, pairs, step: int) -> tuple[float, str, int, float]:
+    """``worst`` (max abs difference, output name, step, scale) updated with ``pairs`` of (name, a, b) tensors at
+    ``step``, each compared by :func:`livegesture.compare.diff` (``b`` the reference): the largest error relative
+    to its scale ``max(1, max|b|)`` (docs/parity.md), the first one met on ties; a NaN or Inf on either side is an
+    infinite error. Start from ``(-1.0, name, 0, 1.0)``. Used by the checks of a form against the canonical graphs
+    (``check_fused_experts``, ``check_fused_decoders``, ``check_fusion_attention``); the caller judges
+    ``err <= bound * scale``."""
+    from ..compare import diff
+    if len(worst) == 3:
+        worst = (*worst, 1.0)
     for name, a, b in pairs:
-        err = float((a.double() - b.double()).abs().max())
-        if err > worst[0]:
-            worst = (err, name, step)
+        d = diff(a, b)
+        if d.problem() is not None:
+            err, scale = float("inf"), 1.0
+        else:
+            err, scale = d.max_abs, d.scale
+        if worst[0] < 0 or err / scale > worst[0] / worst[3]:
+            worst = (err, name, step, scale)
     return worst
 
 

@@ -293,3 +293,31 @@ pub fn create(opts: &BackendOptions) -> Result<Box<dyn Backend>> {
         }
     }
 }
+
+/// The tract version this build runs: `tract-onnx`'s crate version, pinned exactly in
+/// `runtime/Cargo.toml` (a test keeps the two equal).
+pub const TRACT_VERSION: &str = "0.23.9";
+
+/// The inference runtimes this process ran, one line each: `tract <version>` and, once an ort
+/// backend was created, `ONNX Runtime <version, as the loaded library reports it> (<library>)`.
+pub fn runtime_versions() -> Vec<String> {
+    let mut v = vec![format!("tract {TRACT_VERSION}")];
+    #[cfg(feature = "ort")]
+    if let Some((version, path)) = self::ort::loaded_runtime() {
+        v.push(format!("ONNX Runtime {version} ({})", path.display()));
+    }
+    v
+}
+
+#[cfg(test)]
+mod version_tests {
+    #[test]
+    fn tract_version_is_the_pinned_crate_version() {
+        let cargo = include_str!("../../Cargo.toml");
+        let pin = format!("tract-onnx = \"={}\"", super::TRACT_VERSION);
+        assert!(
+            cargo.lines().any(|l| l.trim() == pin),
+            "runtime/Cargo.toml does not pin {pin}: update TRACT_VERSION"
+        );
+    }
+}

@@ -178,6 +178,39 @@ fn environment(explicit: Option<&Path>) -> Result<&'static OrtEnv> {
     Ok(env)
 }
 
+/// The ONNX Runtime this process loaded: its version as the library itself reports it
+/// (`OrtGetApiBase()->GetVersionString()`) and its path; `None` before an ort backend was created
+/// (or when it could not start).
+pub fn loaded_runtime() -> Option<(String, PathBuf)> {
+    let env = ENV.get()?.as_ref().ok()?;
+    let path = CString::new(env.library.as_os_str().as_encoded_bytes()).ok()?;
+    // SAFETY: RTLD_NOLOAD only returns a handle to the library already loaded by `ort::init_from`
+    // (no constructor runs again); OrtGetApiBase and GetVersionString are the C API's stable entry
+    // points, the string is static in the library, which stays loaded for the whole process.
+    unsafe {
+        let handle = libc::dlopen(path.as_ptr(), libc::RTLD_NOW | libc::RTLD_NOLOAD);
+        if handle.is_null() {
+            return None;
+        }
+        let sym = libc::dlsym(handle, c"OrtGetApiBase".as_ptr());
+        let version = if sym.is_null() {
+            None
+        } else {
+            let get: unsafe extern "system" fn() -> *const ort::sys::OrtApiBase =
+                std::mem::transmute(sym);
+            let base = get();
+            if base.is_null() {
+                None
+            } else {
+                let v = ((*base).GetVersionString)();
+                (!v.is_null()).then(|| CStr::from_ptr(v).to_string_lossy().into_owned())
+            }
+        };
+        libc::dlclose(handle);
+        version.map(|v| (v, env.library.clone()))
+    }
+}
+
 fn same_file(a: &Path, b: &Path) -> bool {
     match (a.canonicalize(), b.canonicalize()) {
         (Ok(x), Ok(y)) => x == y,

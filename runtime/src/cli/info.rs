@@ -83,8 +83,29 @@ fn metrics_beside_f32(weights: &str, metrics: &Value) -> Option<String> {
     (!parts.is_empty()).then(|| format!("metrics: {}", parts.join(", ")))
 }
 
+/// The inference runtimes this build runs, with their versions: tract's, and ONNX Runtime's as the
+/// library found (`--ort-lib`, `ORT_DYLIB_PATH`, ...) reports it when it loads.
+fn runtimes(a: &Args) -> Vec<String> {
+    #[cfg(feature = "ort")]
+    {
+        let o = livegesture::backend::BackendOptions {
+            kind: livegesture::backend::BackendKind::Ort,
+            ort_library: a.model.ort_lib.clone(),
+            ..Default::default()
+        };
+        if let Err(e) = livegesture::backend::create(&o) {
+            let mut v = livegesture::backend::runtime_versions();
+            v.push(format!("ONNX Runtime not loaded: {e:#}"));
+            return v;
+        }
+    }
+    let _ = a;
+    livegesture::backend::runtime_versions()
+}
+
 pub fn run(a: Args) -> Result<()> {
     let b: Bundle = a.model.bundle()?;
+    let runtimes = runtimes(&a);
     let m = b.manifest();
     let family = model::describe(&b)?;
     let total_params: u64 = m.model.parameters.values().sum();
@@ -105,7 +126,7 @@ pub fn run(a: Args) -> Result<()> {
             "bundle": b.dir(), "family": m.family, "config": m.model.config_name,
             "parameters": total_params, "graphs": graphs, "frontend": m.frontend,
             "provenance": m.provenance, "checks": m.checks, "precision": b.precision(),
-            "reduced_precision": m.precision,
+            "reduced_precision": m.precision, "runtimes": runtimes,
         });
         if let Value::Object(o) = &mut v {
             o.extend(family.json);
@@ -144,6 +165,7 @@ pub fn run(a: Args) -> Result<()> {
             other => print_value(0, "training     ", other),
         }
     }
+    println!("runtimes      {}", runtimes.join("; "));
     let f = &m.frontend;
     println!(
         "audio         {} Hz mono, log-mel {} bands ({} per token), window {} / FFT {}",

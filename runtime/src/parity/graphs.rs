@@ -74,82 +74,77 @@ pub(super) fn graph_rows(
         refv.get(&format!("step{last}.new_cache.{}", c.name))?;
     }
     // docs/parity.md's first row, torch step-by-step vs torch offline, is measured by the exporter (it needs
-    // the PyTorch model) and recorded in the manifest's `checks`: reported as recorded. Every graph
-    // that is not another form's (docs/bundle.md#forms-and-precision) must have it: a missing figure
-    // fails, naming the key looked for.
-    let form_graph = is_form_graph(bundle, &spec.name);
-    let step_key = "torch_step_vs_offline_max_abs";
-    let step_figure = bundle.manifest().checks[&spec.name][step_key].as_f64();
-    if step_figure.is_none() && !form_graph {
-        rows.push(Row::failed(
-            Check::Graph,
-            &spec.name,
-            "torch step vs offline",
-            "(all, recorded by export)",
-            TORCH_STEP_VS_OFFLINE,
-            format!(
-                "manifest.json has no checks.{}.{step_key}: the exporter's torch step-vs-offline \
-                 figure is missing",
-                spec.name
-            ),
-        ));
-    }
-    if let Some(e) = step_figure {
-        rows.push(Row {
-            check: Check::Graph,
-            what: spec.name.clone(),
-            comparison: "torch step vs offline".into(),
-            output: "(all, recorded by export)".into(),
-            step: None,
-            metric: Metric::MaxAbs,
-            error: e,
-            compared: 0,
-            bound: TORCH_STEP_VS_OFFLINE,
-            pass: e <= TORCH_STEP_VS_OFFLINE,
-            detail: Some("measured by export/export.py, read from manifest.json `checks`".into()),
-        });
-    }
-    // another form's graph (docs/bundle.md#forms-and-precision) against the canonical graphs it replaces, in torch: measured by
-    // the exporter too (`torch_fused_vs_canonical_max_abs` for the fused form's graphs,
-    // `torch_form_vs_canonical_max_abs` for the others)
+    // the PyTorch model) and recorded in the manifest's `checks`: reported as recorded.
     let checks = &bundle.manifest().checks[&spec.name];
-    let recorded = [
+    // the scale the exporter judged a recorded error at (`<key minus _max_abs>_scale`); bundles exported
+    // before the bounds scaled record none: scale 1, the absolute bound they were checked against
+    let scale_of = |key: &str| {
+        checks[format!("{}_scale", key.trim_end_matches("_max_abs"))]
+            .as_f64()
+            .unwrap_or(1.0)
+    };
+    let recorded_detail = "measured by export/export.py, read from manifest.json `checks`";
+    // a graph of another form (docs/bundle.md#forms-and-precision) is checked against the canonical
+    // graphs it replaces; every other graph against the torch offline forward. A missing record fails,
+    // naming the key it looked for.
+    let is_form_graph = is_form_graph(bundle, &spec.name);
+    let form_keys = [
         (
             "torch_fused_vs_canonical_max_abs",
             "torch fused vs canonical",
         ),
         ("torch_form_vs_canonical_max_abs", "torch form vs canonical"),
-    ]
-    .into_iter()
-    .find_map(|(key, what)| checks[key].as_f64().map(|e| (e, what)));
-    if recorded.is_none() && form_graph {
-        rows.push(Row::failed(
-            Check::Graph,
-            &spec.name,
-            "torch form vs canonical",
-            "(all, recorded by export)",
-            TORCH_FUSED_VS_CANONICAL,
-            format!(
-                "manifest.json has no checks.{0}.torch_fused_vs_canonical_max_abs nor \
-                 checks.{0}.torch_form_vs_canonical_max_abs: the exporter's figure for this form is missing",
-                spec.name
-            ),
-        ));
-    }
-    if let Some((e, what)) = recorded {
-        rows.push(Row {
-            check: Check::Graph,
-            what: spec.name.clone(),
-            comparison: what.into(),
-            output: "(all, recorded by export)".into(),
-            step: None,
-            metric: Metric::MaxAbs,
-            error: e,
-            compared: 0,
-            bound: TORCH_FUSED_VS_CANONICAL,
-            pass: e <= TORCH_FUSED_VS_CANONICAL,
-            detail: Some("measured by export/export.py, read from manifest.json `checks`".into()),
-        });
+    ];
+    if !is_form_graph {
+        let key = "torch_step_vs_offline_max_abs";
+        match checks[key].as_f64() {
+            Some(e) => rows.push(Row::recorded(
+                Check::Graph,
+                &spec.name,
+                "torch step vs offline",
+                e,
+                scale_of(key),
+                TORCH_STEP_VS_OFFLINE,
+                recorded_detail.into(),
+            )),
+            None => rows.push(Row::failed(
+                Check::Graph,
+                &spec.name,
+                "torch step vs offline",
+                "(all, recorded by export)",
+                TORCH_STEP_VS_OFFLINE,
+                format!(
+                    "manifest.json has no checks.{}.{key} (the exporter records it for every canonical graph)",
+                    spec.name
+                ),
+            )),
+        }
+    } else {
+        match form_keys
+            .into_iter()
+            .find_map(|(key, what)| checks[key].as_f64().map(|e| (e, key, what)))
+        {
+            Some((e, key, what)) => rows.push(Row::recorded(
+                Check::Graph,
+                &spec.name,
+                what,
+                e,
+                scale_of(key),
+                TORCH_FUSED_VS_CANONICAL,
+                recorded_detail.into(),
+            )),
+            None => rows.push(Row::failed(
+                Check::Graph,
+                &spec.name,
+                "torch form vs canonical",
+                "(all, recorded by export)",
+                TORCH_FUSED_VS_CANONICAL,
+                format!(
+                    "manifest.json has neither checks.{0}.{1} nor checks.{0}.{2} (the exporter records one for every graph of another form)",
+                    spec.name, form_keys[0].0, form_keys[1].0
+                ),
+            )),
+        }
     }
     let mut runs: Vec<(BackendKind, std::result::Result<StepOutputs, String>)> = Vec::new();
     for (kind, be) in backends {

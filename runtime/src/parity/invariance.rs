@@ -145,6 +145,7 @@ pub(super) fn batch_rows(
                     error: differing as f64,
                     compared,
                     bound: 0.0,
+                    scale: 1.0,
                     pass: differing == 0 && compared > 0,
                     detail: first.map(|(i, t, a, b)| {
                         format!(

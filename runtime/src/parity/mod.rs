@@ -44,19 +44,23 @@ use ndarray::{Array2, ArrayD, IxDyn};
 use ndarray_npy::{NpzReader, ReadNpyExt};
 use serde::Serialize;
 
+mod against;
 mod compare;
 mod diffsheg;
 mod divergence;
 mod graphs;
 mod invariance;
+mod junit;
 mod reference;
 mod report;
 mod rollout;
 
+pub use against::{against, AgainstInputError, AgainstOptions};
 pub use divergence::{
     find_divergence, replay_uniform, sampling_margin, Divergence, Margin, RolloutTrace,
     SamplingParams,
 };
+pub use junit::junit_xml;
 pub use reference::{ReferenceRollout, ReferenceVectors};
 pub use report::{Metric, Report, Row};
 
@@ -320,6 +324,7 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
             rows,
             notes,
             divergences,
+            runtimes: backend::runtime_versions(),
             seconds: t0.elapsed().as_secs_f64(),
         });
     }
@@ -362,7 +367,8 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
         let want_mel = Array2::<f32>::read_npy(f).map_err(|e| ref_err(&path, e))?;
         match logmel(&clip, bundle.frontend()) {
             Ok(got) => {
-                let mut m = MaxAbs::default();
+                // docs/parity.md: the frontend's bound is absolute (max abs 1e-4), judged at scale 1
+                let mut m = MaxAbs::absolute();
                 if got.dim() != want_mel.dim() {
                     m.problem = Some(format!(
                         "{} frames x {} mels vs Python {} x {}",
@@ -373,22 +379,16 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
                     ));
                     m.err = f64::INFINITY;
                 } else {
-                    let mpt = bundle.frontend().mel_frames_per_token as usize;
-                    for ((idx, x), y) in got.indexed_iter().zip(want_mel.iter()) {
-                        if (*x as f64 - *y as f64).abs() > m.err
-                            || x.is_nan()
-                            || y.is_nan()
-                            || m.step.is_none()
-                        {
-                            m.add_f32(
-                                (idx.0 / mpt) as u64,
-                                format!("mel frame {}, band {}", idx.0, idx.1),
-                                *x,
-                                *y,
-                            );
-                        } else {
-                            m.count += 1;
-                        }
+                    // one comparison per token's mel frames
+                    let mpt = (bundle.frontend().mel_frames_per_token as usize).max(1);
+                    let bands = got.ncols().max(1);
+                    let (g, w) = (got.as_standard_layout(), want_mel.as_standard_layout());
+                    let (g, w) = (g.as_slice().unwrap_or(&[]), w.as_slice().unwrap_or(&[]));
+                    for (t, (a, b)) in g.chunks(mpt * bands).zip(w.chunks(mpt * bands)).enumerate()
+                    {
+                        m.add_slices(t as u64, a, b, |i| {
+                            format!("mel frame {}, band {}", t * mpt + i / bands, i % bands)
+                        });
                     }
                 }
                 rows.push(Row::max_abs(
@@ -524,6 +524,7 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
         rows,
         notes,
         divergences,
+        runtimes: backend::runtime_versions(),
         seconds: t0.elapsed().as_secs_f64(),
     })
 }
@@ -590,11 +591,78 @@ mod tests {
         m.add(0, &a, &a);
         m.add(3, &a, &b);
         assert_eq!(m.err, 0.5);
+        assert_eq!(m.scale, 2.5);
         assert_eq!(m.step, Some(3));
-        let n = Tensor::f32(vec![1, 2], vec![f32::NAN, 2.0]).unwrap();
-        m.add(5, &n, &a);
-        assert!(m.err.is_infinite());
-        assert_eq!(m.step, Some(5));
+        // a NaN on either side fails, whatever the bound
+        for (x, y) in [(0, 1), (1, 0)] {
+            let n = Tensor::f32(vec![1, 2], vec![f32::NAN, 2.0]).unwrap();
+            let pair = [&n, &a];
+            let mut m = MaxAbs::default();
+            m.add(5, pair[x], pair[y]);
+            assert!(m.err.is_infinite() && !m.within(f64::MAX), "{m:?}");
+            assert_eq!(m.step, Some(5));
+            assert!(m.problem.as_deref().unwrap_or("").contains("non-finite"));
+        }
+        // nothing compared fails
+        assert!(!MaxAbs::default().within(1.0));
+    }
+
+    /// docs/parity.md: bounds scale with the reference's magnitude. Values near 40 a few float32 ulps
+    /// apart pass 1e-5 (absolute error above 1e-5); the same absolute error near 1 fails.
+    #[test]
+    fn the_bound_scales_with_the_reference() {
+        let reference: Vec<f32> = (0..32).map(|i| 39.0 + i as f32 * 0.05).collect();
+        let mut got = reference.clone();
+        let ulp = 40.0f32 * f32::EPSILON / 2.0; // the spacing of float32 values in [32, 64)
+        got[20] += 4.0 * ulp;
+        let (g, r) = (
+            Tensor::f32(vec![32], got.clone()).unwrap(),
+            Tensor::f32(vec![32], reference.clone()).unwrap(),
+        );
+        let mut m = MaxAbs::default();
+        m.add(0, &g, &r);
+        assert!(
+            m.err > 1e-5,
+            "the absolute error must exceed 1e-5: {}",
+            m.err
+        );
+        assert!(m.within(ORT_VS_TORCH), "{m:?}");
+        let row = Row::max_abs(
+            Check::Graph,
+            "g",
+            "ort vs torch",
+            "hidden",
+            &m,
+            ORT_VS_TORCH,
+        );
+        assert!(row.pass && row.scale > 39.0);
+        // the same absolute error on values near 1 fails, and the failure names the scale
+        let small: Vec<f32> = reference.iter().map(|x| x / 40.0).collect();
+        let mut bad = small.clone();
+        bad[7] += m.err as f32;
+        let mut m = MaxAbs::default();
+        m.add(
+            2,
+            &Tensor::f32(vec![32], bad).unwrap(),
+            &Tensor::f32(vec![32], small).unwrap(),
+        );
+        let row = Row::max_abs(
+            Check::Graph,
+            "g",
+            "ort vs torch",
+            "hidden",
+            &m,
+            ORT_VS_TORCH,
+        );
+        assert!(!row.pass);
+        let line = row.failure_line();
+        for part in ["g", "hidden", "step 2", "x scale"] {
+            assert!(line.contains(part), "{line}");
+        }
+        // an absolute comparison ignores the magnitude
+        let mut m = MaxAbs::absolute();
+        m.add(0, &g, &r);
+        assert!(!m.within(ORT_VS_TORCH) && m.scale == 1.0);
     }
 
     /// The margin's draw is the sampler's own (one definition): the same token for every seed,

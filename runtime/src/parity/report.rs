@@ -30,6 +30,10 @@ pub struct Row {
     /// Steps compared (for [`Metric::DifferingSteps`]) or values compared.
     pub compared: u64,
     pub bound: f64,
+    /// The scale the error was judged at (docs/parity.md): `max(1, max|reference|)` of the reference
+    /// tensor at the row's step; the row passes when `error <= bound x scale`. 1 for absolute bounds
+    /// and token counts.
+    pub scale: f64,
     pub pass: bool,
     /// Where the largest error is, why the check could not run, or the divergence report.
     pub detail: Option<String>,
@@ -54,8 +58,8 @@ impl Row {
             error: m.err,
             compared: m.count,
             bound,
-            // a row with nothing compared proves nothing: it fails
-            pass: m.err <= bound && m.problem.is_none() && m.count > 0,
+            scale: m.scale,
+            pass: m.within(bound),
             detail: m
                 .problem
                 .clone()
@@ -64,6 +68,46 @@ impl Row {
                     (m.count == 0)
                         .then(|| "nothing compared (0 values): the check proves nothing".into())
                 }),
+        }
+    }
+
+    /// A row of an error measured elsewhere (by the exporter, recorded in the manifest's `checks`),
+    /// judged at the scale recorded beside it.
+    pub(super) fn recorded(
+        check: Check,
+        what: impl Into<String>,
+        comparison: impl Into<String>,
+        error: f64,
+        scale: f64,
+        bound: f64,
+        detail: String,
+    ) -> Row {
+        let scale = if scale.is_finite() && scale >= 1.0 {
+            scale
+        } else {
+            1.0
+        };
+        Row {
+            check,
+            what: what.into(),
+            comparison: comparison.into(),
+            output: "(all, recorded by export)".into(),
+            step: None,
+            metric: Metric::MaxAbs,
+            error,
+            compared: 1,
+            bound,
+            scale,
+            pass: error.is_finite() && error <= bound * scale,
+            detail: Some(detail),
+        }
+    }
+
+    /// The error relative to the bound it was judged against (`error / (bound x scale)`; <= 1 passes).
+    pub fn relative_error(&self) -> f64 {
+        match self.metric {
+            Metric::MaxAbs => self.error / (self.bound * self.scale).max(f64::MIN_POSITIVE),
+            Metric::DifferingSteps => self.error,
         }
     }
 
@@ -85,6 +129,7 @@ impl Row {
             error: f64::INFINITY,
             compared: 0,
             bound,
+            scale: 1.0,
             pass: false,
             detail: Some(why),
         }
@@ -105,24 +150,40 @@ impl Row {
         match self.metric {
             Metric::MaxAbs if self.bound == 0.0 => "exact".into(),
             Metric::MaxAbs => format!("{:.1e}", self.bound),
-            Metric::DifferingSteps => "0 (identical)".into(),
+            Metric::DifferingSteps if self.bound == 0.0 => "0 (identical)".into(),
+            Metric::DifferingSteps => format!("{} steps", self.bound),
         }
     }
 
-    /// One line naming everything about a failure (graph, output, step, error).
+    /// The scale as the table shows it.
+    pub fn scale_text(&self) -> String {
+        match self.metric {
+            Metric::MaxAbs => super::compare::fmt_scale(self.scale),
+            Metric::DifferingSteps => "-".into(),
+        }
+    }
+
+    /// One line naming everything about a failure (graph, output, step, error, the scale it was
+    /// judged at).
     pub fn failure_line(&self) -> String {
         let step = self
             .step
             .map(|s| format!(" at step {s}"))
             .unwrap_or_default();
+        let judged = match self.metric {
+            Metric::MaxAbs => format!(
+                "error {} > bound {} x scale {}",
+                self.error_text(),
+                self.bound_text(),
+                self.scale_text()
+            ),
+            Metric::DifferingSteps => {
+                format!("error {} > bound {}", self.error_text(), self.bound_text())
+            }
+        };
         let mut s = format!(
-            "FAIL {} {} ({}): output '{}'{step}: error {} > bound {}",
-            self.check,
-            self.what,
-            self.comparison,
-            self.output,
-            self.error_text(),
-            self.bound_text()
+            "FAIL {} {} ({}): output '{}'{step}: {judged}",
+            self.check, self.what, self.comparison, self.output,
         );
         if let Some(d) = &self.detail {
             s.push_str("; ");
@@ -142,6 +203,9 @@ pub struct Report {
     pub notes: Vec<String>,
     /// Token divergences found in rollouts.
     pub divergences: Vec<Divergence>,
+    /// The inference runtimes that ran, with their versions (`tract 0.23.9`, `ONNX Runtime 1.31.1
+    /// (<library>)`).
+    pub runtimes: Vec<String>,
     pub seconds: f64,
 }
 
@@ -186,7 +250,7 @@ impl Report {
                 shown.extend(group.iter().map(|r| (r.clone(), 1)));
             } else {
                 // the worst relative to its bound; the first of equals
-                let rel = |r: &Row| r.error / r.bound.max(f64::MIN_POSITIVE);
+                let rel = |r: &Row| r.relative_error();
                 let worst = group
                     .iter()
                     .fold(None::<&Row>, |w, r| match w {
@@ -207,9 +271,10 @@ impl Report {
             "STEP",
             "MAX ABS ERROR",
             "BOUND",
+            "SCALE",
             "RESULT",
         ];
-        let cells: Vec<[String; 8]> = shown
+        let cells: Vec<[String; 9]> = shown
             .iter()
             .map(|(r, n)| {
                 let output = if *n > 1 {
@@ -225,6 +290,7 @@ impl Report {
                     r.step.map(|s| s.to_string()).unwrap_or_else(|| "-".into()),
                     r.error_text(),
                     r.bound_text(),
+                    r.scale_text(),
                     if r.pass { "PASS" } else { "FAIL" }.to_string(),
                 ]
             })
@@ -258,6 +324,9 @@ impl Report {
     /// A human summary: notes, divergences, failures and the verdict.
     pub fn summary(&self) -> String {
         let mut s = String::new();
+        if !self.runtimes.is_empty() {
+            s.push_str(&format!("runtimes: {}\n", self.runtimes.join("; ")));
+        }
         for n in &self.notes {
             s.push_str(&format!("note: {n}\n"));
         }
@@ -322,7 +391,7 @@ mod tests {
         assert!(!t.pass, "an empty token comparison passed: {t:?}");
         // the same rows with something compared pass
         let mut m = MaxAbs::default();
-        m.add_f32(0, "x".into(), 1.0, 1.0);
+        m.add_slices(0, &[1.0], &[1.0], |_| "x".into());
         assert!(Row::max_abs(Check::Graph, "g", "ort vs torch", "out", &m, 1e-5).pass);
         assert!(token_row(Check::Rollout, "r", "c", &[vec![1]], &[vec![1]], None).pass);
     }

@@ -47,29 +47,33 @@ pub(super) fn frame_rows_steps(
     for (k, name) in FRAME_FIELDS.iter().enumerate() {
         let mut m = MaxAbs::default();
         for (label, got, want) in pairs {
+            // one comparison per token step: the step's frames of this field, judged at their scale
             for (a, b) in got.iter().zip(want.iter()) {
-                for (fa, fb) in a.frames.iter().zip(&b.frames) {
-                    for (j, (x, y)) in field(fa, k).iter().zip(field(fb, k)).enumerate() {
-                        if (*x as f64 - *y as f64).abs() > m.err
-                            || x.is_nan()
-                            || y.is_nan()
-                            || m.step.is_none()
-                        {
-                            m.add_f32(
-                                a.token_index,
-                                format!("{label}frame {}, {name}[{j}]", fa.index),
-                                *x,
-                                *y,
-                            );
-                        } else {
-                            m.count += 1;
-                        }
-                    }
-                }
+                let (g, w, at) = step_field(a, b, k);
+                m.add_slices(a.token_index, &g, &w, |i| {
+                    let (f, j) = at[i];
+                    format!("{label}frame {f}, {name}[{j}]")
+                });
             }
         }
         rows.push(Row::max_abs(check, what, comparison, *name, &m, bound));
     }
+}
+
+/// The values of field `k` over the frames of two token steps (frames paired in order), and for each
+/// value its (frame index, position in the field). Frames or values one side lacks make the lengths
+/// differ, which the comparison reports.
+fn step_field(a: &TokenStep, b: &TokenStep, k: usize) -> (Vec<f32>, Vec<f32>, Vec<(u64, usize)>) {
+    let (mut g, mut w, mut at) = (Vec::new(), Vec::new(), Vec::new());
+    for (fa, fb) in a.frames.iter().zip(&b.frames) {
+        g.extend_from_slice(field(fa, k));
+        w.extend_from_slice(field(fb, k));
+        at.extend((0..field(fa, k).len()).map(|j| (fa.index, j)));
+    }
+    if a.frames.len() != b.frames.len() {
+        g.push(f32::NAN);
+    }
+    (g, w, at)
 }
 
 pub(super) fn token_row(
@@ -99,7 +103,8 @@ pub(super) fn token_row(
         error: differing as f64,
         compared: got.len().max(want.len()) as u64,
         bound: 0.0,
-        // no steps at all proves nothing
+        scale: 1.0,
+        // nothing compared proves nothing
         pass: differing == 0 && got.len().max(want.len()) > 0,
         detail: detail.or_else(|| got.is_empty().then(|| "nothing compared (0 steps)".into())),
     }
@@ -331,6 +336,8 @@ pub(super) fn rollout_rows(
             };
             let mut m = MaxAbs::default();
             for st in &run.steps[..n] {
+                // one comparison per token step: its frames of this field vs the reference's rows
+                let (mut g, mut w, mut at) = (Vec::new(), Vec::new(), Vec::new());
                 for fr in &st.frames {
                     let i = fr.index as usize;
                     if i >= want.nrows() {
@@ -340,6 +347,8 @@ pub(super) fn rollout_rows(
                                 want.nrows()
                             )
                         });
+                        m.err = f64::INFINITY;
+                        m.step.get_or_insert(st.token_index);
                         continue;
                     }
                     let row = want.row(i);
@@ -351,19 +360,19 @@ pub(super) fn rollout_rows(
                                 row.len()
                             )
                         });
+                        m.err = f64::INFINITY;
+                        m.step.get_or_insert(st.token_index);
                         continue;
                     }
-                    for (j, (x, y)) in field(fr, k).iter().zip(row.iter()).enumerate() {
-                        if (*x as f64 - *y as f64).abs() > m.err
-                            || x.is_nan()
-                            || y.is_nan()
-                            || m.step.is_none()
-                        {
-                            m.add_f32(st.token_index, format!("frame {i}, {name}[{j}]"), *x, *y);
-                        } else {
-                            m.count += 1;
-                        }
-                    }
+                    g.extend_from_slice(field(fr, k));
+                    w.extend(row.iter().copied());
+                    at.extend((0..row.len()).map(|j| (i, j)));
+                }
+                if !g.is_empty() {
+                    m.add_slices(st.token_index, &g, &w, |x| {
+                        let (i, j) = at[x];
+                        format!("frame {i}, {name}[{j}]")
+                    });
                 }
             }
             let mut row = Row::max_abs(

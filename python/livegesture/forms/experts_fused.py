@@ -30,8 +30,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from .expert import RegionExpert
-from .layers import CacheSpec, PerRegionWeights, check_cache, check_shape, window_bias, worst_difference
+from ..models.expert import RegionExpert
+from ..models.layers import CacheSpec, PerRegionWeights, check_cache, check_shape, window_bias, worst_difference
 
 FUSED_EXPERTS = "experts_fused"
 
@@ -152,7 +152,7 @@ class FusedExperts(PerRegionWeights):
 
 
 @torch.no_grad()
-def check_fused_experts(model, steps: int, batch: int = 2, seed: int = 0) -> tuple[float, str, int]:
+def check_fused_experts(model, steps: int, batch: int = 2, seed: int = 0) -> tuple[float, str, int, float]:
     """Compares :class:`FusedExperts` with the four canonical eXpert steps over ``steps`` chained steps from
     the zero caches with random inputs (BOS first): every region's hidden state and every cache. Returns the
     max abs difference and where it occurred (output name, step)."""
@@ -164,7 +164,7 @@ def check_fused_experts(model, steps: int, batch: int = 2, seed: int = 0) -> tup
     f_cache = fused.init_cache(batch)
     c_caches = [e.init_cache(batch) for e in experts]
     cond = torch.tensor([1.0 if i % 2 == 0 else 0.0 for i in range(batch)])
-    worst = (-1.0, "hidden", 0)
+    worst = (-1.0, "hidden", 0, 1.0)
     for s in range(steps):
         prev = torch.randint(0, cfg.codebook_size, (batch, len(experts)), generator=g)
         if s == 0:

@@ -43,9 +43,9 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from .layers import (CacheSpec, CausalConv1d, PerRegionWeights, check_cache, check_shape, gemm_weight,
+from ..models.layers import (CacheSpec, CausalConv1d, PerRegionWeights, check_cache, check_shape, gemm_weight,
                      worst_difference)
-from .svq import SVQ, upsample2_channels_last
+from ..models.svq import SVQ, upsample2_channels_last
 
 FUSED_DECODERS = "decoders_fused"
 
@@ -174,7 +174,7 @@ class FusedDecoders(PerRegionWeights):
 
 
 @torch.no_grad()
-def check_fused_decoders(model, steps: int, batch: int = 2, seed: int = 0) -> tuple[float, str, int]:
+def check_fused_decoders(model, steps: int, batch: int = 2, seed: int = 0) -> tuple[float, str, int, float]:
     """Compares :class:`FusedDecoders` with the four canonical SVQ decoder steps over ``steps`` chained steps
     from the zero caches with random tokens: every region's motion and every cache. Returns the max abs
     difference and where it occurred (output name, step)."""
@@ -184,7 +184,7 @@ def check_fused_decoders(model, steps: int, batch: int = 2, seed: int = 0) -> tu
     g = torch.Generator().manual_seed(seed)
     f_cache = fused.init_cache(batch)
     c_caches = [s.init_cache(batch) for s in svqs]
-    worst = (-1.0, "motion", 0)
+    worst = (-1.0, "motion", 0, 1.0)
     for s in range(steps):
         tok = torch.randint(0, model.cfg.codebook_size, (batch, len(svqs)), generator=g)
         fo, f_cache = fused.step(tok, f_cache)

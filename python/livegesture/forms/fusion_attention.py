@@ -22,8 +22,8 @@ import torch
 import torch.nn as nn
 
 from ..regions import REGION_NAMES
-from .fuse import XARFuse
-from .layers import CacheSpec, worst_difference
+from ..models.fuse import XARFuse
+from ..models.layers import CacheSpec, worst_difference
 
 FUSION_ATTENTION = "fusion_attention"
 ATTENTION_FORM = "attention"
@@ -51,7 +51,7 @@ class FusionAttention(nn.Module):
 
 
 @torch.no_grad()
-def check_fusion_attention(model, steps: int, batch: int = 2, seed: int = 0) -> tuple[float, str, int]:
+def check_fusion_attention(model, steps: int, batch: int = 2, seed: int = 0) -> tuple[float, str, int, float]:
     """Compares :class:`FusionAttention` with the canonical fusion step over ``steps`` chained steps from the zero
     caches with random inputs: the logits and every cache. Returns the max abs difference and where it occurred
     (output name, step)."""
@@ -61,7 +61,7 @@ def check_fusion_attention(model, steps: int, batch: int = 2, seed: int = 0) -> 
     g = torch.Generator().manual_seed(seed)
     c_cache, a_cache = fuse.init_cache(batch), form.init_cache(batch)
     cond = torch.tensor([1.0 if i % 2 == 0 else 0.0 for i in range(batch)])
-    worst = (-1.0, "logits", 0)
+    worst = (-1.0, "logits", 0, 1.0)
     for s in range(steps):
         hidden = {r: torch.randn(batch, cfg.d_model, generator=g) for r in REGION_NAMES}
         audio = torch.randn(batch, cfg.audio_dim, generator=g)
