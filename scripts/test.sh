@@ -5,7 +5,8 @@
 #   2. fresh exports of the tiny configs of both families (the exporter verifies every graph against torch);
 #   3. the Rust build and the parity checks (torch vs ort vs tract) on that export and on models/default;
 #   4. the Rust tests (runtime numerics, bundles, pipeline, CLI, serve, parity suite incl. its must-fail cases);
-#   5. the serve protocol with independent Python/JS clients, BVH read back with a PyPI reader;
+#   5. the serve protocol with independent Python/JS clients, BVH read back with a PyPI reader, and
+#      a rolling restart of serve replicas behind HAProxy;
 #   6. the browser page in Debian's chromium with a fake microphone (screenshot in target/browser/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -51,6 +52,12 @@ fi
 
 stage "serve and BVH: independent Python/JS clients vs generate, BVH read back by the bvh package"
 "$LIVEGESTURE_VENV/bin/pip" install -q websockets==15.0.1 bvh==0.3
+# replicas behind a load balancer (runtime/tests/py/test_haproxy.py, docs/deploy.md): Debian's haproxy
+if ! command -v haproxy >/dev/null 2>&1 || ! command -v openssl >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ]; then _sudo=""; else _sudo="sudo"; fi
+  $_sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $_sudo apt-get install -y -qq haproxy openssl >/dev/null
+fi
+export LIVEGESTURE_REQUIRE_HAPROXY=1
 LIVEGESTURE_BIN="$PWD/target/release/livegesture" "$LIVEGESTURE_PY" -m pytest -q runtime/tests/py
 
 stage "browser: the served page in Debian's chromium with a fake microphone (playwright-core)"
