@@ -1,6 +1,6 @@
 """DiffSHEG bundles: ``speech_encoder`` and ``denoiser`` graphs, manifest, reference vectors, seeded FOPPAS
 rollout, export-time checks. Called by export.py (``--family diffsheg`` or a diffsheg checkpoint); the format
-is documented in export/BUNDLE.md, section "DiffSHEG bundles".
+is documented in docs/bundle.md, section "DiffSHEG bundles".
 
 Checks (each failure names the graph, the output, the call and the error; the bundle is not written):
 1. ONNX structure: onnx.checker, opset 17, no If/Loop/Scan, static ranks, batch axis dynamic, the only other
@@ -31,7 +31,9 @@ from verify import ExportCheckError
 
 OPSET = 17
 ORT_VS_TORCH = 1e-5
-ROLLOUT_ORT_BOUND = 1e-3     # normalised motion, whole rollout; see BUNDLE.md for the measured values
+# normalised motion, whole rollout, onnxruntime vs torch: the project's rollout frame bound (docs/parity.md), not the
+# former 1e-3; measured on models/diffsheg 6.1e-6 (checks.rollout), on the tiny export 9.5e-7
+ROLLOUT_ORT_BOUND = 1e-4
 ROLLOUT_SEED = 1234
 GRAPHS = ("speech_encoder", "denoiser")
 

@@ -2,15 +2,15 @@
 """Export a LiveGesture checkpoint to a model bundle: stateful step ONNX graphs, manifest.json, reference vectors.
 
     python export/export.py --checkpoint runs/default/final.pt --out models/default
-    python export/export.py --config tiny --random-seed 0 --out /tmp/tiny-bundle          # random weights
-    python export/export.py --config paper --random-seed 0 --out /tmp/paper-bundle --rollout-tokens 16
-    python export/export.py --family diffsheg --config tiny --random-seed 0 --out /tmp/diffsheg-tiny
+    python export/export.py --config tiny --random-seed 0 --out target/tiny-bundle          # random weights
+    python export/export.py --config paper --random-seed 0 --out target/paper-bundle --rollout-tokens 16
+    python export/export.py --family diffsheg --config tiny --random-seed 0 --out target/diffsheg-tiny
     python export/export.py --checkpoint runs/diffsheg/final.pt --out models/diffsheg    # family from the checkpoint
-    python export/export.py --checkpoint runs/diffsheg/final.pt --out /tmp/g3 --guidance 3   # DiffSHEG sampler defaults
+    python export/export.py --checkpoint runs/diffsheg/final.pt --out target/g3 --guidance 3   # DiffSHEG sampler defaults
 
 The bundle is written to a temporary folder beside ``--out`` and moved into place only after every check
 passed (see verify.py): a failed export leaves no half-written bundle. The format is documented in
-export/BUNDLE.md and described by export/manifest.schema.json.
+docs/bundle.md and described by export/manifest.schema.json.
 """
 from __future__ import annotations
 

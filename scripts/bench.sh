@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
 # Runs the whole benchmark matrix (BENCHMARKS.md, issue 7) on one core and writes BENCHMARKS.md's inputs:
-#   bench/results/*.json      raw results (livegesture bench, PyTorch eager loop, FLOPs, roofline)
+#   bench/results/*.json      raw results (livegesture bench, PyTorch eager loop, FLOPs, roofline; not committed)
 #   bench/results/summary.md  the tables (also written into BENCHMARKS.md between its results markers)
 #   docs/bench/*.png          latency distribution, real-time streams per core against N
 #
 #   scripts/bench.sh                       # default bundle + a paper-config bundle with random weights
-#   PAPER_BUNDLE=/tmp/paper-bundle scripts/bench.sh   # reuse an exported paper bundle
+#   PAPER_BUNDLE=target/paper-bundle scripts/bench.sh   # reuse an exported paper bundle
 #   QUICK=1 scripts/bench.sh               # fewer steps (smoke run; not for quoting)
 #
 # Everything is pinned to one CPU (taskset) and single-threaded (ort: 1 intra-op and 1 inter-op thread;
@@ -19,7 +19,7 @@ set +u
 
 RES="${RESULTS:-bench/results}"
 PLOTS="${PLOTS:-docs/bench}"
-PAPER_BUNDLE="${PAPER_BUNDLE:-/tmp/paper-bundle}"
+PAPER_BUNDLE="${PAPER_BUNDLE:-target/paper-bundle}"
 CPU="${BENCH_CPU:-0}"
 AUDIO="models/default/reference/clip.wav"   # 42.5 s of speech; the paper bundle's own clip is 3 s
 mkdir -p "$RES" "$PLOTS"

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The project's test command (README "Test"; .ci/run calls it). Installs what it needs, then runs:
+# The project's test command (README "The two commands"; .ci/run calls it). Installs what it needs, then runs:
 #   1. the Python test suite (PyTorch reference: step == offline, streaming contract, data, training,
 #      metrics, export);
 #   2. fresh exports of the tiny configs of both families (the exporter verifies every graph against torch);
@@ -7,13 +7,20 @@
 #   4. the Rust tests (runtime numerics, bundles, pipeline, CLI, serve, parity suite incl. its must-fail cases);
 #   5. the serve protocol with independent Python/JS clients, BVH read back with a PyPI reader, and
 #      a rolling restart of serve replicas behind HAProxy;
-#   6. the browser page in Debian's chromium with a fake microphone (screenshot in target/browser/).
+#   6. avatars: glTF and BVH of a real recording through the Khronos glTF validator and Blender's
+#      importers (Debian's blender), the VRM retargeting's node tests;
+#   7. the browser page in Debian's chromium with a fake microphone, the skinned figure, a .glb in
+#      GLTFLoader and a VRM avatar following a WAV (screenshots in target/browser/).
+# and first, the docs check (scripts/check_docs.py: relative links in the Markdown resolve).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/env.sh
 
 t0=$SECONDS
 stage() { echo; echo "=== $* ($(( SECONDS - t0 )) s elapsed)"; }
+
+stage "docs: every relative link in the Markdown resolves, no outside-specification reference"
+"$LIVEGESTURE_PY" scripts/check_docs.py
 
 stage "python tests"
 "$LIVEGESTURE_PY" -m pytest -q python/tests
@@ -60,6 +67,31 @@ fi
 export LIVEGESTURE_REQUIRE_HAPROXY=1
 LIVEGESTURE_BIN="$PWD/target/release/livegesture" "$LIVEGESTURE_PY" -m pytest -q runtime/tests/py
 
+stage "avatars: glTF/BVH of a real recording, Khronos glTF validator, Blender imports, retargeting tests"
+# the locked versions (see the browser stage below on why not `npm ci`)
+(cd runtime/web && npm install --no-save --no-audit --no-fund --loglevel=error)
+(cd runtime/web && node --test tests/retarget.test.mjs)
+avatar_out=target/avatar
+mkdir -p "$avatar_out"
+# the first 12 s of the bundle's reference recording, every output format from the same seed
+"$LIVEGESTURE_PY" - "$avatar_out/speech.wav" <<'PY'
+import sys, wave
+with wave.open("models/default/reference/clip.wav", "rb") as r, wave.open(sys.argv[1], "wb") as w:
+    w.setparams(r.getparams())
+    w.writeframes(r.readframes(12 * r.getframerate()))
+PY
+for ext in npz bvh glb gltf; do
+  ./target/release/livegesture generate "$avatar_out/speech.wav" -o "$avatar_out/motion.$ext" \
+    --seed 3 --backend tract --bundle models/default
+done
+node runtime/web/tests/gltf-validate.mjs "$avatar_out/motion.glb" "$avatar_out/motion.gltf"
+if ! command -v blender >/dev/null 2>&1 || ! dpkg -s python3-numpy >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ]; then _sudo=""; else _sudo="sudo"; fi
+  $_sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $_sudo apt-get install -y -qq blender python3-numpy >/dev/null  # the glTF importer needs numpy
+fi
+timeout 300 blender -b --factory-startup --python-exit-code 1 --python runtime/tests/blender/check_import.py -- \
+  "$avatar_out/motion.glb" "$avatar_out/motion.bvh" "$avatar_out/motion.npz"
+
 stage "browser: the served page in Debian's chromium with a fake microphone (playwright-core)"
 if ! command -v chromium >/dev/null 2>&1; then
   if [ "$(id -u)" = 0 ]; then _sudo=""; else _sudo="sudo"; fi
@@ -68,7 +100,7 @@ fi
 # the locked versions; not `npm ci`, which refuses the lock file where the registry serves only this
 # platform's build of rollup (404 for the other @rollup/rollup-* packages, as on this project's machine)
 (cd runtime/web && npm install --no-save --no-audit --no-fund --loglevel=error)
-timeout 300 node runtime/web/tests/browser.mjs target/release/livegesture models/default \
+timeout 600 node runtime/web/tests/browser.mjs target/release/livegesture models/default \
   models/default/reference/clip.wav target/browser
 
 stage "all tests passed"

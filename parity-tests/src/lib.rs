@@ -28,6 +28,8 @@ use std::process::Command;
 use std::sync::OnceLock;
 
 use livegesture::bundle::Bundle;
+use livegesture::compare::{self, Diff};
+use livegesture::output::Frame;
 use livegesture::parity::{self, Check, ParityOptions, ReferenceRollout, Report};
 
 /// Environment variable naming the tiny test bundle exported by the test command.
@@ -249,13 +251,147 @@ pub fn require_ort() {
     }
 }
 
-/// Max abs difference of two equally shaped arrays.
-pub fn max_abs(a: &ndarray::Array2<f32>, b: &ndarray::Array2<f32>) -> f32 {
-    assert_eq!(a.dim(), b.dim(), "shapes differ");
-    a.iter()
-        .zip(b.iter())
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max)
+/// The comparison of two equally shaped arrays ([`livegesture::compare`]: NaN or Inf on either side,
+/// nothing compared, or different shapes fail; the bound scales with the reference's magnitude).
+pub fn diff2(got: &ndarray::Array2<f32>, want: &ndarray::Array2<f32>) -> Diff {
+    if got.dim() != want.dim() {
+        // compare::diff reports the length mismatch; same lengths but other shapes: no common prefix
+        let d = compare::diff(&[], &[0.0]);
+        return Diff {
+            length_mismatch: Some((got.len(), want.len())),
+            ..d
+        };
+    }
+    let g: Vec<f32> = got.iter().copied().collect();
+    let w: Vec<f32> = want.iter().copied().collect();
+    compare::diff(&g, &w)
+}
+
+/// The frame fields compared by [`frames_diff`].
+pub const FRAME_FIELDS: [&str; 4] = ["poses", "trans", "expressions", "foot_contact"];
+
+fn frame_field(f: &Frame, k: usize) -> &[f32] {
+    match k {
+        0 => &f.poses,
+        1 => &f.trans,
+        2 => &f.expressions,
+        _ => &f.foot_contact,
+    }
+}
+
+/// Compares two frame sequences field by field ([`FRAME_FIELDS`], each field over all frames one
+/// tensor, [`livegesture::compare`]); returns the worst field's name and [`Diff`]. Different frame
+/// counts or frame indices are a failure of the comparison (a length mismatch), never a pass.
+pub fn frames_diff(got: &[Frame], want: &[Frame]) -> (&'static str, Diff) {
+    if got.len() != want.len() || got.iter().zip(want).any(|(a, b)| a.index != b.index) {
+        let d = compare::diff(&[], &[0.0]);
+        return (
+            "frame count or index",
+            Diff {
+                length_mismatch: Some((got.len(), want.len())),
+                ..d
+            },
+        );
+    }
+    let all: Vec<(&'static str, Diff)> = FRAME_FIELDS
+        .iter()
+        .enumerate()
+        .map(|(k, name)| {
+            let g: Vec<f32> = got
+                .iter()
+                .flat_map(|f| frame_field(f, k))
+                .copied()
+                .collect();
+            let w: Vec<f32> = want
+                .iter()
+                .flat_map(|f| frame_field(f, k))
+                .copied()
+                .collect();
+            (*name, compare::diff(&g, &w))
+        })
+        .collect();
+    // a comparison no bound passes first, then the largest scaled error
+    all.into_iter()
+        .max_by(|(_, a), (_, b)| {
+            (a.problem().is_some(), a.scaled_error())
+                .partial_cmp(&(b.problem().is_some(), b.scaled_error()))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        })
+        .expect("four fields")
+}
+
+/// Asserts two frame sequences agree within `bound` (scaled, [`frames_diff`]); the message names
+/// `what`, the field, the error, the scale and where.
+#[track_caller]
+pub fn assert_frames_within(got: &[Frame], want: &[Frame], bound: f64, what: &str) {
+    let (field, d) = frames_diff(got, want);
+    if let Err(e) = d.ensure(bound, format!("{what}: {field}")) {
+        panic!("{e}");
+    }
+}
+
+/// Which side of a comparison a test poisons.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Side {
+    Got,
+    Reference,
+}
+
+/// A copy of `frames` with one value (frame `at`, `poses[7]`) set to NaN: the output a test feeds a
+/// comparison to show it fails on NaN.
+pub fn with_nan(frames: &[Frame], at: usize) -> Vec<Frame> {
+    let mut v = frames.to_vec();
+    let i = at.min(v.len().saturating_sub(1));
+    if let Some(f) = v.get_mut(i) {
+        f.poses[7] = f32::NAN;
+    }
+    v
+}
+
+/// Runs `check` and asserts it panics with a message containing `expect` (a deliberately broken
+/// input must fail the check, naming why).
+#[track_caller]
+pub fn assert_check_fails(what: &str, expect: &str, check: impl FnOnce()) {
+    let prev = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(check));
+    std::panic::set_hook(prev);
+    match r {
+        Ok(()) => panic!("{what}: the check passed a broken input"),
+        Err(e) => {
+            let msg = e
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| e.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_default();
+            assert!(
+                msg.contains(expect),
+                "{what}: the check failed, but its message does not say '{expect}': {msg}"
+            );
+        }
+    }
+}
+
+/// Shows that `check(got, want)` fails when either side holds a NaN (and passes on the clean pair):
+/// the frame comparison of a test cannot count a NaN as agreement.
+#[track_caller]
+pub fn assert_nan_fails_either_side(
+    what: &str,
+    got: &[Frame],
+    want: &[Frame],
+    check: impl Fn(&[Frame], &[Frame]),
+) {
+    check(got, want);
+    let at = got.len() / 2;
+    for side in [Side::Got, Side::Reference] {
+        let (g, w) = match side {
+            Side::Got => (with_nan(got, at), want.to_vec()),
+            Side::Reference => (got.to_vec(), with_nan(want, at)),
+        };
+        assert_check_fails(&format!("{what}, NaN in {side:?}"), "non-finite", || {
+            check(&g, &w)
+        });
+    }
 }
 
 /// How `tools/break_bundle.py` breaks the copy.
@@ -287,6 +423,38 @@ pub fn break_bundle(src: &Path, dst: &Path, graph: &str, how: &Breakage) -> serd
     let text = run_python("tools/break_bundle.py", &script, &args);
     serde_json::from_str(text.trim())
         .unwrap_or_else(|e| panic!("break_bundle.py printed no JSON ({e}): {text}"))
+}
+
+/// Copies `src` to `dst` with one reference value or manifest figure changed by
+/// `tools/edit_reference.py <args>` (manifest sha256 rewritten so the copy loads); returns the
+/// script's JSON description of the change.
+pub fn edit_reference(src: &Path, dst: &Path, args: &[&str]) -> serde_json::Value {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tools")
+        .join("edit_reference.py");
+    let mut a: Vec<OsString> = vec![src.into(), dst.into()];
+    a.extend(args.iter().map(OsString::from));
+    let text = run_python("tools/edit_reference.py", &script, &a);
+    serde_json::from_str(text.trim())
+        .unwrap_or_else(|e| panic!("edit_reference.py printed no JSON ({e}): {text}"))
+}
+
+/// Runs the parity suite on `dir` with `backends` and `checks`, quietly (progress to stderr).
+pub fn run_parity_on(
+    dir: &Path,
+    backends: &[livegesture::backend::BackendKind],
+    checks: &[Check],
+) -> Report {
+    let opts = ParityOptions {
+        backends: backends.to_vec(),
+        checks: checks.to_vec(),
+        ..Default::default()
+    };
+    let mut log = |m: &str| eprintln!("parity: {m}");
+    let report = parity::run(dir, &opts, &mut log)
+        .unwrap_or_else(|e| panic!("parity could not run on {}: {e:#}", dir.display()));
+    eprintln!("{}\n{}", report.table(false), report.summary());
+    report
 }
 
 /// Runs the parity suite on `dir` with both backends and the given checks (all when empty),

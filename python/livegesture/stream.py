@@ -15,26 +15,17 @@ Guidance is disabled (a single conditional branch, no unconditional stream) when
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import torch
 
+from .frames import Frame, frames_to_arrays
 from .frontend import StreamingLogMel
 from .models.model import LiveGesture
 from .motion import features_to_motion
 from .regions import FPS, FRAMES_PER_TOKEN, REGION_NAMES
 from .sampling import SplitMix64, sample_token
 
-
-@dataclass
-class Frame:
-    index: int
-    time_s: float
-    poses: np.ndarray        # (165,)
-    trans: np.ndarray        # (3,)
-    expressions: np.ndarray  # (100,)
-    foot_contact: np.ndarray  # (4,)
+__all__ = ["Frame", "LiveGestureStream", "frames_to_arrays", "generate_clip"]
 
 
 class LiveGestureStream:
@@ -53,16 +44,18 @@ class LiveGestureStream:
         if form not in ("canonical", "fused", "attention"):
             raise ValueError(f"form must be 'canonical', 'fused' or 'attention', got {form!r}")
         self.form = form
+        # the model's device (CPU or a GPU): every tensor of the loop is made there, results come back as numpy
+        self.device = next(model.parameters()).device
         self.fused = self.fused_decoders = None
         self.fuse = model.fuse
         if form == "attention":
             from .models.fusion_attention import FusionAttention
-            self.fuse = FusionAttention(model.fuse).eval()
+            self.fuse = FusionAttention(model.fuse).eval().to(self.device)
         if form == "fused":
             from .models.fused import FusedExperts
             from .models.fused_decoders import FusedDecoders
-            self.fused = FusedExperts([model.experts[r] for r in REGION_NAMES]).eval()
-            self.fused_decoders = FusedDecoders([model.svq[r] for r in REGION_NAMES]).eval()
+            self.fused = FusedExperts([model.experts[r] for r in REGION_NAMES]).eval().to(self.device)
+            self.fused_decoders = FusedDecoders([model.svq[r] for r in REGION_NAMES]).eval().to(self.device)
         self.model = model.eval()
         cfg = model.cfg
         self.cfg = cfg
@@ -77,18 +70,18 @@ class LiveGestureStream:
         return self.gamma != 1.0
 
     def reset(self):
-        m, B = self.model, (2 if self.guided else 1)
+        m, B, dev = self.model, (2 if self.guided else 1), self.device
         self.frontend = StreamingLogMel(self.cfg.frontend)
-        self.cache = {"audio_encoder": m.audio_encoder.init_cache(1), "fusion": m.fuse.init_cache(B)}
+        self.cache = {"audio_encoder": m.audio_encoder.init_cache(1, dev), "fusion": m.fuse.init_cache(B, dev)}
         for r in REGION_NAMES:
             if self.fused is None:
-                self.cache[f"expert_{r}"] = m.experts[r].init_cache(B)
+                self.cache[f"expert_{r}"] = m.experts[r].init_cache(B, dev)
             if self.fused_decoders is None:
-                self.cache[f"decoder_{r}"] = m.svq[r].init_cache(1)
+                self.cache[f"decoder_{r}"] = m.svq[r].init_cache(1, dev)
         if self.fused is not None:
-            self.cache["experts_fused"] = self.fused.init_cache(B)
+            self.cache["experts_fused"] = self.fused.init_cache(B, dev)
         if self.fused_decoders is not None:
-            self.cache["decoders_fused"] = self.fused_decoders.init_cache(1)
+            self.cache["decoders_fused"] = self.fused_decoders.init_cache(1, dev)
         self.prev = {r: self.cfg.bos_token for r in REGION_NAMES}
         self.rng = SplitMix64(self.seed)
         self.t = 0
@@ -106,24 +99,24 @@ class LiveGestureStream:
         """The first half of :meth:`step_token`: the audio encoder, the eXperts and the fusion on one token's mel
         frames (their caches advanced). Returns the eXperts' hidden states {region: (B, d_model)} and the
         fusion's logits (B, R, K) (B = 2 with guidance: the conditional row first)."""
-        m = self.model
+        m, dev = self.model, self.device
         B = 2 if self.guided else 1
         out, self.cache["audio_encoder"] = m.audio_encoder.step(
-            torch.as_tensor(mel, dtype=torch.float32)[None], self.cache["audio_encoder"])
+            torch.as_tensor(mel, dtype=torch.float32, device=dev)[None], self.cache["audio_encoder"])
         audio = out["audio"].expand(B, -1)
-        cond = torch.tensor([1.0, 0.0][:B])
+        cond = torch.tensor([1.0, 0.0][:B], device=dev)
         hidden = {}
         if self.fused is not None:
-            prev = torch.tensor([[self.prev[r] for r in REGION_NAMES]] * B, dtype=torch.int64)
+            prev = torch.tensor([[self.prev[r] for r in REGION_NAMES]] * B, dtype=torch.int64, device=dev)
             o, self.cache["experts_fused"] = self.fused.step(prev, audio, cond, self.cache["experts_fused"])
             hidden = {r: o["hidden"][:, i] for i, r in enumerate(REGION_NAMES)}
         else:
             for r in REGION_NAMES:
-                prev = torch.full((B,), self.prev[r], dtype=torch.int64)
+                prev = torch.full((B,), self.prev[r], dtype=torch.int64, device=dev)
                 o, self.cache[f"expert_{r}"] = m.experts[r].step(prev, audio, cond, self.cache[f"expert_{r}"])
                 hidden[r] = o["hidden"]
         o, self.cache["fusion"] = self.fuse.step(hidden, audio, cond, self.cache["fusion"])
-        return hidden, o["logits"].numpy()               # (B, R, K)
+        return hidden, o["logits"].cpu().numpy()         # (B, R, K)
 
     @torch.no_grad()
     def emit(self, logits: np.ndarray) -> list[Frame]:
@@ -137,14 +130,15 @@ class LiveGestureStream:
                                      self.gamma, self.temperature, self.top_k)
         feats = {}
         if self.fused_decoders is not None:
-            tok = torch.tensor([[tokens[r] for r in REGION_NAMES]], dtype=torch.int64)
+            tok = torch.tensor([[tokens[r] for r in REGION_NAMES]], dtype=torch.int64, device=self.device)
             o, self.cache["decoders_fused"] = self.fused_decoders.step(tok, self.cache["decoders_fused"])
             for r, f in zip(REGION_NAMES, self.fused_decoders.split_motion(o["motion"])):
-                feats[r] = f[0].numpy()
+                feats[r] = f[0].cpu().numpy()
         else:
             for r in REGION_NAMES:
-                o, self.cache[f"decoder_{r}"] = m.svq[r].step(torch.tensor([tokens[r]]), self.cache[f"decoder_{r}"])
-                feats[r] = o["motion"][0].numpy()
+                o, self.cache[f"decoder_{r}"] = m.svq[r].step(torch.tensor([tokens[r]], device=self.device),
+                                                              self.cache[f"decoder_{r}"])
+                feats[r] = o["motion"][0].cpu().numpy()
         self.prev = tokens
         self.tokens.append(tokens)
         motion = features_to_motion(feats)
@@ -180,15 +174,6 @@ class LiveGestureStream:
         if needed > produced:
             frames = self.push(np.zeros(cfg.token_end(needed - 1) - self.frontend.n_samples, np.float32))
         return [f for f in frames if f.index < total]
-
-
-def frames_to_arrays(frames: list[Frame]) -> dict[str, np.ndarray]:
-    if not frames:
-        return {"poses": np.zeros((0, 165), np.float32), "trans": np.zeros((0, 3), np.float32),
-                "expressions": np.zeros((0, 100), np.float32), "foot_contact": np.zeros((0, 4), np.float32)}
-    return {"poses": np.stack([f.poses for f in frames]), "trans": np.stack([f.trans for f in frames]),
-            "expressions": np.stack([f.expressions for f in frames]),
-            "foot_contact": np.stack([f.foot_contact for f in frames])}
 
 
 def generate_clip(model: LiveGesture, audio_16k: np.ndarray, seed: int = 0, guidance: float | None = None,

@@ -24,12 +24,16 @@ motion tokenizer (svq1/svq2) and trains the experts and fuse stages further (giv
 
 ``OUT/final.pt`` is the finished checkpoint (``livegesture.checkpoint.load``); ``OUT/train_log.jsonl`` holds
 every logged loss. Runs on CPU or one GPU (``--device``), and data-parallel over several processes with
-``torchrun --nproc_per_node N -m livegesture.train ...`` (gradients and EMA statistics are all-reduced).
+``torchrun --nproc_per_node N -m livegesture.train ...`` (gradients and EMA statistics are all-reduced; on
+CUDA one GPU per process, ``cuda:LOCAL_RANK``, NCCL; on CPU gloo). On a GPU (``livegesture.trainkit``):
+batches are drawn ahead on a background thread into pinned memory (``--prefetch``, default 4; the same
+batches as drawn inline), bf16 autocast with float32 weights (``--amp bf16|off``, default bf16; the
+codebook stage svq2 stays float32), ``--compile`` for ``torch.compile``, and the loss is read back only at
+logging steps. ``python -m livegesture.bench_train`` measures the rates.
 """
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -45,10 +49,11 @@ from tqdm import tqdm
 
 from . import checkpoint as ckpt
 from .config import get_config
-from .data.beat2 import get_corpus
 from .data.features import NormStats
 from .models.model import LiveGesture
 from .regions import REGION_NAMES
+from .trainkit import (Logger, LossTrack, Prefetcher, RunOptions, TrainData, all_reduce_mean_,  # noqa: F401
+                       dist_info, finish_distributed, init_distributed, log_values, sync_grads, to_device)
 
 STAGES = ("svq1", "svq2", "experts", "fuse")
 
@@ -96,132 +101,45 @@ class TrainConfig:
         return TrainConfig()
 
 
-# ----------------------------------------------------------------------------- distributed helpers
-
-def dist_info():
-    if dist.is_available() and dist.is_initialized():
-        return dist.get_rank(), dist.get_world_size()
-    return 0, 1
-
-
-def all_reduce_mean_(tensors):
-    rank, world = dist_info()
-    if world == 1:
-        return
-    for t in tensors:
-        dist.all_reduce(t, op=dist.ReduceOp.SUM)
-        t.div_(world)
-
-
-def sync_grads(params):
-    all_reduce_mean_([p.grad for p in params if p.grad is not None])
-
-
-# ----------------------------------------------------------------------------- data
-
-class TrainData:
-    """Training clips in memory: normalised region features, log-mel frames, tokens (after svq2)."""
-
-    def __init__(self, root, cfg, speakers, split="train", stats=None, augment=0, seed=0):
-        # ``root``: one corpus folder, or a list of them (a mix: the ``split`` clips of every corpus, windows
-        # drawn in proportion to clip length across all of them)
-        roots = [root] if isinstance(root, (str, os.PathLike)) else list(root)
-        if not roots:
-            raise SystemExit("no training corpus given")
-        self.clips, self.clip_corpus = [], []
-        for r in roots:
-            corpus = get_corpus(r, cfg.frontend)
-            ids = corpus.ids(split, speakers)
-            if not ids:
-                raise SystemExit(f"{r}: no clip in split {split!r} for speakers {speakers}")
-            clips = corpus.clips(ids, progress=dist_info()[0] == 0)
-            self.clips += clips
-            self.clip_corpus += [corpus] * len(clips)
-        self.corpus = self.clip_corpus[0]
-        if stats is None:
-            if len(roots) == 1:
-                stats = self.corpus.stats(split, speakers)
-            else:
-                from .data.features import RunningStats
-                rs = RunningStats()
-                for c in self.clips:
-                    rs.update(c.features)
-                stats = rs.finish()
-                stats.source = f"{', '.join(Path(r).name for r in roots)}: split={split!r} clips={len(self.clips)}"
-        self.stats = stats
-        self.feats = [self.stats.normalize(c.features) for c in self.clips]
-        self.mel = [c.mel for c in self.clips]
-        self.n_tok = np.array([c.n_tokens for c in self.clips])
-        self.tokens = None
-        # audio augmentation: ``augment`` channel-degraded copies of every clip's audio (noise, reverb, band
-        # limits, codecs, gain, pitch; livegesture.data.augment), drawn once at load time; each training
-        # window reads the clean mel or one of the copies, at random. Motion targets are unchanged (every
-        # effect keeps the length and timing).
-        self.mel_variants = [[m] for m in self.mel]
-        if augment:
-            from .data.augment import augment as augment_wave
-            from .frontend import logmel
-            from .regions import frame_start_sample
-            fcfg = cfg.frontend
-            for ci, c in enumerate(tqdm(self.clips, desc=f"augmenting x{augment}", disable=dist_info()[0] != 0)):
-                x = self.clip_corpus[ci].audio(c.id)[:frame_start_sample(c.n_frames, fcfg.sample_rate, fcfg.fps)]
-                for v in range(augment):
-                    y = augment_wave(x, fcfg.sample_rate, np.random.default_rng([seed, ci, v]))
-                    self.mel_variants[ci].append(logmel(y, fcfg))
-        all_mel = np.concatenate([m for ms in self.mel_variants for m in ms])
-        self.mel_mean = all_mel.mean(0)
-        self.mel_std = np.maximum(all_mel.std(0), 1e-3)
-
-    def _pick(self, rng, n_tokens, batch):
-        ok = np.nonzero(self.n_tok >= n_tokens)[0]
-        if len(ok) == 0:
-            raise SystemExit(f"no training clip is {n_tokens} tokens long")
-        w = self.n_tok[ok] - n_tokens + 1
-        ci = rng.choice(ok, size=batch, p=w / w.sum())
-        return [(c, int(rng.integers(0, self.n_tok[c] - n_tokens + 1))) for c in ci]
-
-    def svq_batch(self, rng, region, frames, batch, device):
-        picks = self._pick(rng, frames // 4, batch)
-        x = np.stack([self.feats[c][region][4 * s:4 * s + frames] for c, s in picks])
-        return torch.from_numpy(x).to(device)
-
-    def ar_batch(self, rng, n_tokens, batch, device):
-        picks = self._pick(rng, n_tokens, batch)
-        if len(self.mel_variants[0]) > 1:
-            v = rng.integers(0, len(self.mel_variants[0]), size=len(picks))
-            mel = np.stack([self.mel_variants[c][k][8 * s:8 * (s + n_tokens)] for (c, s), k in zip(picks, v)])
-        else:
-            mel = np.stack([self.mel[c][8 * s:8 * (s + n_tokens)] for c, s in picks])
-        tok = np.stack([self.tokens[c][s:s + n_tokens] for c, s in picks])       # (B, N, R)
-        return torch.from_numpy(mel).to(device), torch.from_numpy(tok).long().to(device)
-
-
 # ----------------------------------------------------------------------------- stages
-
-class Logger:
-    def __init__(self, out: Path):
-        self.path = out / "train_log.jsonl"
-        self.rank = dist_info()[0]
-
-    def log(self, **kv):
-        if self.rank == 0:
-            with open(self.path, "a") as f:
-                f.write(json.dumps(kv) + "\n")
-
 
 def cosine_ramp(step, total, top):
     """0 at the start, ``top`` at the end, cosine-shaped."""
     return top * 0.5 * (1 - math.cos(math.pi * min(step / max(total, 1), 1.0)))
 
 
-def run_stage(name, model, params, total, step_fn, tcfg, out: Path, logger, device, state_fn=None):
-    """Generic loop: Adam, gradient clipping, periodic resumable saves, tqdm progress with the loss."""
+class StageStep:
+    """One stage's training step, in two halves: ``sample(step, rng)`` draws the batch on the host (numpy
+    arrays; every numpy random number of the step, in order; no torch random numbers) and
+    ``compute(step, batch)`` runs the model on the device batch and returns ``(loss, parts)``.
+    ``step_fn(step, rng)`` does both (tests). ``amp``: the stage may run under bf16 autocast."""
+
+    def __init__(self, sample, compute, device, amp: bool = True):
+        self.sample, self.compute, self.device, self.amp = sample, compute, device, amp
+
+    def __call__(self, step, rng):
+        return self.compute(step, to_device(self.sample(step, rng), self.device))
+
+
+def run_stage(name, model, params, total, step_fn, tcfg, out: Path, logger, device, state_fn=None,
+              opts: RunOptions | None = None, step_hook=None):
+    """Generic loop: Adam, gradient clipping, periodic resumable saves, tqdm progress with the loss.
+
+    ``opts`` (:class:`livegesture.trainkit.RunOptions`, default: those of ``device``): batches prepared
+    ahead on a background thread, pinned and copied asynchronously, bf16 autocast on CUDA, ``torch.compile``.
+    The loss is read back from the device only at logging steps. ``state_fn(step, None)`` runs after each
+    optimiser step (the numpy generator belongs to the batch sampler). ``step_hook(step)`` (benchmarks) runs
+    after each step."""
     rank, world = dist_info()
-    opt = torch.optim.Adam(params, lr=tcfg.lr_svq if name.startswith("svq") else tcfg.lr_ar)
+    opts = opts or RunOptions.for_device(str(device))
+    cuda = opts.cuda
+    lr = tcfg.lr_svq if name.startswith("svq") else tcfg.lr_ar
+    # on CUDA the fused Adam kernel (one launch for all parameters); on CPU the default implementation
+    opt = torch.optim.Adam(params, lr=lr, **({"fused": True} if cuda and torch.cuda.is_available() else {}))
     resume = out / f"{name}.resume.pt"
     start = 0
     if resume.exists():
-        st = torch.load(resume, map_location=device, weights_only=False)
+        st = torch.load(resume, map_location="cpu", weights_only=False)
         model.load_state_dict(st["model"])
         opt.load_state_dict(st["opt"])
         start = st["step"]
@@ -229,42 +147,75 @@ def run_stage(name, model, params, total, step_fn, tcfg, out: Path, logger, devi
             print(f"[{name}] resuming at step {start}")
     rng = np.random.default_rng(tcfg.seed * 1000 + STAGES.index(name) * 100 + rank + start)
     torch.manual_seed(tcfg.seed * 1000 + rank + start)
+    split = isinstance(step_fn, StageStep)
+    if opts.compile:
+        compile_modules(model)
+    if split:
+        compute = step_fn.compute
+        feed = Prefetcher(step_fn.sample, rng, range(start, total), depth=opts.prefetch, pin=opts.pin)
     bar = tqdm(range(start, total), desc=name, disable=rank != 0, dynamic_ncols=True, mininterval=2.0)
-    t0, ema = time.time(), None
-    for step in bar:
-        loss, parts = step_fn(step, rng)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        sync_grads(params)
-        torch.nn.utils.clip_grad_norm_(params, tcfg.grad_clip)
-        opt.step()
-        if state_fn:
-            state_fn(step, rng)
-        v = float(loss.detach())
-        ema = v if ema is None else 0.95 * ema + 0.05 * v
-        bar.set_postfix(loss=f"{ema:.4f}")
-        if step % tcfg.log_every == 0 or step == total - 1:
-            logger.log(stage=name, step=step, loss=v, **{k: float(x.detach()) for k, x in parts.items()},
-                       seconds=round(time.time() - t0, 2))
-        if rank == 0 and ((step + 1) % tcfg.save_every == 0) and step + 1 < total:
-            tmp = resume.with_suffix(".tmp")
-            torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "step": step + 1}, tmp)
-            os.replace(tmp, resume)
+    t0, track = time.time(), LossTrack()
+    try:
+        for step in bar:
+            if split:
+                batch = to_device(feed.get(step), device, non_blocking=cuda)
+                with opts.autocast(step_fn.amp):
+                    loss, parts = compute(step, batch)
+            else:
+                loss, parts = step_fn(step, rng)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            sync_grads(params)
+            torch.nn.utils.clip_grad_norm_(params, tcfg.grad_clip)
+            opt.step()
+            if state_fn:
+                state_fn(step, None if split else rng)
+            track.update(loss)
+            if step_hook:
+                step_hook(step)
+            if step % tcfg.log_every == 0 or step == total - 1:
+                bar.set_postfix(loss=f"{track.value():.4f}")
+                logger.log(stage=name, step=step, loss=float(loss.detach()), **log_values(parts),
+                           seconds=round(time.time() - t0, 2))
+            if rank == 0 and ((step + 1) % tcfg.save_every == 0) and step + 1 < total:
+                tmp = resume.with_suffix(".tmp")
+                torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "step": step + 1}, tmp)
+                os.replace(tmp, resume)
+    finally:
+        if split:
+            feed.close()
     if resume.exists() and rank == 0:
         resume.unlink()
-    return ema
+    return track.value()
+
+
+def compile_modules(model):
+    """``torch.compile`` the modules a training step calls (in place: names and state dict unchanged). The
+    step functions themselves are not compiled: they take host numbers (masking ratios) that change every step."""
+    mods = [model.audio_encoder, model.fuse] + [model.experts[r] for r in REGION_NAMES] + \
+        [m for r in REGION_NAMES for m in (model.svq[r].encoder, model.svq[r].decoder)]
+    # the four regions' modules share their classes' code: room for their shapes (windows, whole clips)
+    cfg = torch._dynamo.config
+    name = "recompile_limit" if hasattr(cfg, "recompile_limit") else "cache_size_limit"
+    setattr(cfg, name, max(64, getattr(cfg, name)))
+    for m in mods:
+        if getattr(m, "_compiled_call_impl", None) is None:
+            m.compile()
 
 
 def stage_svq1(model, data, tcfg, device):
     params = [p for r in REGION_NAMES for m in (model.svq[r].encoder, model.svq[r].decoder) for p in m.parameters()]
 
-    def step_fn(step, rng):
+    def sample(step, rng):
+        return {r: data.svq_window(rng, r, tcfg.svq_window_frames, tcfg.batch_svq) for r in REGION_NAMES}
+
+    def compute(step, batch):
         losses = {}
         for r in REGION_NAMES:
-            x = data.svq_batch(rng, r, tcfg.svq_window_frames, tcfg.batch_svq, device)
-            losses[f"l1_{r}"] = F.l1_loss(model.svq[r].autoencode(x), x)
+            x = batch[r]
+            losses[f"l1_{r}"] = F.l1_loss(model.svq[r].autoencode(x).float(), x)
         return sum(losses.values()), losses
-    return params, step_fn, None
+    return params, StageStep(sample, compute, device), None
 
 
 @torch.no_grad()
@@ -274,9 +225,10 @@ def init_codebooks(model, data, tcfg, device, rng):
         q = model.svq[r].quantizer
         x = data.svq_batch(rng, r, tcfg.svq_window_frames, max(4 * q.K // 4, 64), device)
         e = q.pre(model.svq[r].encoder(x.transpose(1, 2)).transpose(1, 2)).reshape(-1, q.codebook.shape[1])
-        pick = e[torch.randperm(len(e))[:q.K]]
+        pick = e[torch.randperm(len(e))[:q.K].to(e.device)]
         if len(pick) < q.K:
-            pick = torch.cat([pick, pick[torch.randint(len(pick), (q.K - len(pick),))] + 0.01 * torch.randn(q.K - len(pick), pick.shape[1])])
+            extra = torch.randint(len(pick), (q.K - len(pick),)).to(e.device)
+            pick = torch.cat([pick, pick[extra] + 0.01 * torch.randn(q.K - len(pick), pick.shape[1]).to(e.device)])
         q.codebook.copy_(pick)
         q.ema_sum.copy_(pick)
         q.ema_count.fill_(1.0)
@@ -290,16 +242,21 @@ def stage_svq2(model, data, tcfg, device):
     params = [p for r in REGION_NAMES for m in (model.svq[r].quantizer.pre, model.svq[r].head) for p in m.parameters()]
     recent = {}
 
-    def step_fn(step, rng):
+    def sample(step, rng):
+        return {r: data.svq_window(rng, r, tcfg.svq_window_frames, tcfg.batch_svq) for r in REGION_NAMES}
+
+    def compute(step, batch):
         losses = {}
         for r in REGION_NAMES:
             svq = model.svq[r]
-            x = data.svq_batch(rng, r, tcfg.svq_window_frames, tcfg.batch_svq, device)
+            x = batch[r]
             rec, _, cb = svq.quantize(x, update=True)
             losses[f"l1_{r}"] = F.l1_loss(rec, x)
             losses[f"cb_{r}"] = cb
-            with torch.no_grad():
-                recent[r] = svq.quantizer.pre(svq.encoder(x.transpose(1, 2)).transpose(1, 2)).reshape(-1, svq.cfg.code_dim)
+            if (step + 1) % tcfg.dead_code_every == 0:      # only the steps that reset dead codes read them
+                with torch.no_grad():
+                    e = svq.quantizer.pre(svq.encoder(x.transpose(1, 2)).transpose(1, 2))
+                    recent[r] = e.reshape(-1, svq.cfg.code_dim)
         total = sum(v for k, v in losses.items() if k.startswith("l1")) + \
             tcfg.cb_weight * sum(v for k, v in losses.items() if k.startswith("cb"))
         return total, losses
@@ -313,7 +270,8 @@ def stage_svq2(model, data, tcfg, device):
             if dist_info()[1] > 1:
                 for b in (q.codebook, q.ema_sum, q.ema_count, q.usage):
                     dist.broadcast(b, 0)
-    return params, step_fn, state_fn
+    # the codebook (nearest code, EMA statistics) stays in float32: no autocast in this stage
+    return params, StageStep(sample, compute, device, amp=False), state_fn
 
 
 @torch.no_grad()
@@ -337,17 +295,20 @@ def cfg_cond(batch, p, device):
 def stage_experts(model, data, tcfg, device):
     params = list(model.audio_encoder.parameters()) + [p for r in REGION_NAMES for p in model.experts[r].parameters()]
 
-    def step_fn(step, rng):
-        mel, tok = data.ar_batch(rng, tcfg.ar_window_tokens, tcfg.batch_ar, device)
-        audio = model.audio_encoder(mel)
-        cond = cfg_cond(len(tok), tcfg.cfg_dropout, device)
+    def sample(step, rng):
+        return data.ar_window(rng, tcfg.ar_window_tokens, tcfg.batch_ar)
+
+    def compute(step, batch):
+        mel, tok = batch
+        audio = model.audio_encoder(mel).float()   # (bf16 under autocast) the eXperts take float32 inputs
+        cond = cfg_cond(len(tok), tcfg.cfg_dropout, tok.device)
         losses = {}
         for i, r in enumerate(REGION_NAMES):
             _, logits = model.experts[r](teacher_inputs(model, tok[..., i]), audio, cond,
                                          noise_sigma=tcfg.noise_sigma, noise_p=tcfg.noise_p)
-            losses[f"ce_{r}"] = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), tok[..., i].reshape(-1))
+            losses[f"ce_{r}"] = F.cross_entropy(logits.reshape(-1, logits.shape[-1]).float(), tok[..., i].reshape(-1))
         return sum(losses.values()) / len(REGION_NAMES), losses
-    return params, step_fn, None
+    return params, StageStep(sample, compute, device), None
 
 
 def stage_fuse(model, data, tcfg, device):
@@ -362,59 +323,72 @@ def stage_fuse(model, data, tcfg, device):
             p.requires_grad_(True)
     params = [p for p in model.fuse.parameters() if p.requires_grad]
     total_steps = tcfg.steps_fuse
+    R = len(REGION_NAMES)
 
-    def step_fn(step, rng):
-        mel, tok = data.ar_batch(rng, tcfg.ar_window_tokens, tcfg.batch_ar, device)
-        B, T, R = tok.shape
+    def sample(step, rng):
+        # every host random number of the step, in the order the step has always drawn them
+        mel, tok = data.ar_window(rng, tcfg.ar_window_tokens, tcfg.batch_ar)
+        B = len(tok)
+        ratio_top = cosine_ramp(step, total_steps, tcfg.ugm_max_ratio)
+        ratio = float(rng.uniform(0, ratio_top)) if ratio_top > 0 else 0.0
+        p_top = cosine_ramp(step, total_steps, tcfg.region_drop_max)
+        p_drop = float(rng.uniform(0, p_top)) if p_top > 0 else 0.0
+        drop = rng.random(B) < p_drop
+        which = rng.integers(0, R, B)
+        region_mask = drop[:, None] & (np.arange(R)[None, :] == which[:, None])    # (B, R): region dropped
+        return {"mel": mel, "tok": tok, "region_mask": region_mask, "ratio": ratio, "p_drop": p_drop}
+
+    def compute(step, batch):
+        mel, tok = batch["mel"], batch["tok"]
+        ratio, p_drop = batch["ratio"], batch["p_drop"]                   # host numbers
+        B, T, R_ = tok.shape
+        dev = tok.device
         with torch.no_grad():
-            audio = model.audio_encoder(mel)
-            clean_in = torch.stack([teacher_inputs(model, tok[..., i]) for i in range(R)], -1)
+            audio = model.audio_encoder(mel).float()   # module inputs are float32 (bf16 outputs under autocast)
+            clean_in = torch.stack([teacher_inputs(model, tok[..., i]) for i in range(R_)], -1)
             # uncertainty-guided masking: the least confident ground-truth history tokens are masked
-            ratio_top = cosine_ramp(step, total_steps, tcfg.ugm_max_ratio)
-            ratio = float(rng.uniform(0, ratio_top)) if ratio_top > 0 else 0.0
             conf = []
-            ones = torch.ones(B, device=device)
+            ones = torch.ones(B, device=dev)
             for i, r in enumerate(REGION_NAMES):
                 _, lg = model.experts[r](clean_in[..., i], audio, ones)
-                conf.append(lg.log_softmax(-1).gather(-1, tok[..., i:i + 1])[..., 0])
+                conf.append(lg.float().log_softmax(-1).gather(-1, tok[..., i:i + 1])[..., 0])
             conf = torch.stack(conf, -1)                     # confidence of x_t, t = 0..T-1
             corrupted = clean_in.clone()
-            n_mask = int(ratio * T * R)
+            n_mask = int(ratio * T * R_)
             if n_mask > 0:
                 # x_t is the history input at t+1
                 c = conf[:, :-1].reshape(B, -1)
                 idx = c.argsort(dim=1)[:, :n_mask]
-                m = torch.zeros_like(c, dtype=torch.bool).scatter_(1, idx, True).reshape(B, T - 1, R)
-                corrupted[:, 1:][m] = model.cfg.mask_token
-            # random region masking: p_drop ramps up to region_drop_max
-            p_top = cosine_ramp(step, total_steps, tcfg.region_drop_max)
-            p_drop = float(rng.uniform(0, p_top)) if p_top > 0 else 0.0
-            drop = torch.from_numpy(rng.random(B) < p_drop).to(device)
-            which = torch.from_numpy(rng.integers(0, R, B)).to(device)
-            for b in torch.nonzero(drop).flatten().tolist():
-                corrupted[b, 1:, which[b]] = model.cfg.mask_token
-            cond = cfg_cond(B, tcfg.cfg_dropout, device)
-            hidden = torch.stack([model.experts[r](corrupted[..., i], audio, cond)[0]
+                m = torch.zeros_like(c, dtype=torch.bool).scatter_(1, idx, True).reshape(B, T - 1, R_)
+                corrupted[:, 1:] = torch.where(m, model.cfg.mask_token, corrupted[:, 1:])
+            # random region masking: p_drop ramps up to region_drop_max (drawn with the batch)
+            corrupted[:, 1:] = torch.where(batch["region_mask"][:, None, :], model.cfg.mask_token, corrupted[:, 1:])
+            cond = cfg_cond(B, tcfg.cfg_dropout, dev)
+            hidden = torch.stack([model.experts[r](corrupted[..., i], audio, cond)[0].float()
                                   for i, r in enumerate(REGION_NAMES)], 2)   # (B, T, R, d)
-        local = sum(F.cross_entropy(classifiers[i](hidden[:, :, i]).reshape(-1, model.cfg.codebook_size),
-                                    tok[..., i].reshape(-1)) for i in range(R)) / R
+        local = sum(F.cross_entropy(classifiers[i](hidden[:, :, i]).reshape(-1, model.cfg.codebook_size).float(),
+                                    tok[..., i].reshape(-1)) for i in range(R_)) / R_
         logits = model.fuse(hidden, audio, cond)
-        fuse = F.cross_entropy(logits.reshape(-1, model.cfg.codebook_size), tok.reshape(-1))
+        fuse = F.cross_entropy(logits.reshape(-1, model.cfg.codebook_size).float(), tok.reshape(-1))
         loss = tcfg.local_weight * local + tcfg.fuse_weight * fuse
         return loss, {"local": local, "fuse": fuse, "mask_ratio": torch.tensor(ratio), "p_drop": torch.tensor(p_drop)}
-    return params, step_fn, None
+    return params, StageStep(sample, compute, device), None
+
+
+BUILDERS = {"svq1": stage_svq1, "svq2": stage_svq2, "experts": stage_experts, "fuse": stage_fuse}
 
 
 # ----------------------------------------------------------------------------- driver
 
 def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cpu", tcfg: TrainConfig | None = None,
           overrides: dict | None = None, svq_from: str | None = None, init_from: str | None = None,
-          extra_data: tuple | list = ()) -> Path:
+          extra_data: tuple | list = (), opts: RunOptions | None = None) -> Path:
     """Run the stages; returns ``OUT/final.pt``. ``svq_from``: reuse another checkpoint's motion tokenizer and
     train the audio-side stages from scratch. ``init_from``: FINE-TUNE another checkpoint: every weight and
     every normalisation statistic (motion and mel) is taken from it; svq1/svq2 are kept as they are and the
     experts and fuse stages continue from its weights (usually with a lower ``lr_ar``). ``extra_data``: more
-    corpus folders whose train split is mixed with ``data_dir``'s."""
+    corpus folders whose train split is mixed with ``data_dir``'s. ``opts``: how to run (autocast, prefetching,
+    compilation; :class:`livegesture.trainkit.RunOptions`, default: those of ``device``)."""
     if svq_from and init_from:
         raise SystemExit("--svq-from and --init-from exclude each other (--init-from keeps the tokenizer too)")
     cfg = get_config(config)
@@ -464,7 +438,7 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
             **({"extra_data": [str(Path(d).resolve()) for d in extra_data]} if extra_data else {}),
             **({"init_from": str(init_from)} if init_from else {"svq_from": str(svq_from)} if svq_from else {})}
     prev = None
-    builders = {"svq1": stage_svq1, "svq2": stage_svq2, "experts": stage_experts, "fuse": stage_fuse}
+    builders = BUILDERS
     steps = {"svq1": tcfg.steps_svq1, "svq2": tcfg.steps_svq2, "experts": tcfg.steps_experts, "fuse": tcfg.steps_fuse}
     summary = {}
     stage_log = {}   # per stage, from its own checkpoint: a run may train its stages in different sittings
@@ -488,7 +462,7 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
         model.train()
         params, step_fn, state_fn = builders[name](model, data, tcfg, device)
         t0 = time.time()
-        final = run_stage(name, model, params, steps[name], step_fn, tcfg, out, logger, device, state_fn)
+        final = run_stage(name, model, params, steps[name], step_fn, tcfg, out, logger, device, state_fn, opts=opts)
         summary[name] = final
         model.eval()
         for p in model.parameters():
@@ -514,6 +488,20 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
     return out / "final.pt"
 
 
+def add_run_arguments(ap):
+    """The options of how a training runs (both families)."""
+    ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu",
+                    help="cpu or cuda (under torchrun: one GPU per process, cuda:LOCAL_RANK)")
+    ap.add_argument("--amp", choices=("bf16", "off"), default=None,
+                    help="bf16 autocast with float32 weights (default on CUDA: bf16; on CPU: off)")
+    ap.add_argument("--prefetch", type=int, default=None,
+                    help="batches prepared ahead on a background thread, pinned for the GPU (default: 4 on CUDA, "
+                         "0 on CPU; the batches are the same either way)")
+    ap.add_argument("--compile", action="store_true", help="torch.compile the training step's computation")
+    ap.add_argument("--threads", type=int, default=1,
+                    help="CPU threads for torch (default 1: on a shared machine more threads can be far slower)")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--family", default="livegesture", choices=("livegesture", "diffsheg"),
@@ -523,9 +511,7 @@ def main(argv=None):
     ap.add_argument("--out", required=True, help="run folder (checkpoints, train_log.jsonl)")
     ap.add_argument("--stage", default="all", choices=("all",) + STAGES,
                     help="run the stages up to and including this one (earlier finished stages are reused)")
-    ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
-    ap.add_argument("--threads", type=int, default=1,
-                    help="CPU threads for torch (default 1: on a shared machine more threads can be far slower)")
+    add_run_arguments(ap)
     ap.add_argument("--speakers", default="2", help="comma-separated speaker numbers, or 'all' (BEAT2 benchmark: 2)")
     for f in ("steps_svq1", "steps_svq2", "steps_experts", "steps_fuse", "batch_svq", "batch_ar", "seed", "augment"):
         ap.add_argument("--" + f.replace("_", "-"), type=int, default=None)
@@ -544,31 +530,30 @@ def main(argv=None):
     ap.add_argument("--lr", type=float, default=None, help="diffsheg: learning rate")
     ap.add_argument("--max-minutes", type=float, default=None, help="diffsheg: stop after this training time")
     args = ap.parse_args(argv)
-    if args.family == "diffsheg":
-        from .diffsheg.train import train as train_diffsheg
-        if args.threads:
-            torch.set_num_threads(args.threads)
-        ov = {"steps": args.steps, "batch": args.batch, "lr": args.lr, "seed": args.seed, "max_minutes": args.max_minutes,
-              "augment": args.augment,
-              "speakers": None if args.speakers == "all" else tuple(int(s) for s in args.speakers.split(","))}
-        train_diffsheg(args.config, args.data, args.out, device=args.device,
-                       overrides={k: v for k, v in ov.items() if v is not None or k == "speakers"},
-                       init_from=args.init_from)
-        return 0
-    if "WORLD_SIZE" in os.environ and int(os.environ["WORLD_SIZE"]) > 1:
-        dist.init_process_group("nccl" if args.device.startswith("cuda") else "gloo")
-        if args.device.startswith("cuda"):
-            torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", 0)))
     if args.threads:
         torch.set_num_threads(args.threads)
-    ov = {k: getattr(args, k) for k in ("steps_svq1", "steps_svq2", "steps_experts", "steps_fuse", "batch_svq",
-                                          "batch_ar", "seed", "lr_svq", "lr_ar", "augment") if getattr(args, k) is not None}
-    ov["speakers"] = None if args.speakers == "all" else tuple(int(s) for s in args.speakers.split(","))
-    stages = STAGES if args.stage == "all" else STAGES[:STAGES.index(args.stage) + 1]
-    train(args.config, args.data, args.out, stages=stages, device=args.device, overrides=ov, svq_from=args.svq_from,
-          init_from=args.init_from, extra_data=args.extra_data)
-    if dist.is_initialized():
-        dist.destroy_process_group()
+    device = init_distributed(args.device)       # torchrun: one process per GPU (or gloo on CPU)
+    opts = RunOptions.for_device(device, amp=args.amp, prefetch=args.prefetch, compile=args.compile)
+    speakers = None if args.speakers == "all" else tuple(int(s) for s in args.speakers.split(","))
+    try:
+        if args.family == "diffsheg":
+            from .diffsheg.train import train as train_diffsheg
+            ov = {"steps": args.steps, "batch": args.batch, "lr": args.lr, "seed": args.seed,
+                  "max_minutes": args.max_minutes, "augment": args.augment, "speakers": speakers}
+            train_diffsheg(args.config, args.data, args.out, device=device,
+                           overrides={k: v for k, v in ov.items() if v is not None or k == "speakers"},
+                           init_from=args.init_from, opts=opts)
+            return 0
+        ov = {k: getattr(args, k) for k in ("steps_svq1", "steps_svq2", "steps_experts", "steps_fuse", "batch_svq",
+                                              "batch_ar", "seed", "lr_svq", "lr_ar", "augment")
+              if getattr(args, k) is not None}
+        ov["speakers"] = speakers
+        stages = STAGES if args.stage == "all" else STAGES[:STAGES.index(args.stage) + 1]
+        train(args.config, args.data, args.out, stages=stages, device=device, overrides=ov, svq_from=args.svq_from,
+              init_from=args.init_from, extra_data=args.extra_data, opts=opts)
+    finally:
+        finish_distributed()
+    return 0
 
 
 if __name__ == "__main__":

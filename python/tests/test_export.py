@@ -16,7 +16,9 @@ import export as exporter  # noqa: E402
 from verify import ExportCheckError  # noqa: E402
 
 from helpers import scrambled_model  # noqa: E402
+from livegesture.compare import assert_within  # noqa: E402
 from livegesture.models import layers  # noqa: E402
+from livegesture.stream import generate_clip  # noqa: E402
 from livegesture.models.expert import RegionExpert  # noqa: E402
 
 
@@ -65,7 +67,7 @@ def test_graphs_are_stateful_step_graphs(bundle):
 
 
 def test_reference_vectors_replay_on_onnxruntime(bundle):
-    """The bundle's own reference vectors, fed to onnxruntime with chained caches, match within 1e-5."""
+    """The bundle's own reference vectors, fed to onnxruntime with chained caches, match within 1e-5 (scaled)."""
     import onnxruntime as ort
     out, manifest, _ = bundle
     for g in manifest["graphs"]:
@@ -79,20 +81,51 @@ def test_reference_vectors_replay_on_onnxruntime(bundle):
             feed.update(cache)
             res = dict(zip(names, sess.run(None, feed)))
             for o in g["outputs"]:
-                err = np.abs(res[o["name"]] - ref[f"step{s}.output.{o['name']}"]).max()
-                assert err <= 1e-5, f"{g['name']}.{o['name']} step {s}: {err}"
+                assert_within(res[o["name"]], ref[f"step{s}.output.{o['name']}"], 1e-5,
+                              f"{g['name']}.{o['name']} step {s}")
             cache = {c["input"]: res[c["output"]] for c in g["caches"]}
         last = int(ref["n_steps"]) - 1
         for c in g["caches"]:
-            err = np.abs(cache[c["input"]].astype(np.float64) - ref[f"step{last}.new_cache.{c['name']}"]).max()
-            assert err <= 1e-5, f"{g['name']}.{c['output']} after step {last}: {err}"
+            assert_within(cache[c["input"]], ref[f"step{last}.new_cache.{c['name']}"], 1e-5,
+                          f"{g['name']}.{c['output']} after step {last}")
+
+
+def read_clip(path):
+    """The reference clip as the exporter used it (16-bit samples / 32768)."""
+    import wave
+    with wave.open(str(path), "rb") as w:
+        assert w.getsampwidth() == 2 and w.getnchannels() == 1
+        return (np.frombuffer(w.readframes(w.getnframes()), dtype="<i2") / 32768.0).astype(np.float32)
+
+
+def assert_rollout_reproduced(ro, again):
+    """A stored rollout equals a fresh run with the same model, clip and seed: identical tokens, every frame
+    value within 1e-6 (scaled; the same torch computation, so exact in practice)."""
+    assert np.array_equal(ro["tokens"], again["tokens"]), "tokens differ"
+    for k in ("poses", "trans", "expressions", "foot_contact"):
+        assert_within(ro[k], again[k], 1e-6, f"rollout '{k}'")
 
 
 def test_rollout_reference_is_reproducible(bundle):
     out, manifest, model = bundle
-    ro = np.load(out / "reference" / "rollout.npz")
+    ro = dict(np.load(out / "reference" / "rollout.npz"))
     assert ro["tokens"].shape == (manifest["reference"]["rollout_tokens"], 4)
     assert ro["poses"].shape == (4 * ro["tokens"].shape[0], 165)
+    # the values: the model run again on the clip the manifest names, with its seed
+    clip = read_clip(out / "reference" / "clip.wav")
+    again = generate_clip(model, np.tile(clip, int(ro["clip_repeats"])), seed=int(ro["seed"]))
+    assert_rollout_reproduced(ro, again)
+    # the comparison fails on a broken rollout: one pose moved, a NaN, one token changed
+    for k, i, how in (("poses", 11, "move"), ("expressions", 3, "nan"), ("tokens", 2, "token")):
+        bad = {**ro, k: ro[k].copy()}
+        if how == "move":
+            bad[k].flat[i] += 1e-3
+        elif how == "nan":
+            bad[k].flat[i] = np.nan
+        else:
+            bad[k].flat[i] += 1
+        with pytest.raises(AssertionError):
+            assert_rollout_reproduced(bad, again)
 
 
 def test_dropped_cache_update_is_caught(tmp_path, monkeypatch):

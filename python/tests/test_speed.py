@@ -93,15 +93,11 @@ def test_int8_bundle_manifest_graphs_and_reference(tiny, tiny_int8, tmp_path):
         assert "DynamicQuantizeLinear" in ops
         # the f32 graph's inputs, outputs and caches are unchanged (the runtime reads them from the manifest)
         assert g == next(x for x in f32["graphs"] if x["name"] == g["name"])
-    # the reduced bundle's own reference vectors are reproduced by onnxruntime, and its rollout by the peer
+    # the reduced bundle's rollout is reproduced by the peer; its graph reference vectors are the f32 bundle's
+    # (torch), which onnxruntime on the reduced graph meets within the bound stated in the manifest
     rc, res = run_peer(tiny_int8, tmp_path, "--streams", "")
     assert rc == 0 and res["precision"] == "int8"
-    import onnxruntime as ort
-    spec = next(g for g in m["graphs"] if g["name"] == "fusion")
-    sess = ort.InferenceSession(str(tiny_int8 / spec["file"]), providers=["CPUExecutionProvider"])
-    ref = dict(np.load(tiny_int8 / spec["reference"]))
-    _, e = quantize.graph_reference(sess, spec, ref)
-    assert max(e.values()) < 1e-5
+    assert_reference_is_the_f32_torch_one(tiny, tiny_int8, m)
 
 
 def test_quantize_refuses_bad_requests(tiny, tiny_int8, tmp_path):
@@ -173,9 +169,49 @@ def test_f16_bundle_stores_weights_in_float16_with_f32_arithmetic(tiny, tiny_f16
     assert 0 < err["graphs_max_abs"]["fusion"]["logits"] < 0.05     # float16 rounding of the weights only
     assert err["rollout"]["tokens"] == len(np.load(tiny / "reference" / "rollout.npz")["tokens"])
     assert p["metrics"] is None
-    # the reduced bundle's reference vectors are reproduced by onnxruntime, its rollout by the peer
+    # the reduced bundle's rollout is reproduced by the peer; its graph reference vectors are the f32 bundle's
     rc, res = run_peer(tiny_f16, tmp_path, "--streams", "")
     assert rc == 0 and res["precision"] == "float16"
+    assert_reference_is_the_f32_torch_one(tiny, tiny_f16, m)
+
+
+def assert_reference_is_the_f32_torch_one(tiny, reduced, m):
+    """Every graph's reference vectors are the f32 bundle's files (torch on the f32 weights: an independent
+    side), and onnxruntime on the reduced graph meets them within the bound the manifest states, which is
+    the measured error x BOUND_MARGIN (below the precision's limit)."""
+    import onnxruntime as ort
+    w = m["precision"]["weights"]
+    for spec in m["graphs"]:
+        assert exporter.sha256(reduced / spec["reference"]) == exporter.sha256(tiny / spec["reference"]), spec["name"]
+        c = m["checks"][spec["name"]]
+        assert 0 < c["reduced_vs_f32_torch_scaled"] <= quantize.ERROR_LIMIT[w]
+        assert c["reduced_vs_f32_torch_bound"] == quantize.stated_bound(c["reduced_vs_f32_max_abs"])
+        assert c["reduced_vs_f32_torch_scaled"] <= c["reduced_vs_f32_max_abs"] < c["reduced_vs_f32_torch_bound"] \
+            <= 4 * c["reduced_vs_f32_max_abs"] or c["reduced_vs_f32_torch_bound"] == quantize.F32_BOUND
+    spec = next(g for g in m["graphs"] if g["name"] == "fusion")
+    sess = ort.InferenceSession(str(reduced / spec["file"]), providers=["CPUExecutionProvider"])
+    _, e = quantize.graph_reference(sess, spec, dict(np.load(reduced / spec["reference"])))
+    assert e["scaled"] <= m["checks"]["fusion"]["reduced_vs_f32_torch_bound"]
+
+
+def test_a_wrong_reduced_graph_is_refused(tiny, tmp_path, monkeypatch):
+    """quantize checks each reduced graph against the f32 bundle's torch reference vectors: a graph the reduction
+    got wrong (one weight matrix doubled) is refused, naming it, and no bundle is written. (With reference
+    vectors made by the reduced graphs themselves, it would pass every check.)"""
+    orig = quantize.quantize_graph
+
+    def wrong(src, dst, precision, per_channel, activations="dynamic"):
+        info = orig(src, dst, precision, per_channel, activations)
+        if dst.name.startswith("expert_hands"):
+            q = onnx.load(str(dst))
+            t = next(i for i in q.graph.initializer if i.data_type == onnx.TensorProto.FLOAT16 and np.prod(i.dims) > 1)
+            t.CopyFrom(onnx.numpy_helper.from_array(onnx.numpy_helper.to_array(t) * np.float16(2), t.name))
+            onnx.save(q, str(dst))
+        return info
+    monkeypatch.setattr(quantize, "quantize_graph", wrong)
+    with pytest.raises(RuntimeError, match=r"graph 'expert_hands'.*wrong, not rounded"):
+        quantize.build(tiny, tmp_path / "bad", "f16", per_channel=False, log=lambda *a: None)
+    assert not (tmp_path / "bad").exists()
 
 
 def test_bf16_rounding_and_out_of_range_tensors(tmp_path):

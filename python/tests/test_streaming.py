@@ -4,6 +4,7 @@ import pytest
 import torch
 
 from helpers import scrambled_model
+from livegesture.compare import assert_within, diff
 from livegesture.frontend import FrontendConfig
 from livegesture.regions import REGION_NAMES
 from livegesture.stream import LiveGestureStream, generate_clip
@@ -57,13 +58,39 @@ def test_frames_emitted_as_soon_as_token_audio_arrives(tiny):
     assert frames[1].time_s == pytest.approx(1 / 30)
 
 
+def assert_same_run(a, b):
+    """Two runs with the same seed and guidance: identical tokens, frames equal value for value."""
+    assert np.array_equal(a["tokens"], b["tokens"])
+    for k in ("poses", "trans", "expressions"):
+        assert_within(a[k], b[k], 0.0, f"same seed: '{k}'")
+
+
+def assert_guidance_changes(guided, unguided):
+    """Guidance changes the output: other tokens, and poses that differ by more than the rollout's frame
+    bound (1e-4, docs/parity.md); shapes alone prove nothing."""
+    assert guided["poses"].shape == unguided["poses"].shape
+    assert np.isfinite(guided["poses"]).all() and np.isfinite(unguided["poses"]).all()
+    assert not np.array_equal(guided["tokens"], unguided["tokens"]), "guidance changed no token"
+    assert not diff(unguided["poses"], guided["poses"]).within(1e-4), "guidance changed no pose"
+
+
 def test_guidance_changes_output_and_seed_is_deterministic(tiny):
     audio = speechy(1.0)
     g = generate_clip(tiny, audio, seed=1, guidance=1.25)
-    assert np.array_equal(g["tokens"], generate_clip(tiny, audio, seed=1, guidance=1.25)["tokens"])
+    assert_same_run(g, generate_clip(tiny, audio, seed=1, guidance=1.25))
     assert not np.array_equal(g["tokens"], generate_clip(tiny, audio, seed=2, guidance=1.25)["tokens"])
     u = generate_clip(tiny, audio, seed=1, guidance=1.0)
-    assert u["poses"].shape == g["poses"].shape
+    assert_guidance_changes(g, u)
+    # the checks fail on a broken input: the same guidance twice, or a run whose frames were changed
+    with pytest.raises(AssertionError, match="guidance changed no"):
+        assert_guidance_changes(g, generate_clip(tiny, audio, seed=1, guidance=1.25))
+    moved = {**g, "poses": g["poses"].copy()}
+    moved["poses"][3, 7] += 1e-6
+    with pytest.raises(AssertionError, match="same seed: 'poses'"):
+        assert_same_run(g, moved)
+    moved["poses"][3, 7] = np.nan
+    with pytest.raises(AssertionError, match="non-finite"):
+        assert_same_run(g, moved)
 
 
 def periodic_errors(step_fn, period, n_steps):

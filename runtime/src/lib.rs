@@ -11,6 +11,8 @@
 //!   ([`model::livegesture`]: streams, batched token steps);
 //! - [`audio`]: WAV and raw PCM input, converted to 16 kHz mono, and [`audio::AudioSpan`] (how many
 //!   frames cover an input);
+//! - [`compare`]: the one NaN-safe comparison of two tensors against a scaled bound (docs/parity.md),
+//!   used by the parity suite and the tests;
 //! - [`frontend`]: the log-mel audio frontend (the Python training frontend's definition, within 1e-4);
 //! - [`sampling`]: the portable seeded sampler (SplitMix64 + guided top-k sampling);
 //! - [`rotation`]: rot6d / matrix / quaternion / axis-angle conversions;
@@ -31,6 +33,7 @@ pub mod backend;
 pub mod bench;
 pub mod bundle;
 pub mod bvh;
+pub mod compare;
 pub mod frontend;
 pub mod model;
 pub mod output;

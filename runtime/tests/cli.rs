@@ -184,15 +184,41 @@ fn generate_writes_a_beat2_npz_with_both_backends() {
         assert_eq!(entries, want, "{backend}: npz layout");
         motions.push(read_beat2_npz(&out).unwrap());
     }
-    let e = common::max_abs(&motions[0].poses, &motions[1].poses);
-    eprintln!("generate: tract vs ort poses max abs {e:.2e} over {n_frames} frames");
-    assert!(e <= 1e-4);
+    assert_backends_agree(&motions[0].poses, &motions[1].poses);
     // no temporary files left beside the outputs
     let names: Vec<String> = std::fs::read_dir(tmp.path())
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
     assert!(names.iter().all(|n| !n.ends_with(".tmp")), "{names:?}");
+}
+
+/// generate's poses on tract and on ort agree within 1e-4 (docs/parity.md's rollout frame bound,
+/// scaled; ort the reference side).
+fn assert_backends_agree(tract: &ndarray::Array2<f32>, ort: &ndarray::Array2<f32>) {
+    let d = common::diff2(tract, ort);
+    eprintln!(
+        "generate: tract vs ort poses over {} frames: {d}",
+        tract.nrows()
+    );
+    if let Err(e) = d.ensure(1e-4, "generate: tract vs ort poses") {
+        panic!("{e}");
+    }
+}
+
+/// The tract-vs-ort comparison of generate's output fails when a NaN is on either side.
+#[test]
+fn the_backend_comparison_fails_on_nan_either_side() {
+    let a = ndarray::Array2::from_shape_fn((6, 165), |(t, j)| ((t * 165 + j) as f32 * 0.01).sin());
+    assert_backends_agree(&a, &a);
+    let mut bad = a.clone();
+    bad[[3, 40]] = f32::NAN;
+    common::assert_check_fails("generate, NaN on tract", "non-finite", || {
+        assert_backends_agree(&bad, &a)
+    });
+    common::assert_check_fails("generate, NaN on ort", "non-finite", || {
+        assert_backends_agree(&a, &bad)
+    });
 }
 
 #[test]

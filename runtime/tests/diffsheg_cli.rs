@@ -80,14 +80,13 @@ fn generate_covers_the_whole_audio() {
         assert!(m.poses.iter().all(|v| v.is_finite()));
         outs.push(m);
     }
-    // both backends sample the same motion (the same noise; graphs within the docs/parity.md bounds)
-    let d = outs[0]
-        .poses
-        .iter()
-        .zip(outs[1].poses.iter())
-        .map(|(a, b)| (a - b).abs())
-        .fold(0f32, f32::max);
-    assert!(d < 1e-3, "tract vs ort poses differ by {d}");
+    // both backends sample the same motion (the same noise; graphs within the docs/parity.md bounds):
+    // frames within the rollout frame bound, 1e-4 scaled (measured on the tiny bundle: ~1e-5)
+    let d = livegesture_parity_tests::diff2(&outs[0].poses, &outs[1].poses);
+    eprintln!("generate: tract vs ort poses: {d}");
+    if let Err(e) = d.ensure(1e-4, "generate: tract vs ort poses") {
+        panic!("{e}");
+    }
 }
 
 #[test]

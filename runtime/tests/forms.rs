@@ -49,8 +49,9 @@ fn run(p: &mut Pipeline, opts: &StreamOptions, audio: &[f32]) -> Vec<TokenStep> 
     out
 }
 
-/// Identical tokens; frames within `bound` (0: bit-identical).
-fn assert_same(a: &[TokenStep], b: &[TokenStep], bound: f32, what: &str) {
+/// Identical tokens; frames within `bound` (scaled, `livegesture::compare`; 0: bit-identical), `b`
+/// the reference side.
+fn assert_same(a: &[TokenStep], b: &[TokenStep], bound: f64, what: &str) {
     assert_eq!(a.len(), b.len(), "{what}: step counts differ");
     for (x, y) in a.iter().zip(b) {
         assert_eq!(
@@ -58,26 +59,10 @@ fn assert_same(a: &[TokenStep], b: &[TokenStep], bound: f32, what: &str) {
             "{what}: tokens differ at step {}",
             x.token_index
         );
-        for (fx, fy) in x.frames.iter().zip(&y.frames) {
-            assert_eq!(fx.index, fy.index);
-            for (name, u, v) in [
-                ("poses", &fx.poses[..], &fy.poses[..]),
-                ("trans", &fx.trans[..], &fy.trans[..]),
-                ("expressions", &fx.expressions[..], &fy.expressions[..]),
-            ] {
-                let err = u
-                    .iter()
-                    .zip(v.iter())
-                    .map(|(p, q)| (p - q).abs())
-                    .fold(0.0f32, f32::max);
-                assert!(
-                    err <= bound,
-                    "{what}: {name} differ by {err:e} at frame {} (bound {bound:e})",
-                    fx.index
-                );
-            }
-        }
     }
+    let fa: Vec<_> = a.iter().flat_map(|s| s.frames.clone()).collect();
+    let fb: Vec<_> = b.iter().flat_map(|s| s.frames.clone()).collect();
+    common::assert_frames_within(&fa, &fb, bound, what);
 }
 
 #[test]
@@ -179,10 +164,36 @@ fn forms_agree(kind: BackendKind) {
             assert_same(
                 std::slice::from_ref(st),
                 std::slice::from_ref(&want),
-                batch_bound(kind) as f32,
+                batch_bound(kind),
                 &format!("{kind} fused batch vs canonical alone, stream {i}"),
             );
         }
+    }
+}
+
+/// The forms' comparison fails when a NaN is on either side (bound 0 included), and passes on the
+/// clean pair.
+#[test]
+fn the_form_comparison_fails_on_nan_either_side() {
+    let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
+    let audio = audio(&bundle, 1.0);
+    let mut p = pipeline(&bundle, BackendKind::Tract, FormChoice::Canonical);
+    let opts = StreamOptions {
+        seed: 7,
+        ..Default::default()
+    };
+    let a = run(&mut p, &opts, &audio);
+    assert!(a.len() >= 3);
+    assert_same(&a, &a, 0.0, "clean");
+    let mut bad = a.clone();
+    bad[2].frames[1].expressions[5] = f32::NAN;
+    for bound in [0.0, 1e-4] {
+        common::assert_check_fails("forms, NaN in got", "non-finite", || {
+            assert_same(&bad, &a, bound, "probe")
+        });
+        common::assert_check_fails("forms, NaN in the reference", "non-finite", || {
+            assert_same(&a, &bad, bound, "probe")
+        });
     }
 }
 

@@ -8,6 +8,7 @@ use std::fmt::Debug;
 use std::fs::File;
 use std::path::PathBuf;
 
+use livegesture::compare;
 use livegesture::frontend::{logmel, FrontendConfig, StreamingLogMel};
 use livegesture::rotation::{axis_angle_to_rot6d, rot6d_to_axis_angle};
 use livegesture::sampling::{sample_token, SplitMix64};
@@ -34,68 +35,9 @@ fn get<A: ReadableElement, D: Dimension>(
         .unwrap_or_else(|e| panic!("fixture array '{name}': {e}"))
 }
 
-/// Where two tensors differ most.
-#[derive(Debug, Clone, PartialEq)]
-struct MaxDiff<I> {
-    /// Largest absolute difference (infinite where exactly one side is NaN or they differ in infinity).
-    error: f64,
-    /// Index of the largest difference (`None` for empty tensors).
-    index: Option<I>,
-    got: f64,
-    want: f64,
-}
-
-/// Max abs difference between two tensors of the same shape. An error names the tensor when the
-/// shapes differ.
-fn max_abs_diff<S1, S2, D>(
-    name: &str,
-    got: &ArrayBase<S1, D>,
-    want: &ArrayBase<S2, D>,
-) -> Result<MaxDiff<D::Pattern>, String>
-where
-    S1: Data<Elem = f32>,
-    S2: Data<Elem = f32>,
-    D: Dimension,
-{
-    if got.shape() != want.shape() {
-        return Err(format!(
-            "{name}: shape {:?} differs from the reference shape {:?}",
-            got.shape(),
-            want.shape()
-        ));
-    }
-    let mut best = MaxDiff {
-        error: 0.0,
-        index: None,
-        got: 0.0,
-        want: 0.0,
-    };
-    for ((idx, &g), &w) in got.indexed_iter().zip(want.iter()) {
-        let (g, w) = (g as f64, w as f64);
-        let e = if g == w || (g.is_nan() && w.is_nan()) {
-            0.0
-        } else {
-            let d = (g - w).abs();
-            if d.is_nan() {
-                f64::INFINITY
-            } else {
-                d
-            }
-        };
-        if best.index.is_none() || e > best.error {
-            best = MaxDiff {
-                error: e,
-                index: Some(idx),
-                got: g,
-                want: w,
-            };
-        }
-    }
-    Ok(best)
-}
-
-/// Checks `got` against `want` within `bound`; returns the max abs error, or an error naming the tensor,
-/// the index of the largest difference, the error and the bound.
+/// Checks `got` against `want` within the absolute `bound` (`livegesture::compare`: NaN or Inf on
+/// either side, nothing compared, or other shapes fail); returns the max abs error, or an error naming
+/// the tensor, the index of the largest difference (or of the non-finite value), the error and the bound.
 fn check_bound<S1, S2, D>(
     name: &str,
     got: &ArrayBase<S1, D>,
@@ -108,16 +50,29 @@ where
     D: Dimension,
     D::Pattern: Debug,
 {
-    let d = max_abs_diff(name, got, want)?;
-    if d.error <= bound {
-        Ok(d.error)
+    if got.shape() != want.shape() {
+        return Err(format!(
+            "{name}: shape {:?} differs from the reference shape {:?}",
+            got.shape(),
+            want.shape()
+        ));
+    }
+    let g: Vec<f32> = got.iter().copied().collect();
+    let w: Vec<f32> = want.iter().copied().collect();
+    let d = compare::diff(&g, &w);
+    let at = |i: Option<usize>| i.and_then(|i| got.indexed_iter().nth(i).map(|(p, _)| p));
+    if let Some(p) = d.problem() {
+        let i = at(d.index).map(|p| format!("{p:?}")).unwrap_or("-".into());
+        return Err(format!("{name}: max abs error inf at index {i}: {p}"));
+    }
+    if d.max_abs <= bound {
+        Ok(d.max_abs)
     } else {
+        let (gv, wv) = d.values.expect("a value pair where the error is");
         Err(format!(
-            "{name}: max abs error {:.3e} at index {:?} exceeds the bound {bound:.0e} (got {}, reference {})",
-            d.error,
-            d.index.expect("a non-empty tensor has an index"),
-            d.got,
-            d.want
+            "{name}: max abs error {:.3e} at index {:?} exceeds the bound {bound:.0e} (got {gv}, reference {wv})",
+            d.max_abs,
+            at(d.index).expect("a non-empty tensor has an index"),
         ))
     }
 }
@@ -173,6 +128,12 @@ fn logmel_check_fails_on_perturbed_reference() {
     nan[[3, 4]] = f32::NAN;
     let msg = check_bound("logmel64", &nan, &got, LOGMEL_BOUND).unwrap_err();
     assert!(msg.contains("inf") && msg.contains("(3, 4)"), "{msg}");
+    // on the reference side, and on both sides at once (NaN is never agreement)
+    let msg = check_bound("logmel64", &got, &nan, LOGMEL_BOUND).unwrap_err();
+    assert!(msg.contains("reference") && msg.contains("(3, 4)"), "{msg}");
+    assert!(check_bound("logmel64", &nan, &nan, LOGMEL_BOUND).is_err());
+    let empty = Array2::<f32>::zeros((0, 64));
+    assert!(check_bound("logmel64", &empty, &empty, LOGMEL_BOUND).is_err());
 }
 
 #[test]

@@ -8,9 +8,11 @@ use livegesture::backend::{self, BackendKind, BackendOptions};
 use livegesture::bundle::Bundle;
 use livegesture::model::livegesture::{Pipeline, StreamOptions, TokenStep};
 use livegesture::output::Frame;
+use livegesture::parity::ReferenceRollout;
 use ndarray::Array2;
 
-const FRAME_BOUND: f32 = 1e-4;
+/// Rollout frames (docs/parity.md, scaled).
+const FRAME_BOUND: f64 = 1e-4;
 
 fn pipeline(kind: BackendKind) -> (Bundle, Pipeline) {
     if kind == BackendKind::Ort {
@@ -68,30 +70,78 @@ fn check_rollout(kind: BackendKind) {
         assert_eq!(s.tokens, ro.tokens[t], "{kind}: tokens differ at step {t}");
     }
     let frames: Vec<Frame> = steps.into_iter().flat_map(|s| s.frames).collect();
+    assert_rollout_frames(&kind.to_string(), &frames, &ro);
+}
+
+/// The frames equal the reference rollout's within [`FRAME_BOUND`], every field.
+fn assert_rollout_frames(what: &str, frames: &[Frame], ro: &ReferenceRollout) {
     for (name, got, want) in [
-        ("poses", frames_to(&frames, |f| &f.poses), &ro.poses),
-        ("trans", frames_to(&frames, |f| &f.trans), &ro.trans),
+        ("poses", frames_to(frames, |f| &f.poses), &ro.poses),
+        ("trans", frames_to(frames, |f| &f.trans), &ro.trans),
         (
             "expressions",
-            frames_to(&frames, |f| &f.expressions),
+            frames_to(frames, |f| &f.expressions),
             &ro.expressions,
         ),
         (
             "foot_contact",
-            frames_to(&frames, |f| &f.foot_contact),
+            frames_to(frames, |f| &f.foot_contact),
             &ro.foot_contact,
         ),
     ] {
-        let e = common::max_abs(&got, want);
-        eprintln!(
-            "{kind}: rollout {name} max abs error {e:.3e} over {} frames",
-            frames.len()
-        );
-        assert!(
-            e <= FRAME_BOUND,
-            "{kind}: {name} differs from the torch rollout by {e} > {FRAME_BOUND}"
-        );
+        let d = common::diff2(&got, want);
+        eprintln!("{what}: rollout {name}: {d}");
+        if let Err(e) = d.ensure(FRAME_BOUND, format!("{what}: {name} vs the torch rollout")) {
+            panic!("{e}");
+        }
     }
+}
+
+/// The reference rollout's frames as [`Frame`]s.
+fn frames_of(ro: &ReferenceRollout) -> Vec<Frame> {
+    (0..ro.poses.nrows())
+        .map(|t| {
+            let mut f = Frame {
+                index: t as u64,
+                time_s: t as f64 / 30.0,
+                poses: [0.0; 165],
+                trans: [0.0; 3],
+                expressions: [0.0; 100],
+                foot_contact: [0.0; 4],
+            };
+            for (dst, src) in [
+                (&mut f.poses[..], &ro.poses),
+                (&mut f.trans[..], &ro.trans),
+                (&mut f.expressions[..], &ro.expressions),
+                (&mut f.foot_contact[..], &ro.foot_contact),
+            ] {
+                for (d, s) in dst.iter_mut().zip(src.row(t)) {
+                    *d = *s;
+                }
+            }
+            f
+        })
+        .collect()
+}
+
+/// The rollout comparison fails when a NaN is on either side (the runtime's frames or the torch
+/// reference), and passes on the clean pair.
+#[test]
+fn the_rollout_comparison_fails_on_nan_either_side() {
+    let bundle = Bundle::load(common::tiny_bundle()).expect("test bundle loads");
+    let (ro, _) = common::reference_rollout(&bundle);
+    let frames = frames_of(&ro);
+    assert_rollout_frames("clean", &frames, &ro);
+    let at = frames.len() / 2;
+    let bad = common::with_nan(&frames, at);
+    common::assert_check_fails("rollout, NaN in the runtime's frames", "non-finite", || {
+        assert_rollout_frames("probe", &bad, &ro)
+    });
+    let mut bad_ro = ro.clone();
+    bad_ro.expressions[[at, 3]] = f32::NAN;
+    common::assert_check_fails("rollout, NaN in the torch reference", "non-finite", || {
+        assert_rollout_frames("probe", &frames, &bad_ro)
+    });
 }
 
 #[test]
@@ -117,7 +167,7 @@ fn tract_and_ort_agree() {
     let a = run_all(&mut pt, &opts, &audio, 3200);
     let b = run_all(&mut po, &opts, &audio, 3200);
     assert_eq!(a.len(), b.len());
-    let mut max_logit = 0f32;
+    let (mut lt, mut lo) = (Vec::new(), Vec::new());
     for (x, y) in a.iter().zip(&b) {
         assert_eq!(
             x.tokens, y.tokens,
@@ -125,16 +175,16 @@ fn tract_and_ort_agree() {
             x.token_index
         );
         let (lx, ly) = (x.logits.as_ref().unwrap(), y.logits.as_ref().unwrap());
-        for (u, v) in lx.cond.iter().zip(&ly.cond) {
-            max_logit = max_logit.max((u - v).abs());
-        }
+        lt.extend_from_slice(&lx.cond);
+        lo.extend_from_slice(&ly.cond);
         assert!(lx.uncond.is_some());
     }
+    // tract vs ort: docs/parity.md's 1e-4 (scaled), with ort the reference side
+    let d = livegesture::compare::assert_within(&lt, &lo, 1e-4, "logits, tract vs ort");
     eprintln!(
-        "tract vs ort: {} steps, identical tokens, max abs logit difference {max_logit:.3e}",
+        "tract vs ort: {} steps, identical tokens, logits: {d}",
         a.len()
     );
-    assert!(max_logit <= 1e-4);
 }
 
 #[test]
@@ -199,24 +249,73 @@ fn batched_steps_equal_single_streams() {
         }
     }
     for (i, (a, b)) in single.iter().zip(&batched).enumerate() {
-        assert_eq!(a.len(), b.len());
-        for (x, y) in a.iter().zip(b) {
-            assert_eq!(x.tokens, y.tokens, "stream {i} step {}", x.token_index);
-            for (fa, fb) in x.frames.iter().zip(&y.frames) {
-                let e = fa
-                    .poses
-                    .iter()
-                    .zip(&fb.poses)
-                    .map(|(u, v)| (u - v).abs())
-                    .fold(0f32, f32::max);
-                assert!(
-                    e <= 1e-5,
-                    "stream {i} frame {}: batched differs by {e}",
-                    fa.index
-                );
-            }
-        }
+        assert_batched_equal(&format!("stream {i}"), a, b);
     }
+}
+
+/// Batched steps equal the single stream's: identical tokens, frames within 1e-5 (scaled).
+fn assert_batched_equal(what: &str, a: &[TokenStep], b: &[TokenStep]) {
+    assert_eq!(a.len(), b.len());
+    for (x, y) in a.iter().zip(b) {
+        assert_eq!(x.tokens, y.tokens, "{what} step {}", x.token_index);
+    }
+    let fa: Vec<Frame> = a.iter().flat_map(|s| s.frames.clone()).collect();
+    let fb: Vec<Frame> = b.iter().flat_map(|s| s.frames.clone()).collect();
+    common::assert_frames_within(&fb, &fa, 1e-5, &format!("{what}: batched vs single"));
+}
+
+fn nan_in_step(steps: &[TokenStep], t: usize) -> Vec<TokenStep> {
+    let mut v = steps.to_vec();
+    v[t].frames[1].poses[7] = f32::NAN;
+    v
+}
+
+/// The batched-vs-single comparison fails when a NaN is on either side.
+#[test]
+fn the_batch_comparison_fails_on_nan_either_side() {
+    let (bundle, mut p) = pipeline(BackendKind::Tract);
+    let clip = rollout_audio(&bundle, 1);
+    let opts = StreamOptions {
+        seed: 1,
+        ..Default::default()
+    };
+    let a = run_all(&mut p, &opts, &clip[..8000], 8000);
+    assert!(a.len() >= 3);
+    assert_batched_equal("clean", &a, &a);
+    let bad = nan_in_step(&a, 2);
+    common::assert_check_fails("batch, NaN in the batched side", "non-finite", || {
+        assert_batched_equal("probe", &a, &bad)
+    });
+    common::assert_check_fails("batch, NaN in the single stream", "non-finite", || {
+        assert_batched_equal("probe", &bad, &a)
+    });
+}
+
+/// Output up to the token that completes before `cut` is the same for `audio` and `changed` (which
+/// differ from `cut` on), and later output differs (the later audio is used).
+fn check_look_ahead(p: &mut Pipeline, bundle: &Bundle, audio: &[f32], changed: &[f32], cut: usize) {
+    let opts = StreamOptions {
+        seed: 5,
+        ..Default::default()
+    };
+    let a = run_all(p, &opts, audio, 1000);
+    let b = run_all(p, &opts, changed, 1000);
+    let done = bundle.frontend().n_tokens(cut as u64) as usize;
+    assert!(done > 0);
+    assert_eq!(a.len(), b.len());
+    assert!(a.len() > done + 2, "too little audio after the change");
+    assert_eq!(
+        a[..done],
+        b[..done],
+        "output before the change depends on later audio"
+    );
+    assert!(
+        a[done..]
+            .iter()
+            .zip(&b[done..])
+            .any(|(x, y)| x.frames != y.frames),
+        "output after the change does not depend on the changed audio"
+    );
 }
 
 #[test]
@@ -229,17 +328,16 @@ fn zero_look_ahead() {
     for x in &mut changed[cut..] {
         *x = -*x * 0.5;
     }
-    let opts = StreamOptions {
-        seed: 5,
-        ..Default::default()
-    };
-    let a = run_all(&mut p, &opts, &audio, 1000);
-    let b = run_all(&mut p, &opts, &changed, 1000);
-    let done = bundle.frontend().n_tokens(cut as u64) as usize;
-    assert!(done > 0);
-    assert_eq!(
-        a[..done],
-        b[..done],
-        "output before the change depends on later audio"
-    );
+    check_look_ahead(&mut p, &bundle, &audio, &changed, cut);
+    // the check fails on a broken input: audio changed before the cut (a look-ahead), and no change
+    let mut early = audio.clone();
+    for x in &mut early[cut - 4000..] {
+        *x = -*x * 0.5;
+    }
+    common::assert_check_fails("change before the cut", "depends on later audio", || {
+        check_look_ahead(&mut p, &bundle, &audio, &early, cut)
+    });
+    common::assert_check_fails("no change", "does not depend", || {
+        check_look_ahead(&mut p, &bundle, &audio, &audio, cut)
+    });
 }

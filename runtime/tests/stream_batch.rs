@@ -78,39 +78,107 @@ fn token_chunk<'a>(p: &Pipeline, a: &'a [f32], t: u64) -> &'a [f32] {
     &a[start..fe.token_end(t) as usize]
 }
 
-fn max_abs(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len());
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max)
+/// The comparison of two steps' values (`livegesture::compare`, `b` the reference side): the scaled
+/// error, infinite when a value is NaN or Inf on either side or the lengths differ.
+fn scaled(a: &[f32], b: &[f32]) -> f64 {
+    let d = livegesture::compare::diff(a, b);
+    if d.problem().is_some() {
+        f64::INFINITY
+    } else {
+        d.scaled_error()
+    }
 }
 
-/// The largest difference between two token steps' frames (all fields) and logits.
-fn step_diff(a: &TokenStep, b: &TokenStep) -> (f32, f32) {
+/// The largest scaled difference between two token steps' frames (each field over the step's
+/// frames one tensor) and logits.
+fn step_diff(a: &TokenStep, b: &TokenStep) -> (f64, f64) {
     assert_eq!(a.frames.len(), b.frames.len());
-    let mut f = 0f32;
+    let mut f = 0f64;
     for (x, y) in a.frames.iter().zip(&b.frames) {
         assert_eq!(x.index, y.index);
-        f = f
-            .max(max_abs(&x.poses, &y.poses))
-            .max(max_abs(&x.trans, &y.trans))
-            .max(max_abs(&x.expressions, &y.expressions))
-            .max(max_abs(&x.foot_contact, &y.foot_contact));
+    }
+    let field = |s: &TokenStep, k: usize| -> Vec<f32> {
+        s.frames
+            .iter()
+            .flat_map(|fr| match k {
+                0 => fr.poses.to_vec(),
+                1 => fr.trans.to_vec(),
+                2 => fr.expressions.to_vec(),
+                _ => fr.foot_contact.to_vec(),
+            })
+            .collect()
+    };
+    for k in 0..4 {
+        f = f.max(scaled(&field(a, k), &field(b, k)));
     }
     let l = match (&a.logits, &b.logits) {
         (None, None) => 0.0,
         (Some(x), Some(y)) => {
             assert_eq!(x.uncond.is_some(), y.uncond.is_some());
             let u = match (&x.uncond, &y.uncond) {
-                (Some(u), Some(v)) => max_abs(u, v),
+                (Some(u), Some(v)) => scaled(u, v),
                 _ => 0.0,
             };
-            max_abs(&x.cond, &y.cond).max(u)
+            scaled(&x.cond, &y.cond).max(u)
         }
         _ => panic!("logits recorded for one step only"),
     };
     (f, l)
+}
+
+/// A batched step (`b`) agrees with the stream stepped alone (`a`): frames and logits within the
+/// backend's bounds (bit-identical on ort; tract's kernels round differently for different batch
+/// sizes, by ~1e-6 here, with step_batch alike, so there the bound of step_batch's test applies).
+/// Returns the frame and logit errors.
+fn assert_step_agrees(kind: BackendKind, what: &str, a: &TokenStep, b: &TokenStep) -> (f64, f64) {
+    let (df, dl) = step_diff(a, b);
+    let (bf, bl) = match kind {
+        BackendKind::Ort => (0.0, 0.0),
+        BackendKind::Tract => (1e-5, 1e-4),
+    };
+    assert!(
+        df.is_finite() && dl.is_finite(),
+        "{kind}: {what}: a non-finite value (NaN or Inf) or a length mismatch in the frames or logits"
+    );
+    assert!(
+        df <= bf && dl <= bl,
+        "{kind}: {what}: frames differ from stepping alone by {df:e} (scaled), logits by {dl:e} \
+         (bounds {bf:e}, {bl:e})"
+    );
+    (df, dl)
+}
+
+/// The batch-vs-alone comparison fails when a NaN is on either side, in a frame or in the logits.
+#[test]
+fn the_batch_comparison_fails_on_nan_either_side() {
+    let (bundle, mut p) = pipeline(BackendKind::Tract);
+    let mut s = p.new_stream(&opts(12, None, None, None)).unwrap();
+    let steps = p.push_steps(&mut s, &audio(&bundle, 0, 8000)).unwrap();
+    let a = steps[1].clone();
+    assert!(a.logits.is_some(), "the stream records its logits");
+    for kind in [BackendKind::Ort, BackendKind::Tract] {
+        assert_step_agrees(kind, "clean", &a, &a);
+        let mut bad_frame = a.clone();
+        bad_frame.frames[2].trans[1] = f32::NAN;
+        let mut bad_logit = a.clone();
+        bad_logit.logits.as_mut().unwrap().cond[3] = f32::NAN;
+        for (what, bad) in [("frame", &bad_frame), ("logits", &bad_logit)] {
+            common::assert_check_fails(
+                &format!("{kind} batch, NaN in the batched {what}"),
+                "non-finite",
+                || {
+                    assert_step_agrees(kind, "probe", &a, bad);
+                },
+            );
+            common::assert_check_fails(
+                &format!("{kind} batch, NaN in the alone {what}"),
+                "non-finite",
+                || {
+                    assert_step_agrees(kind, "probe", bad, &a);
+                },
+            );
+        }
+    }
 }
 
 /// Runs the scenario: every stream stepped alone over its whole life (`alone`); the streams in one
@@ -244,7 +312,7 @@ fn check_scenario(kind: BackendKind) {
         "the scenario moves a stream into a leaving stream's place"
     );
 
-    let (mut worst_frame, mut worst_logit) = (0f32, 0f32);
+    let (mut worst_frame, mut worst_logit) = (0f64, 0f64);
     for (i, ((want, have), twin)) in alone.iter().zip(&got).zip(&got_twins).enumerate() {
         assert_eq!(have.len(), want.len(), "{kind}: stream {i}: token count");
         assert_eq!(
@@ -270,18 +338,9 @@ fn check_scenario(kind: BackendKind) {
             // frames and logits: bit-identical to stepping alone on ort; tract's kernels round
             // differently for different batch sizes (by ~1e-6 here, with step_batch alike), so there
             // the bound of step_batch's test applies
-            let (df, dl) = step_diff(a, b);
+            let (df, dl) = assert_step_agrees(kind, &format!("stream {i} token {t}"), a, b);
             worst_frame = worst_frame.max(df);
             worst_logit = worst_logit.max(dl);
-            let (bf, bl) = match kind {
-                BackendKind::Ort => (0.0, 0.0),
-                BackendKind::Tract => (1e-5, 1e-4),
-            };
-            assert!(
-                df <= bf && dl <= bl,
-                "{kind}: stream {i} token {t}: frames differ from stepping alone by {df:e}, logits by {dl:e} \
-                 (bounds {bf:e}, {bl:e})"
-            );
         }
     }
     eprintln!(

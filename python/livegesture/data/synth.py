@@ -35,7 +35,7 @@ Everything audio-driven is causal: an onset at time t only changes frames at or 
   - ``flux`` (the original corpus): the spectral-flux onset strength;
   - ``loudness``: the energy envelope at the onset's frame, a feature every speech has (on real, almost
     continuous speech the flux strength follows the envelope far less than on espeak-ng speech: r 0.50
-    against 0.84, docs/eval/realspeech-coupling-2026-11-25);
+    against 0.84, docs/experiments.md, the coupling diagnostic);
   - ``syllable``: the envelope's mean over the first 60 ms, the onset's events starting 60 ms later;
   - ``syllable-body``: ``syllable`` for strokes, nods and flicks, the brows on the flux strength (the
     original corpus's face target);

@@ -8,7 +8,7 @@
 
 The guidance scale is the project's choice: the paper gives none (the authors' SHOW scripts use 1.15). Configs
 keep 1.25; the shipped models/diffsheg bundle samples with 3.0, set at export (``export.py --guidance 3``,
-docs/eval/diffsheg-guidance-2026-11-25).
+docs/experiments.md, the guidance study).
 """
 from __future__ import annotations
 

@@ -61,10 +61,10 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 import torch
 
+from ..frames import Frame, frames_to_arrays
 from ..frontend import logmel_frames
 from ..motion import features_to_motion
 from ..regions import FPS, SAMPLE_RATE
-from ..stream import Frame, frames_to_arrays
 from .denoiser import MOTION_DIM
 from .model import MOTION_ORDER, DiffSHEG, motion_layout
 from .noise import NoiseStream
@@ -130,16 +130,20 @@ class TorchBackend:
 
     def __init__(self, model: DiffSHEG):
         self.model = model.eval()
+        self.device = next(model.parameters()).device     # CPU or a GPU: inputs go there, outputs come back
+
+    def _in(self, a, dtype) -> torch.Tensor:
+        return torch.from_numpy(np.ascontiguousarray(a, dtype=dtype)).to(self.device)
 
     @torch.no_grad()
     def encode(self, mel: np.ndarray) -> np.ndarray:
-        return self.model.speech_encoder(torch.from_numpy(np.ascontiguousarray(mel, dtype=np.float32))).numpy()
+        return self.model.speech_encoder(self._in(mel, np.float32)).cpu().numpy()
 
     @torch.no_grad()
     def denoise(self, x, t, audio, speaker, cond) -> np.ndarray:
-        f = lambda a, dt: torch.from_numpy(np.ascontiguousarray(a, dtype=dt))  # noqa: E731
+        f = self._in
         return self.model.denoiser(f(x, np.float32), f(t, np.int64), f(audio, np.float32), f(speaker, np.int64),
-                                   f(cond, np.float32)).numpy()
+                                   f(cond, np.float32)).cpu().numpy()
 
 
 def guided_eps(backend, x: np.ndarray, t: int, audio: np.ndarray, speaker: int, guidance: float) -> np.ndarray:

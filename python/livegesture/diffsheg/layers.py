@@ -23,7 +23,7 @@ import torch.nn.functional as F
 def sinusoidal(pos: torch.Tensor, dim: int, base: float = 10000.0) -> torch.Tensor:
     """pos (...,) float -> (..., dim): [cos(pos * f_i), sin(pos * f_i)], f_i = base^(-i / (dim/2))."""
     half = dim // 2
-    freqs = torch.exp(-math.log(base) * torch.arange(half, dtype=torch.float32) / half)
+    freqs = torch.exp(-math.log(base) * torch.arange(half, dtype=torch.float32, device=pos.device) / half)
     ang = pos.float()[..., None] * freqs
     return torch.cat([torch.cos(ang), torch.sin(ang)], dim=-1)
 

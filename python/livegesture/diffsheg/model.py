@@ -94,4 +94,4 @@ class DiffSHEG(nn.Module):
     def denormalise(self, x: np.ndarray) -> np.ndarray:
         """(..., D) float32 normalised -> features: ``x * std + mean``, two float32 roundings (no FMA)."""
         x = np.asarray(x, dtype=np.float32)
-        return (x * self.motion_std.numpy()) + self.motion_mean.numpy()
+        return (x * self.motion_std.cpu().numpy()) + self.motion_mean.cpu().numpy()

@@ -27,6 +27,8 @@ import torch.nn.functional as F
 from tqdm import tqdm
 
 from .. import checkpoint as ckpt
+from ..trainkit import (Logger, LossTrack, Prefetcher, RunOptions, TrainData, dist_info, log_values, sync_grads,
+                        to_device)
 from .config import get_config
 from .model import MOTION_ORDER, DiffSHEG
 from .schedule import alphas_cumprod
@@ -76,7 +78,8 @@ class WindowData:
         self.spk = np.array([speaker_index[c.speaker] for c in train_data.clips], dtype=np.int64)
         self.frames = np.array([len(x) for x in self.x])
 
-    def batch(self, rng, n, B):
+    def windows(self, rng, n, B):
+        """(x0 (B, n, D) float32, mel (B, 2n, n_mels) float32, speaker ids (B,) int64), numpy (host)."""
         ok = np.nonzero(self.frames >= n)[0]
         if len(ok) == 0:
             raise SystemExit(f"no training clip has {n} frames")
@@ -89,14 +92,17 @@ class WindowData:
             mel = np.stack([self.mel_variants[c][k][2 * s:2 * (s + n)] for c, s, k in zip(ci, st, v)])
         else:
             mel = np.stack([self.mel[c][2 * s:2 * (s + n)] for c, s in zip(ci, st)])
-        return torch.from_numpy(x0), torch.from_numpy(mel), torch.from_numpy(self.spk[ci])
+        return x0, mel, self.spk[ci]
+
+    def batch(self, rng, n, B):
+        return tuple(torch.from_numpy(v) for v in self.windows(rng, n, B))
 
 
 def losses(model: DiffSHEG, x0, mel, spk, t, eps, cond, tc: DiffSHEGTrainConfig, sab, s1mab):
     a = sab[t][:, None, None]
     b = s1mab[t][:, None, None]
     x_t = a * x0 + b * eps
-    pred = model(mel, x_t, t, spk, cond)
+    pred = model(mel, x_t, t, spk, cond).float()   # (bf16 under autocast) the losses in float32
     l_t = F.mse_loss(pred, eps)
     x0p = (x_t - b * pred) / a
     # x0' = x0 + sqrt((1-ab)/ab) (eps - eps'): at high noise its error is amplified up to 156x; unweighted, L_v
@@ -111,10 +117,15 @@ def losses(model: DiffSHEG, x0, mel, spk, t, eps, cond, tc: DiffSHEGTrainConfig,
 
 
 def train(config: str, data_dir: str, out: str, device: str = "cpu", overrides: dict | None = None,
-          init_from: str | None = None) -> Path:
+          init_from: str | None = None, opts: RunOptions | None = None, step_hook=None) -> Path:
     """``init_from``: fine-tune a trained DiffSHEG checkpoint (its config, weights, motion and mel
-    normalisation and style ids are kept; ``config`` must name the same config). Fresh Adam state and warm-up."""
-    from ..train import Logger, TrainData   # the LiveGesture trainer's data loading and logging
+    normalisation and style ids are kept; ``config`` must name the same config). Fresh Adam state and warm-up.
+    ``opts``: how to run (:class:`livegesture.trainkit.RunOptions`; default: those of ``device``): batches
+    drawn ahead on a background thread, bf16 autocast on CUDA, ``torch.compile``. Under ``torchrun`` the
+    processes train one model data-parallel (gradients averaged); process 0 writes. ``step_hook(step)``
+    (benchmarks) runs after each step."""
+    opts = opts or RunOptions.for_device(str(device))
+    rank, world = dist_info()
     cfg = get_config(config)
     src = None
     if init_from:
@@ -126,7 +137,8 @@ def train(config: str, data_dir: str, out: str, device: str = "cpu", overrides: 
     out.mkdir(parents=True, exist_ok=True)
     final = out / "final.pt"
     if final.exists():
-        print(f"[diffsheg] done already ({final})")
+        if rank == 0:
+            print(f"[diffsheg] done already ({final})")
         return final
     torch.manual_seed(tc.seed)
     model = DiffSHEG(cfg).to(device)
@@ -153,63 +165,93 @@ def train(config: str, data_dir: str, out: str, device: str = "cpu", overrides: 
     ema = copy.deepcopy(model).eval()
     for p in ema.parameters():
         p.requires_grad_(False)
-    opt = torch.optim.Adam(model.parameters(), lr=tc.lr)
+    params = list(model.parameters())
+    fused = opts.cuda and torch.cuda.is_available()
+    opt = torch.optim.Adam(params, lr=tc.lr, **({"fused": True} if fused else {}))
     ab = alphas_cumprod(cfg.diffusion_steps, cfg.beta_start, cfg.beta_end)
     sab = torch.from_numpy(ab ** 0.5).float().to(device)
     s1mab = torch.from_numpy((1 - ab) ** 0.5).float().to(device)
     info = {"family": "diffsheg", "config": cfg.name, "train_config": asdict(tc), "data": str(Path(data_dir).resolve()),
+            **({"world_size": world} if world > 1 else {}),
             "train_clips": len(data.clips), "train_frames": int(wd.frames.sum()),
             "train_minutes": round(float(wd.frames.sum()) / 30 / 60, 2), "speakers": numbers,
             "augment": tc.augment, **({"init_from": str(init_from)} if init_from else {})}
     resume = out / "diffsheg.resume.pt"
     start, spent = 0, 0.0
     if resume.exists():
-        st = torch.load(resume, map_location=device, weights_only=False)
+        st = torch.load(resume, map_location="cpu", weights_only=False)
         model.load_state_dict(st["model"])
         ema.load_state_dict(st["ema"])
         opt.load_state_dict(st["opt"])
         start, spent = st["step"], st.get("seconds", 0.0)
-        print(f"[diffsheg] resuming at step {start}")
+        if rank == 0:
+            print(f"[diffsheg] resuming at step {start}")
     logger = Logger(out)
-    rng = np.random.default_rng(tc.seed * 1000 + start)
-    torch.manual_seed(tc.seed * 1000 + start)
-    model.train()
-    bar = tqdm(range(start, tc.steps), desc="diffsheg", dynamic_ncols=True, mininterval=2.0)
-    t0, avg, done = time.time(), None, start
-    for step in bar:
-        if tc.max_minutes > 0 and spent + time.time() - t0 > 60 * tc.max_minutes:
-            print(f"[diffsheg] time budget of {tc.max_minutes} min reached at step {step}")
-            break
+    # process 0 draws what a single process draws; the others their own streams
+    rng = np.random.default_rng(tc.seed * 1000 + start if rank == 0 else [tc.seed * 1000 + start, rank])
+    torch.manual_seed(tc.seed * 1000 + start + 7919 * rank)
+
+    def sample(step, rng):
+        # every host random number of a step, in order: window length, windows, diffusion steps
         n = cfg.window if rng.random() >= tc.short_p else int(rng.integers(min(tc.short_min, cfg.window), cfg.window + 1))
-        x0, mel, spk = (v.to(device) for v in wd.batch(rng, n, tc.batch))
-        t = torch.from_numpy(rng.integers(0, cfg.diffusion_steps, tc.batch)).to(device)
+        x0, mel, spk = wd.windows(rng, n, tc.batch)
+        t = rng.integers(0, cfg.diffusion_steps, tc.batch)
+        return {"x0": x0, "mel": mel, "spk": spk, "t": t}
+
+    def compute(batch):
+        x0 = batch["x0"]
         eps = torch.randn_like(x0)
-        cond = (torch.rand(tc.batch, device=device) >= tc.null_cond_prob).float()
-        for g in opt.param_groups:
-            g["lr"] = tc.lr * min(1.0, (step + 1) / tc.warmup)
-        loss, parts = losses(model, x0, mel, spk, t, eps, cond, tc, sab, s1mab)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(model.parameters(), tc.grad_clip)
-        opt.step()
-        with torch.no_grad():
-            d = min(tc.ema, (1 + step) / (10 + step))
-            for pe, pm in zip(ema.parameters(), model.parameters()):
-                pe.mul_(d).add_(pm.detach(), alpha=1 - d)
-            for be, bm in zip(ema.buffers(), model.buffers()):
-                be.copy_(bm)
-        v = float(loss.detach())
-        done = step + 1
-        avg = v if avg is None else 0.95 * avg + 0.05 * v
-        bar.set_postfix(loss=f"{avg:.4f}", eps=f"{float(parts['l_eps'].detach()):.4f}")
-        if step % tc.log_every == 0 or step == tc.steps - 1:
-            logger.log(stage="diffsheg", step=step, loss=v, **{k: float(x.detach()) for k, x in parts.items()},
-                       window=n, seconds=round(spent + time.time() - t0, 2))
-        if (step + 1) % tc.save_every == 0 and step + 1 < tc.steps:
-            tmp = resume.with_suffix(".tmp")
-            torch.save({"model": model.state_dict(), "ema": ema.state_dict(), "opt": opt.state_dict(),
-                        "step": step + 1, "seconds": spent + time.time() - t0}, tmp)
-            os.replace(tmp, resume)
+        cond = (torch.rand(tc.batch, device=x0.device) >= tc.null_cond_prob).float()
+        return losses(fwd, x0, batch["mel"], batch["spk"], batch["t"], eps, cond, tc, sab, s1mab)
+
+    if opts.compile:            # in place (state dict unchanged); window lengths vary: dynamic shapes
+        model.compile(dynamic=True)
+    fwd = model
+    feed = Prefetcher(sample, rng, range(start, tc.steps), depth=opts.prefetch, pin=opts.pin)
+    ema_p, model_p = list(ema.parameters()), [p.detach() for p in params]
+    model.train()
+    bar = tqdm(range(start, tc.steps), desc="diffsheg", dynamic_ncols=True, mininterval=2.0, disable=rank != 0)
+    t0, track, done = time.time(), LossTrack(), start
+    try:
+        for step in bar:
+            if tc.max_minutes > 0 and spent + time.time() - t0 > 60 * tc.max_minutes:
+                if rank == 0:
+                    print(f"[diffsheg] time budget of {tc.max_minutes} min reached at step {step}")
+                break
+            batch = to_device(feed.get(step), device, non_blocking=opts.cuda)
+            for g in opt.param_groups:
+                g["lr"] = tc.lr * min(1.0, (step + 1) / tc.warmup)
+            with opts.autocast():
+                loss, parts = compute(batch)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            sync_grads(params)
+            torch.nn.utils.clip_grad_norm_(params, tc.grad_clip)
+            opt.step()
+            with torch.no_grad():
+                d = min(tc.ema, (1 + step) / (10 + step))
+                torch._foreach_mul_(ema_p, d)
+                torch._foreach_add_(ema_p, model_p, alpha=1 - d)
+                for be, bm in zip(ema.buffers(), model.buffers()):
+                    be.copy_(bm)
+            done = step + 1
+            track.update(loss)
+            if step_hook:
+                step_hook(step)
+            if step % tc.log_every == 0 or step == tc.steps - 1:
+                bar.set_postfix(loss=f"{track.value():.4f}", eps=f"{float(parts['l_eps'].detach()):.4f}")
+                logger.log(stage="diffsheg", step=step, loss=float(loss.detach()), **log_values(parts),
+                           window=int(batch["x0"].shape[1]), seconds=round(spent + time.time() - t0, 2))
+            if rank == 0 and (step + 1) % tc.save_every == 0 and step + 1 < tc.steps:
+                tmp = resume.with_suffix(".tmp")
+                torch.save({"model": model.state_dict(), "ema": ema.state_dict(), "opt": opt.state_dict(),
+                            "step": step + 1, "seconds": spent + time.time() - t0}, tmp)
+                os.replace(tmp, resume)
+    finally:
+        feed.close()
+    avg = track.value()
+    if rank != 0:
+        return final
     seconds = round(spent + time.time() - t0, 1)
     prov = {**info, "stages_done": ["diffsheg"], "final_losses": {"diffsheg": avg}, "steps": done,
             "train_seconds": seconds, "weights": f"EMA (decay {tc.ema}) of the trained weights",

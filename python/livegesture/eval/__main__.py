@@ -23,7 +23,7 @@ own motion of the split (the reference):
 - ``bc_mismatched_motion``, ``bc_gap_motion_swap``, ``bc_motion_swap_wins``: the motion swap, clip i's own
   audio against the motion of clip i+1 over the frames both have. The onset track is the same on both sides,
   so the gap is not the onset-density difference of two recordings (``livegesture.eval.generalise`` and
-  docs/eval/realspeech-metric-2026-11-25 explain why the audio swap has no power on dense real speech);
+  docs/evaluation.md explain why the audio swap has no power on dense real speech);
 - ``l1div_realisations`` (paper eq. 2, generated only, >= 2 realisations), ``l1div_beat2`` (the EMAGE
   code's L1div), ``l1div_across_clips``;
 - ``fgd`` (generated vs real motion of the split; for the reference, real split vs real train split)
@@ -71,14 +71,15 @@ def _load_generated(dirs: list[str], ids: list[str]) -> tuple[list[str], list[li
     return present, reals, missing
 
 
-def _generate(ckpt: str, ids: list[str], audio: dict, n: int, seed: int, guidance, save_dir) -> list[list[dict]]:
+def _generate(ckpt: str, ids: list[str], audio: dict, n: int, seed: int, guidance, save_dir,
+              device: str = "cpu") -> list[list[dict]]:
     try:
         from ..checkpoint import load as load_checkpoint
         from ..stream import generate_clip
     except ImportError as e:
         raise SystemExit(f"--checkpoint needs livegesture.checkpoint.load and livegesture.stream.generate_clip, "
                          f"which cannot be imported here ({e}); generate the clips and pass --generated DIR") from e
-    model = load_checkpoint(ckpt)
+    model = load_checkpoint(ckpt).to(device)     # the streaming loops run where the model is
     if getattr(model, "family", "livegesture") == "diffsheg":
         return _generate_diffsheg(model, ids, audio, n, seed, guidance, save_dir)
     out = []
@@ -255,6 +256,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="first seed with --checkpoint")
     ap.add_argument("--guidance", type=float, default=None, help="CFG scale with --checkpoint (model default)")
     ap.add_argument("--save-generated", help="with --checkpoint: also write the generated npz files here")
+    ap.add_argument("--device", default="cpu", help="with --checkpoint: run the model here (cpu, cuda)")
     ap.add_argument("--fgd-encoder", help="FGD encoder file (trained on the train split if missing; default "
                                           "DATA/fgd_encoder.pt)")
     ap.add_argument("--fgd-steps", type=int, default=1000, help="training steps if the encoder is trained")
@@ -332,7 +334,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.generated:
             raise SystemExit("give --generated or --checkpoint, not both")
         gen_reals = _generate(args.checkpoint, ids, audio, max(1, args.n_realisations), args.seed, args.guidance,
-                              args.save_generated)
+                              args.save_generated, device=args.device)
         gids = ids
         report["generated_source"] = {"checkpoint": args.checkpoint, "seeds": list(
             range(args.seed, args.seed + max(1, args.n_realisations))), "guidance": args.guidance}

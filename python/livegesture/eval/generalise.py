@@ -464,10 +464,10 @@ def _load_generated(dirs: list[str], ids: list[str], what: str) -> list[list[dic
     return out
 
 
-def _generate(ckpt: str, ids, audios, n: int, seed: int, guidance) -> list[list[dict]]:
+def _generate(ckpt: str, ids, audios, n: int, seed: int, guidance, device: str = "cpu") -> list[list[dict]]:
     from ..checkpoint import load as load_checkpoint
     from ..stream import generate_clip
-    model = load_checkpoint(ckpt)
+    model = load_checkpoint(ckpt).to(device)     # the streaming loop runs where the model is
     out = []
     for k, (cid, x) in enumerate(zip(ids, audios)):
         reals = []
@@ -600,6 +600,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="the corpus generator's stroke drive for the real set's reference motion: the one the "
                     "model's training corpus used (synth --stroke-drive; default flux, the original corpus)")
     ap.add_argument("--checkpoint", help="generate with this checkpoint (Python streaming reference)")
+    ap.add_argument("--device", default="cpu", help="with --checkpoint: run the model here (cpu, cuda)")
     ap.add_argument("--generated-real", action="append", default=[], help="folder of {id}.npz for the real set "
                     "(repeat for several realisations)")
     ap.add_argument("--generated-synth", action="append", default=[], help="folder of {id}.npz for the synth set")
@@ -657,7 +658,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.time()
     for name, (ids, aud, mot) in sets.items():
         if a.checkpoint:
-            model_m = _generate(a.checkpoint, ids, aud, a.n_realisations, a.seed, a.guidance)
+            model_m = _generate(a.checkpoint, ids, aud, a.n_realisations, a.seed, a.guidance, device=a.device)
         else:
             model_m = _load_generated(gen[name], ids, f"--generated-{name}")
         ref_m = ([[m] for m in mot] if mot is not None

@@ -1,4 +1,4 @@
-//! The manifest sections only a DiffSHEG bundle has (export/BUNDLE.md "DiffSHEG bundles"):
+//! The manifest sections only a DiffSHEG bundle has (docs/bundle.md "DiffSHEG bundles"):
 //! `diffusion`, `foppas`, `noise`, `motion`, `speakers`, and the `regions` and per-region
 //! `normalisation` it shares in form with LiveGesture, parsed and checked against each other in
 //! [`parse_manifest`](super::parse_manifest) when the manifest's `family` is `diffsheg`. Errors name the

@@ -1,6 +1,6 @@
 //! Model bundles: `manifest.json`, the step ONNX graphs it lists, and their verification.
 //!
-//! A bundle is a folder written by `export/export.py` (format: `export/BUNDLE.md`). [`Bundle::load`]
+//! A bundle is a folder written by `export/export.py` (format: `docs/bundle.md`). [`Bundle::load`]
 //!
 //! 1. reads `manifest.json` and refuses any `schema_version` other than [`SCHEMA_VERSION`];
 //! 2. checks the sha256 and size of **every** file listed under `files` (a missing file, a changed

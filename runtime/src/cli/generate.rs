@@ -27,9 +27,10 @@ pub struct Args {
     /// Input WAV file (any sample rate and channel count; 8/16/24/32-bit PCM or 32-bit float).
     #[arg(value_name = "IN.wav")]
     pub input: PathBuf,
-    /// Output BEAT2 .npz (poses, trans, expressions, betas, model, gender, mocap_frame_rate), or a
-    /// .bvh on the project's own skeleton (body and hands; no face parameters).
-    #[arg(short, long, value_name = "OUT.npz")]
+    /// Output file, its format by extension: .npz (BEAT2: poses, trans, expressions, betas, model,
+    /// gender, mocap_frame_rate), .bvh (the project's own skeleton; no face parameters), .glb or
+    /// .gltf (glTF 2.0: skinned skeleton and one animation; no face parameters).
+    #[arg(short, long, value_name = "OUT.npz|.bvh|.glb|.gltf")]
     pub output: PathBuf,
     #[command(flatten)]
     pub model: ModelArgs,
@@ -37,7 +38,41 @@ pub struct Args {
     pub gen: GenArgs,
 }
 
+/// The file formats `-o` writes, by extension (docs/output.md, docs/avatars.md).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum OutputFormat {
+    Npz,
+    Bvh,
+    Gltf,
+}
+
+/// The extensions `-o` accepts, as listed in the refusal.
+const OUTPUT_EXTENSIONS: &str = ".npz, .bvh, .glb, .gltf";
+
+impl OutputFormat {
+    fn of(path: &std::path::Path) -> Result<Self> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        match ext.as_deref() {
+            Some("npz") => Ok(Self::Npz),
+            Some("bvh") => Ok(Self::Bvh),
+            Some("glb" | "gltf") => Ok(Self::Gltf),
+            other => Err(InputError(format!(
+                "{}: cannot write {}; the output name must end in one of {OUTPUT_EXTENSIONS}",
+                path.display(),
+                other.map_or("a file without an extension".to_string(), |e| format!(
+                    ".{e} files"
+                )),
+            ))
+            .into()),
+        }
+    }
+}
+
 pub fn run(a: Args, form: FormChoice) -> Result<()> {
+    let format = OutputFormat::of(&a.output)?;
     let opts = a.gen.stream_options()?;
     if let Some(parent) = a.output.parent().filter(|p| !p.as_os_str().is_empty()) {
         if !parent.is_dir() {
@@ -97,13 +132,11 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
         writer.write_frame(f)?;
     }
     bar.finish_and_clear();
-    if a.output
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("bvh"))
-    {
-        livegesture::bvh::write_bvh(&a.output, &writer.motion()?)?; // docs/output.md: face stays in the npz
-    } else {
-        writer.finish()?;
+    // docs/output.md, docs/avatars.md: face expressions stay in the npz
+    match format {
+        OutputFormat::Npz => writer.finish()?,
+        OutputFormat::Bvh => livegesture::bvh::write_bvh(&a.output, &writer.motion()?)?,
+        OutputFormat::Gltf => livegesture::output::write_gltf(&a.output, &writer.motion()?)?,
     }
     eprintln!(
         "livegesture: wrote {} frames ({:.3} s of audio at {} Hz, {} fps, {} model on {}) to {}",

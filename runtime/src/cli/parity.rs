@@ -20,7 +20,7 @@ use super::common::{BackendArg, InputError};
 #[derive(Debug, clap::Args)]
 #[command(
     after_help = "Examples:\n  livegesture parity --bundle models/default\n  \
-    livegesture parity --bundle /tmp/tiny-bundle --backends tract --checks graph,logmel --json parity.json"
+    livegesture parity --bundle target/tiny-bundle --backends tract --checks graph,logmel --json parity.json"
 )]
 pub struct Args {
     /// Model bundle folder (default: $LIVEGESTURE_BUNDLE, else the repository's models/default).

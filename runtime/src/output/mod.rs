@@ -56,17 +56,20 @@
 //!
 //! # Layout
 //!
-//! [`Frame`] and [`FrameSink`] here; the sinks in [`jsonl`], [`binary`] and [`npz`].
+//! [`Frame`] and [`FrameSink`] here; the sinks in [`jsonl`], [`binary`] and [`npz`]; glTF 2.0 files
+//! (`.glb`, `.gltf`: the project's skeleton and one animation, docs/avatars.md) in [`gltf`].
 
 use anyhow::{bail, ensure, Context, Result};
 use serde::ser::SerializeStruct;
 use serde::{Deserialize, Serialize, Serializer};
 
 mod binary;
+pub mod gltf;
 mod jsonl;
 mod npz;
 
 pub use binary::{binary_header, BinaryFrameReader, BinaryFrameWriter};
+pub use gltf::{gltf_from_frames, write_gltf, GltfContainer};
 pub use jsonl::JsonLinesWriter;
 pub use npz::{read_beat2_npz, write_beat2_npz, Beat2Motion, NpzFrameWriter};
 

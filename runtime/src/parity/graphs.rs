@@ -74,9 +74,27 @@ pub(super) fn graph_rows(
         refv.get(&format!("step{last}.new_cache.{}", c.name))?;
     }
     // docs/parity.md's first row, torch step-by-step vs torch offline, is measured by the exporter (it needs
-    // the PyTorch model) and recorded in the manifest's `checks`: reported as recorded.
-    if let Some(e) = bundle.manifest().checks[&spec.name]["torch_step_vs_offline_max_abs"].as_f64()
-    {
+    // the PyTorch model) and recorded in the manifest's `checks`: reported as recorded. Every graph
+    // that is not another form's (docs/bundle.md#forms-and-precision) must have it: a missing figure
+    // fails, naming the key looked for.
+    let form_graph = is_form_graph(bundle, &spec.name);
+    let step_key = "torch_step_vs_offline_max_abs";
+    let step_figure = bundle.manifest().checks[&spec.name][step_key].as_f64();
+    if step_figure.is_none() && !form_graph {
+        rows.push(Row::failed(
+            Check::Graph,
+            &spec.name,
+            "torch step vs offline",
+            "(all, recorded by export)",
+            TORCH_STEP_VS_OFFLINE,
+            format!(
+                "manifest.json has no checks.{}.{step_key}: the exporter's torch step-vs-offline \
+                 figure is missing",
+                spec.name
+            ),
+        ));
+    }
+    if let Some(e) = step_figure {
         rows.push(Row {
             check: Check::Graph,
             what: spec.name.clone(),
@@ -104,6 +122,20 @@ pub(super) fn graph_rows(
     ]
     .into_iter()
     .find_map(|(key, what)| checks[key].as_f64().map(|e| (e, what)));
+    if recorded.is_none() && form_graph {
+        rows.push(Row::failed(
+            Check::Graph,
+            &spec.name,
+            "torch form vs canonical",
+            "(all, recorded by export)",
+            TORCH_FUSED_VS_CANONICAL,
+            format!(
+                "manifest.json has no checks.{0}.torch_fused_vs_canonical_max_abs nor \
+                 checks.{0}.torch_form_vs_canonical_max_abs: the exporter's figure for this form is missing",
+                spec.name
+            ),
+        ));
+    }
     if let Some((e, what)) = recorded {
         rows.push(Row {
             check: Check::Graph,
@@ -126,11 +158,38 @@ pub(super) fn graph_rows(
         runs.push((*kind, r));
     }
     let outputs = spec.output_names();
+    // a reduced-precision bundle's reference vectors are the f32 bundle's (torch on the f32 weights),
+    // checked with the bound export/quantize.py measured and stated per graph
+    // (docs/bundle.md#forms-and-precision)
+    let reduced_key = "reduced_vs_f32_torch_bound";
+    let reduced = bundle
+        .is_reduced_precision()
+        .then(|| checks[reduced_key].as_f64());
     for (kind, run) in &runs {
-        // a reduced-precision bundle's reference vectors are onnxruntime's on its own graphs (docs/bundle.md#forms-and-precision)
-        let (comparison, bound) = match kind {
-            BackendKind::Ort => (format!("ort vs {}", bundle.reference_name()), ORT_VS_TORCH),
-            BackendKind::Tract => (
+        let (comparison, bound) = match (kind, reduced) {
+            (_, Some(None)) => {
+                rows.push(Row::failed(
+                    Check::Graph,
+                    &spec.name,
+                    format!("{kind} vs f32 torch"),
+                    "(all)",
+                    ORT_VS_TORCH,
+                    format!(
+                        "manifest.json has no checks.{}.{reduced_key}: a reduced-precision bundle states \
+                         its bound against the f32 torch reference vectors (export/quantize.py)",
+                        spec.name
+                    ),
+                ));
+                continue;
+            }
+            (BackendKind::Ort, Some(Some(b))) => ("ort vs f32 torch".to_string(), b),
+            (BackendKind::Tract, Some(Some(b))) => {
+                ("tract vs f32 torch".to_string(), b + TRACT_VS_ORT)
+            }
+            (BackendKind::Ort, None) => {
+                (format!("ort vs {}", bundle.reference_name()), ORT_VS_TORCH)
+            }
+            (BackendKind::Tract, None) => (
                 format!("tract vs {}", bundle.reference_name()),
                 TRACT_VS_TORCH,
             ),
@@ -212,4 +271,21 @@ pub(super) fn graph_rows(
         ));
     }
     Ok(())
+}
+
+/// Whether `name` is a graph of a form other than the canonical one only (`experts_fused`,
+/// `decoders_fused`, `fusion_attention`, ...): its torch figure is the form-vs-canonical one.
+fn is_form_graph(bundle: &Bundle, name: &str) -> bool {
+    let Ok(lg) = bundle.livegesture() else {
+        return false;
+    };
+    let forms = lg.form_graphs();
+    let in_form = |f: &crate::bundle::FormGraphs| {
+        f.experts.iter().chain(&f.decoders).any(|g| g == name) || f.fusion == name
+    };
+    let canonical = forms.get("canonical").is_some_and(in_form);
+    !canonical
+        && forms
+            .iter()
+            .any(|(k, f)| k.as_str() != "canonical" && in_form(f))
 }

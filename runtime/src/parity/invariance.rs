@@ -145,7 +145,7 @@ pub(super) fn batch_rows(
                     error: differing as f64,
                     compared,
                     bound: 0.0,
-                    pass: differing == 0,
+                    pass: differing == 0 && compared > 0,
                     detail: first.map(|(i, t, a, b)| {
                         format!(
                             "stream {i} first differs at step {t}: batched {a:?} vs separate {b:?}"
@@ -198,3 +198,7 @@ pub(super) fn run_batched(
     }
     Ok(out)
 }
+
+#[cfg(test)]
+#[path = "invariance_tests.rs"]
+mod tests;

@@ -54,8 +54,16 @@ impl Row {
             error: m.err,
             compared: m.count,
             bound,
-            pass: m.err <= bound && m.problem.is_none(),
-            detail: m.problem.clone().or_else(|| m.location.clone()),
+            // a row with nothing compared proves nothing: it fails
+            pass: m.err <= bound && m.problem.is_none() && m.count > 0,
+            detail: m
+                .problem
+                .clone()
+                .or_else(|| m.location.clone())
+                .or_else(|| {
+                    (m.count == 0)
+                        .then(|| "nothing compared (0 values): the check proves nothing".into())
+                }),
         }
     }
 
@@ -288,5 +296,34 @@ impl Report {
             ));
         }
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::rollout::token_row;
+    use super::*;
+
+    /// A row with nothing compared proves nothing: it fails, and says so.
+    #[test]
+    fn a_row_with_nothing_compared_fails() {
+        let r = Row::max_abs(
+            Check::Graph,
+            "g",
+            "ort vs torch",
+            "out",
+            &MaxAbs::default(),
+            1e-5,
+        );
+        assert_eq!(r.compared, 0);
+        assert!(!r.pass, "{r:?}");
+        assert!(r.failure_line().contains("nothing compared"), "{r:?}");
+        let t = token_row(Check::Rollout, "rollout", "ort vs torch", &[], &[], None);
+        assert!(!t.pass, "an empty token comparison passed: {t:?}");
+        // the same rows with something compared pass
+        let mut m = MaxAbs::default();
+        m.add_f32(0, "x".into(), 1.0, 1.0);
+        assert!(Row::max_abs(Check::Graph, "g", "ort vs torch", "out", &m, 1e-5).pass);
+        assert!(token_row(Check::Rollout, "r", "c", &[vec![1]], &[vec![1]], None).pass);
     }
 }

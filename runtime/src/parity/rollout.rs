@@ -50,7 +50,11 @@ pub(super) fn frame_rows_steps(
             for (a, b) in got.iter().zip(want.iter()) {
                 for (fa, fb) in a.frames.iter().zip(&b.frames) {
                     for (j, (x, y)) in field(fa, k).iter().zip(field(fb, k)).enumerate() {
-                        if (*x as f64 - *y as f64).abs() > m.err || x.is_nan() || m.step.is_none() {
+                        if (*x as f64 - *y as f64).abs() > m.err
+                            || x.is_nan()
+                            || y.is_nan()
+                            || m.step.is_none()
+                        {
                             m.add_f32(
                                 a.token_index,
                                 format!("{label}frame {}, {name}[{j}]", fa.index),
@@ -95,8 +99,9 @@ pub(super) fn token_row(
         error: differing as f64,
         compared: got.len().max(want.len()) as u64,
         bound: 0.0,
-        pass: differing == 0,
-        detail,
+        // no steps at all proves nothing
+        pass: differing == 0 && got.len().max(want.len()) > 0,
+        detail: detail.or_else(|| got.is_empty().then(|| "nothing compared (0 steps)".into())),
     }
 }
 
@@ -349,7 +354,11 @@ pub(super) fn rollout_rows(
                         continue;
                     }
                     for (j, (x, y)) in field(fr, k).iter().zip(row.iter()).enumerate() {
-                        if (*x as f64 - *y as f64).abs() > m.err || x.is_nan() || m.step.is_none() {
+                        if (*x as f64 - *y as f64).abs() > m.err
+                            || x.is_nan()
+                            || y.is_nan()
+                            || m.step.is_none()
+                        {
                             m.add_f32(st.token_index, format!("frame {i}, {name}[{j}]"), *x, *y);
                         } else {
                             m.count += 1;

@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 import websockets
 
+from livegesture.compare import assert_within
+
 ROOT = pathlib.Path(__file__).resolve().parents[3]
 CLIENTS = ROOT / "docs/clients"
 
@@ -23,20 +25,44 @@ def generate(binary, bundle, wav, out, seed):
 
 
 def compare(frames, ref, n_in, rate):
-    """Frames cover the whole audio (ceil rule) and equal generate's within 1e-4."""
+    """Frames cover the whole audio (ceil rule, the last partial token completed with silence) and equal
+    generate's, every frame including the last partial token's, within 1e-4 (scaled, docs/parity.md)."""
     want = -(-n_in * 30 // rate)
-    assert len(frames) == want
+    assert len(frames) == want, f"{len(frames)} frames, the audio needs {want}"
     assert [f["index"] for f in frames] == list(range(want))
-    # generate writes every frame it makes (all of them once it also completes the last token)
-    t = len(ref["poses"])
-    assert want - 4 < t <= want
-    poses = np.array([f["poses"] for f in frames[:t]], dtype=np.float32)
-    expr = np.array([f["expressions"] for f in frames[:t]], dtype=np.float32)
-    trans = np.array([f["trans"] for f in frames[:t]], dtype=np.float32)
-    err = max(np.abs(poses - ref["poses"]).max(), np.abs(expr - ref["expressions"]).max(),
-              np.abs(trans - ref["trans"]).max())
-    assert err <= 1e-4, err
-    return err
+    # generate covers the whole audio too (docs/output.md): no frame may be missing on either side
+    assert len(ref["poses"]) == want, f"generate wrote {len(ref['poses'])} frames, the audio needs {want}"
+    worst = None
+    for k in ("poses", "expressions", "trans"):
+        got = np.array([f[k] for f in frames], dtype=np.float32)
+        d = assert_within(got, ref[k], 1e-4, f"client vs generate: '{k}'")
+        worst = d if worst is None else worst.worst(d)
+    return worst.max_abs
+
+
+def test_the_comparison_fails_on_missing_frames_and_nan(binary, bundle, speech_wav, tmp_path):
+    """compare() is strict: generate's own frames pass; a frame missing (the last partial token's), a moved
+    value, or a NaN in either side fails."""
+    wav, n, rate = speech_wav
+    ref = dict(generate(binary, bundle, wav, tmp_path / "ref.npz", seed=7))
+    frames = [{"index": i, "poses": ref["poses"][i].tolist(), "expressions": ref["expressions"][i].tolist(),
+               "trans": ref["trans"][i].tolist()} for i in range(len(ref["poses"]))]
+    assert compare(frames, ref, n, rate) == 0.0
+    with pytest.raises(AssertionError, match="frames"):
+        compare(frames[:-1], ref, n, rate)                  # the last frame (of the partial token) missing
+    short = {**ref, "poses": ref["poses"][:-2], "expressions": ref["expressions"][:-2], "trans": ref["trans"][:-2]}
+    with pytest.raises(AssertionError, match="generate wrote"):
+        compare(frames, short, n, rate)                     # generate missing frames
+    for k, v in (("poses", 1e-3), ("expressions", float("nan"))):
+        bad = [dict(f) for f in frames]
+        bad[-1] = {**bad[-1], k: list(bad[-1][k])}
+        bad[-1][k][4] = bad[-1][k][4] + v
+        with pytest.raises(AssertionError, match=k):
+            compare(bad, ref, n, rate)
+        bad_ref = {**ref, k: ref[k].copy()}
+        bad_ref[k][-1, 4] += v
+        with pytest.raises(AssertionError, match=k):
+            compare(frames, bad_ref, n, rate)
 
 
 def read_jsonl(path):

@@ -15,8 +15,10 @@ use futures_util::{SinkExt, StreamExt};
 use livegesture::audio::{read_wav_16k_mono, AudioSpan};
 use livegesture::backend::{self, Backend, BackendKind, BackendOptions};
 use livegesture::bundle::Bundle;
+use livegesture::compare::{self, Diff};
 use livegesture::output::{Beat2Motion, Frame};
 use livegesture::serve::ModelInfo;
+use livegesture_parity_tests as common;
 use tokio_tungstenite::tungstenite::Message;
 
 /// The backend the tests run on: tract, CPU, one thread.
@@ -137,32 +139,49 @@ pub fn generate_binary(bundle: &Path, audio: &[f32], seed: u64) -> Beat2Motion {
     livegesture::output::read_beat2_npz(&npz).unwrap()
 }
 
-/// Asserts that a session's frames are the generate binary's (`m`): the same count, and every pose
-/// and expression value within `bound`; a failure names the worst frame and value.
-pub fn assert_matches_generate(got: &[Frame], m: &Beat2Motion, bound: f32) {
+/// Asserts that a session's frames are the generate binary's (`m`): the same count, and poses,
+/// expressions and translation each within `bound` (scaled, `livegesture::compare`: NaN or Inf on
+/// either side fails); a failure names the field, the frame and the value pair.
+pub fn assert_matches_generate(got: &[Frame], m: &Beat2Motion, bound: f64) {
     assert_eq!(m.len(), got.len(), "frame count: generate vs the session");
-    let mut worst = (0f32, 0, "");
-    for (t, f) in got.iter().enumerate() {
-        let poses = (0..165).map(|j| ((f.poses[j] - m.poses[[t, j]]).abs(), "poses"));
-        let expr = (0..100).map(|j| {
-            (
-                (f.expressions[j] - m.expressions[[t, j]]).abs(),
-                "expressions",
-            )
-        });
-        for (d, what) in poses.chain(expr) {
-            if d.is_nan() || d > worst.0 {
-                worst = (d, t, what);
+    for (name, width) in [("poses", 165), ("expressions", 100), ("trans", 3)] {
+        let field = |f: &Frame| -> Vec<f32> {
+            match name {
+                "poses" => f.poses.to_vec(),
+                "expressions" => f.expressions.to_vec(),
+                _ => f.trans.to_vec(),
             }
+        };
+        let of_npz = match name {
+            "poses" => &m.poses,
+            "expressions" => &m.expressions,
+            _ => &m.trans,
+        };
+        let g: Vec<f32> = got.iter().flat_map(field).collect();
+        let w: Vec<f32> = of_npz.iter().copied().collect();
+        assert_eq!(w.len(), got.len() * width, "{name}: npz width");
+        let d = compare::diff(&g, &w);
+        let frame = d.index.unwrap_or(0) / width;
+        if let Err(e) = d.ensure(bound, format!("serve vs the generate binary: {name}")) {
+            panic!("{e} (frame {frame})");
         }
     }
-    assert!(
-        worst.0 <= bound,
-        "serve vs the generate binary: {} at frame {} ({}), bound {bound}",
-        worst.0,
-        worst.1,
-        worst.2
-    );
+}
+
+/// The frames as the npz `generate` writes ([`Beat2Motion`]), for tests of the comparisons.
+pub fn motion_of(frames: &[Frame]) -> Beat2Motion {
+    let rows = |f: fn(&Frame) -> &[f32], w: usize| {
+        ndarray::Array2::from_shape_vec(
+            (frames.len(), w),
+            frames.iter().flat_map(|x| f(x).to_vec()).collect(),
+        )
+        .unwrap()
+    };
+    Beat2Motion {
+        poses: rows(|f| &f.poses[..], 165),
+        trans: rows(|f| &f.trans[..], 3),
+        expressions: rows(|f| &f.expressions[..], 100),
+    }
 }
 
 #[derive(Debug, Default)]
@@ -235,32 +254,33 @@ pub async fn session(addr: SocketAddr, q: &str, bytes: &[u8], cuts: &[usize]) ->
     out
 }
 
-/// Largest |difference| of poses, translation and expressions; panics on a count or index mismatch.
-pub fn max_diff(got: &[Frame], want: &[Frame], what: &str) -> f32 {
+/// The comparison of a session's frames with `want` (`livegesture::compare` per field: NaN or Inf on
+/// either side, or nothing compared, fail); panics on a count, index or timestamp mismatch.
+pub fn frames_diff(got: &[Frame], want: &[Frame], what: &str) -> (&'static str, Diff) {
     assert_eq!(got.len(), want.len(), "{what}: frame count");
-    let mut worst = 0f32;
     for (g, w) in got.iter().zip(want) {
         assert_eq!(g.index, w.index, "{what}: index");
         assert!((g.time_s - w.time_s).abs() < 1e-12, "{what}: time_s");
-        for (a, b) in g
-            .poses
-            .iter()
-            .chain(&g.trans)
-            .chain(&g.expressions)
-            .zip(w.poses.iter().chain(&w.trans).chain(&w.expressions))
-        {
-            worst = worst.max((a - b).abs());
-        }
     }
-    worst
+    common::frames_diff(got, want)
 }
 
+/// Largest |difference| of the frames (infinite when a value is NaN or Inf, or nothing is compared),
+/// for the checks that two sessions differ.
+pub fn max_diff(got: &[Frame], want: &[Frame], what: &str) -> f64 {
+    frames_diff(got, want, what).1.max_abs
+}
+
+/// The session's frames equal `want` within 1e-4 (scaled, docs/parity.md); a failure names the field,
+/// the error, the scale and where.
 pub fn assert_equal(got: &[Frame], want: &[Frame], what: &str) {
-    let worst = max_diff(got, want, what);
-    assert!(
-        worst <= 1e-4,
-        "{what}: frames differ from generate by {worst} (bound 1e-4)"
-    );
+    let (field, d) = frames_diff(got, want, what);
+    if let Err(e) = d.ensure(
+        1e-4,
+        format!("{what}: frames differ from generate: {field}"),
+    ) {
+        panic!("{e}");
+    }
 }
 
 pub fn rt() -> tokio::runtime::Runtime {
@@ -282,18 +302,16 @@ pub fn within<F: std::future::Future>(secs: u64, f: F) -> F::Output {
 /// `livegesture serve` on `bundle` as a child process (tract, any free port, 256 pending tokens):
 /// the child, the address it listens on, and a thread collecting the rest of its log.
 pub fn spawn_serve(bundle: &Path) -> (Child, SocketAddr, JoinHandle<String>) {
+    spawn_serve_with(bundle, &["--max-pending-tokens", "256"])
+}
+
+/// [`spawn_serve`] with other options (`extra`, e.g. `--queue-frames 8`).
+pub fn spawn_serve_with(bundle: &Path, extra: &[&str]) -> (Child, SocketAddr, JoinHandle<String>) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_livegesture"))
         .env_remove("LIVEGESTURE_BUNDLE")
-        .args([
-            "serve",
-            "--addr",
-            "127.0.0.1:0",
-            "--backend",
-            "tract",
-            "--max-pending-tokens",
-            "256",
-            "--bundle",
-        ])
+        .args(["serve", "--addr", "127.0.0.1:0", "--backend", "tract"])
+        .args(extra)
+        .arg("--bundle")
         .arg(bundle)
         .stderr(Stdio::piped())
         .spawn()

@@ -1,13 +1,18 @@
 // LiveGesture browser page: microphone (getUserMedia + AudioWorklet) or a WAV file -> WebSocket
-// (/v1/stream, docs/serve.md) -> live 3D skeleton; or a generated .npz / .bvh with its audio.
+// (/v1/stream, docs/serve.md) -> live 3D figure; or a generated .npz / .bvh / .glb with its audio.
 // The skeleton (names, parents, rest offsets) comes from the server's /skeleton.json, the Rust mirror
-// of python/livegesture/skeleton.py; joints are posed by forward kinematics from the frames' axis-angle.
+// of python/livegesture/skeleton.py. The figure (figure.js), a dropped VRM avatar (vrm.js, retarget.js,
+// avatarui.js) and the face panel (facepanel.js) live in their own modules; docs/avatars.md.
 import * as THREE from 'three';
+import { createFK } from './fk.js';
+import { createFigure } from './figure.js';
+import { createFacePanel } from './facepanel.js';
+import { setupAvatarControls } from './avatarui.js';
+import { loadGltfMotion } from './gltfmotion.js';
 
 const $ = (id) => document.getElementById(id);
 const N = 55;
 const RECORD = 1104;
-const N_EXPR_SHOWN = 6;
 
 // state the browser test reads (runtime/web/tests/browser.mjs)
 const state = (window.lgState = {
@@ -17,44 +22,12 @@ const state = (window.lgState = {
 let SK = null; // { names, parents, offsets }
 let first = null; // joint positions of the first frame shown (to measure movement)
 
-// ------------------------------------------------------------------------------------------ FK
-
-const tmpQ = new THREE.Quaternion();
-const tmpV = new THREE.Vector3();
-const axis = new THREE.Vector3();
-
-function aaQuat(x, y, z, out) {
-  const a = Math.hypot(x, y, z);
-  if (a < 1e-12) return out.set(0, 0, 0, 1);
-  axis.set(x / a, y / a, z / a);
-  return out.setFromAxisAngle(axis, a);
-}
-
-const G = Array.from({ length: N }, () => new THREE.Quaternion());
-const P = Array.from({ length: N }, () => new THREE.Vector3());
-
-// poses: 165 axis-angle values, trans: 3 -> P (joint positions, metres)
-function forwardKinematics(poses, trans) {
-  for (let j = 0; j < N; j++) {
-    aaQuat(poses[3 * j], poses[3 * j + 1], poses[3 * j + 2], tmpQ);
-    const p = SK.parents[j];
-    const o = SK.offsets[j];
-    if (p < 0) {
-      G[j].copy(tmpQ);
-      P[j].set(trans[0] + o[0], trans[1] + o[1], trans[2] + o[2]);
-    } else {
-      G[j].copy(G[p]).multiply(tmpQ);
-      tmpV.set(o[0], o[1], o[2]).applyQuaternion(G[p]);
-      P[j].copy(P[p]).add(tmpV);
-    }
-  }
-  return P;
-}
-
-// ------------------------------------------------------------------------------------------ drawing
+// ------------------------------------------------------------------------------------------ view
 
 const canvas = $('c');
-let renderer = null, scene, camera, jointMesh, boneGeom, ctx2d = null;
+let renderer = null, scene, camera, ctx2d = null;
+let fk = null, figure = null, face = null, avatar = null, P = null, lastShown = null;
+let lastRender = performance.now();
 
 function initView() {
   try {
@@ -76,13 +49,6 @@ function initView() {
   scene.add(dl);
   const grid = new THREE.GridHelper(4, 16, 0x445066, 0x2a303a);
   scene.add(grid);
-  jointMesh = new THREE.InstancedMesh(
-    new THREE.SphereGeometry(0.018, 12, 8),
-    new THREE.MeshStandardMaterial({ color: 0xf0a030, roughness: 0.5 }), N);
-  scene.add(jointMesh);
-  boneGeom = new THREE.BufferGeometry();
-  boneGeom.setAttribute('position', new THREE.BufferAttribute(new Float32Array((N - 1) * 6), 3));
-  scene.add(new THREE.LineSegments(boneGeom, new THREE.LineBasicMaterial({ color: 0x9fc3ff })));
   const resize = () => {
     const w = canvas.clientWidth, h = canvas.clientHeight;
     if (renderer) renderer.setSize(w, h, false);
@@ -94,28 +60,14 @@ function initView() {
   resize();
 }
 
-const m4 = new THREE.Matrix4();
-function drawSkeleton(pos) {
-  for (let j = 0; j < N; j++) {
-    const s = j >= 25 ? 0.45 : j === 22 ? 0.8 : 1;
-    m4.makeScale(s, s, s).setPosition(pos[j]);
-    jointMesh.setMatrixAt(j, m4);
-  }
-  jointMesh.instanceMatrix.needsUpdate = true;
-  const a = boneGeom.attributes.position.array;
-  let k = 0;
-  for (let j = 1; j < N; j++) {
-    const p = pos[SK.parents[j]], c = pos[j];
-    a[k++] = p.x; a[k++] = p.y; a[k++] = p.z; a[k++] = c.x; a[k++] = c.y; a[k++] = c.z;
-  }
-  boneGeom.attributes.position.needsUpdate = true;
-  boneGeom.computeBoundingSphere();
-}
-
 function render() {
+  const now = performance.now();
+  const dt = Math.min(0.1, (now - lastRender) / 1000);
+  lastRender = now;
+  if (avatar) avatar.update(dt);
   if (renderer) {
     renderer.render(scene, camera);
-  } else if (ctx2d && SK) {
+  } else if (ctx2d && SK && P) {
     const w = canvas.width, h = canvas.height;
     ctx2d.fillStyle = '#14161a'; ctx2d.fillRect(0, 0, w, h);
     const pr = (v) => { const q = v.clone().project(camera); return [(q.x + 1) / 2 * w, (1 - q.y) / 2 * h]; };
@@ -132,34 +84,20 @@ function render() {
 
 // ------------------------------------------------------------------------------------------ frames
 
-const exprBars = [];
-function initFace() {
-  const box = $('exprs');
-  for (let i = 0; i < N_EXPR_SHOWN; i++) {
-    const row = document.createElement('div');
-    row.innerHTML = `<div class="row"><span class="k">expression ${i}</span><span>0.00</span></div><div class="bar"><div></div></div>`;
-    box.appendChild(row);
-    exprBars.push([row.querySelector('.row span:last-child'), row.querySelector('.bar div')]);
-  }
-}
-
 function showFrame(f) {
-  const pos = forwardKinematics(f.poses, f.trans);
+  const pos = fk.solve(f.poses, f.trans).P;
+  P = pos;
   if (!first) first = pos.map((v) => v.clone());
   else {
     let m = 0;
     for (let j = 0; j < N; j++) m = Math.max(m, pos[j].distanceTo(first[j]));
     state.moved = Math.max(state.moved, m);
   }
-  drawSkeleton(pos);
-  const jaw = Math.hypot(f.poses[66], f.poses[67], f.poses[68]);
-  $('jawv').textContent = jaw.toFixed(3);
-  $('jaw').style.width = `${Math.min(100, (jaw / 0.35) * 100)}%`;
-  for (let i = 0; i < N_EXPR_SHOWN; i++) {
-    const v = f.expressions[i];
-    exprBars[i][0].textContent = v.toFixed(2);
-    exprBars[i][1].style.width = `${Math.min(100, (Math.abs(v) / 2) * 100)}%`;
-  }
+  figure.setPose(f.poses, f.trans, pos);
+  if (avatar) avatar.apply(f.poses, f.trans);
+  face.update(f);
+  lastShown = f;
+  state.lastFrame = { index: f.index, poses: Array.from(f.poses), trans: Array.from(f.trans) };
   $('mtime').textContent = `${f.time_s.toFixed(2)} s`;
 }
 
@@ -391,7 +329,12 @@ async function loadBvh(file) {
 let fileFrames = null;
 async function loadMotion(file) {
   try {
-    fileFrames = file.name.toLowerCase().endsWith('.bvh') ? await loadBvh(file) : await loadNpz(file);
+    const ext = file.name.toLowerCase().split('.').pop();
+    fileFrames = ext === 'bvh' ? await loadBvh(file)
+      : ext === 'glb' || ext === 'gltf' ? await loadGltfMotion(await file.arrayBuffer(), SK, file.name)
+        : await loadNpz(file);
+    state.fileFrames = fileFrames.length;
+    state.loadedFile = file.name;
     setStatus(`file: ${fileFrames.length} frames`, 'idle');
     first = null; state.moved = 0;
     showFrame(fileFrames[0]);
@@ -422,8 +365,18 @@ function playFile() {
 
 async function main() {
   initView();
-  initFace();
   SK = await (await fetch('/skeleton.json')).json();
+  fk = createFK(SK);
+  figure = createFigure(scene, SK);
+  face = createFacePanel($('face'), state);
+  setupAvatarControls({
+    scene, SK, figure, state, setStatus, showFrame,
+    setAvatar: (a) => { avatar = a; },
+    lastFrame: () => lastShown,
+    onMotionFile: loadMotion,
+    onWav: playWav,
+  });
+  window.lgFileFrame = (i) => (fileFrames && fileFrames[i] ? { poses: Array.from(fileFrames[i].poses), trans: Array.from(fileFrames[i].trans) } : null);
   showFrame({ index: 0, time_s: 0, poses: new Float32Array(165), trans: new Float32Array(3), expressions: new Float32Array(100) });
   first = null;
   render();

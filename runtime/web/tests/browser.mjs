@@ -1,13 +1,15 @@
 // Browser test of the page served by `livegesture serve` (run by scripts/test.sh):
 // Debian's chromium (never a downloaded browser) driven by playwright-core, with a fake microphone
 // fed from a WAV file. Checks: the page connects, frames arrive, the skeleton's joints move, a
-// screenshot PNG is written under target/ and is not blank; then the WAV-file mode streams a file.
+// screenshot PNG is written under target/ and is not blank; then the WAV-file mode streams a file;
+// then avatar-checks.mjs (skinned figure, face panel, .glb in GLTFLoader, a VRM avatar following a WAV).
 //
 //   node runtime/web/tests/browser.mjs <livegesture binary> <bundle> <fake-mic.wav> <out-dir>
 import { spawn } from 'node:child_process';
 import { mkdirSync, writeFileSync } from 'node:fs';
 import { join, resolve } from 'node:path';
 import { chromium } from 'playwright-core';
+import { avatarChecks } from './avatar-checks.mjs';
 
 const [bin, bundle, wav, outDir] = process.argv.slice(2);
 if (!outDir) { console.error('usage: browser.mjs BIN BUNDLE WAV OUT_DIR'); process.exit(2); }
@@ -92,6 +94,8 @@ try {
   await page.waitForFunction(() => window.lgState.status === 'live' && window.lgState.frames >= 30, null, { timeout: 60000 })
     .catch(async () => fail(`file mode gave no frames: ${JSON.stringify(await page.evaluate(() => window.lgState))}`));
   console.log(`file mode: frames arrive (${before} before, now ${await page.evaluate(() => window.lgState.frames)})`);
+  // the figure, face panel, glTF in GLTFLoader, a VRM avatar following a WAV (avatar-checks.mjs)
+  await avatarChecks(page, { bin, bundle, wav, outDir, fail });
   if (outside.length) fail(`the page fetched outside the server: ${outside.join(', ')}`);
   writeFileSync(join(outDir, 'console.log'), consoleLines.join('\n'));
   ok = true;

@@ -81,7 +81,7 @@ impl SamplerOptions {
         }
     }
 
-    /// Normals a window of `n` frames draws (BUNDLE.md: `nD` for the first window, else
+    /// Normals a window of `n` frames draws (docs/bundle.md: `nD` for the first window, else
     /// `nD + (S-1)(U L D + (U-1) n D)`).
     pub fn normals_per_window(&self, n: usize, outpaint: bool) -> u64 {
         let d = MOTION_DIM as u64;

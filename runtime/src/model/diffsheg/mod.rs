@@ -1,4 +1,4 @@
-//! DiffSHEG (export/BUNDLE.md "DiffSHEG bundles"): windowed diffusion with outpainting (FOPPAS).
+//! DiffSHEG (docs/bundle.md "DiffSHEG bundles"): windowed diffusion with outpainting (FOPPAS).
 //!
 //! - [`noise`]: the portable Gaussian noise (bit-identical to Python);
 //! - [`schedule`]: the linear-beta table (from the manifest's exact bits) and DDIM timesteps;

@@ -170,7 +170,7 @@ mod tests {
 
     #[test]
     fn pinned_values_of_the_contract() {
-        // BUNDLE.md: seed 0 gives -0x1.e247d2p+0, 0x1.d2241cp-3, -0x1.c5813ap-3, 0x1.55aeaep-4
+        // docs/bundle.md: seed 0 gives -0x1.e247d2p+0, 0x1.d2241cp-3, -0x1.c5813ap-3, 0x1.55aeaep-4
         let got: Vec<u32> = NoiseStream::new(0)
             .take(4)
             .iter()

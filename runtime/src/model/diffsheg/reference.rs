@@ -1,4 +1,4 @@
-//! `reference/rollout.npz` of a DiffSHEG bundle (export/BUNDLE.md): the seeded FOPPAS rollout with its
+//! `reference/rollout.npz` of a DiffSHEG bundle (docs/bundle.md): the seeded FOPPAS rollout with its
 //! per-window inputs and outputs and the per-call trace of window 1.
 
 use std::fs::File;
