@@ -4,11 +4,15 @@
 //!
 //! - [`bundle`]: loading and verifying a model bundle (`manifest.json` with its `family`, sha256 of
 //!   every file, graph I/O);
-//! - [`backend`]: the [`backend::Tensor`], the `Backend` trait and its two implementations, tract
-//!   (default) and ort;
-//! - [`model`]: the family-independent streaming API ([`model::MotionModel`],
-//!   [`model::MotionStream`], [`model::load`] picks the family's implementation) and the families
-//!   ([`model::livegesture`]: streams, batched token steps);
+//! - [`tensor`]: the crate's [`tensor::Tensor`] and [`tensor::DType`] (a leaf: bundles describe graph
+//!   I/O with them, backends run on them);
+//! - [`backend`]: the `Backend` trait and its two implementations, tract (default) and ort
+//!   (re-exports the tensor types);
+//! - [`model`]: the family-independent streaming API every door uses ([`model::MotionModel`] with its
+//!   batch step [`model::MotionModel::step_many`], [`model::MotionStream`], [`model::load`] picks the
+//!   family's implementation) and the families ([`model::livegesture`], [`model::diffsheg`]);
+//! - [`diffusion`]: DiffSHEG's sampler settings and noise schedule (read from the manifest, used by
+//!   the model);
 //! - [`audio`]: WAV and raw PCM input, converted to 16 kHz mono, and [`audio::AudioSpan`] (how many
 //!   frames cover an input);
 //! - [`compare`]: the one NaN-safe comparison of two tensors against a scaled bound (docs/parity.md),
@@ -25,7 +29,8 @@
 //!
 //! - `parity` ([`parity`]): the parity suite of docs/parity.md;
 //! - `bench` ([`bench`]): the benchmarks of BENCHMARKS.md;
-//! - `serve` ([`serve`]): live serving over WebSocket (docs/serve.md), sessions stepped together in batches.
+//! - `serve` ([`serve`]): live serving over WebSocket (docs/serve.md), due sessions stepped together
+//!   through [`model::MotionModel::step_many`].
 
 pub mod audio;
 pub mod backend;
@@ -34,6 +39,7 @@ pub mod bench;
 pub mod bundle;
 pub mod bvh;
 pub mod compare;
+pub mod diffusion;
 pub mod frontend;
 pub mod model;
 pub mod output;
@@ -44,7 +50,4 @@ pub mod sampling;
 #[cfg(feature = "serve")]
 pub mod serve;
 pub mod skeleton;
-
-/// The former path of [`model::livegesture`] (streams, [`model::livegesture::StreamBatch`]), kept so
-/// code written against it still builds; new code names [`model::livegesture`].
-pub use model::livegesture as pipeline;
+pub mod tensor;

@@ -8,7 +8,7 @@ use livegesture_parity_tests as common;
 use livegesture::audio::{AudioSpan, Resampler16k};
 use livegesture::backend::{self, BackendOptions};
 use livegesture::bundle::Bundle;
-use livegesture::model::livegesture::{Pipeline, StreamOptions};
+use livegesture::model::livegesture::{LiveGestureGraphs, StreamOptions};
 use livegesture::model::{self, MotionModel};
 use livegesture::output::Frame;
 
@@ -155,7 +155,7 @@ fn the_trait_stream_equals_the_pipeline() {
     let m = load_model(&b);
     assert_eq!(m.family(), livegesture::bundle::Family::LiveGesture);
     let be = backend::create(&BackendOptions::default()).unwrap();
-    let mut p = Pipeline::new(&b, be.as_ref()).unwrap();
+    let mut p = LiveGestureGraphs::new(&b, be.as_ref()).unwrap();
     let audio = signal(b.frontend().token_end(6) + 777, 16_000);
     let opts = StreamOptions {
         seed: 7,

@@ -15,10 +15,10 @@ use std::process::{Command, Output};
 use livegesture::audio::read_wav_16k_mono;
 use livegesture::backend::{self, BackendKind, BackendOptions};
 use livegesture::bundle::Bundle;
-use livegesture::model::livegesture::{FormChoice, Pipeline, StreamOptions, TokenStep};
+use livegesture::model::livegesture::{FormChoice, LiveGestureGraphs, StreamOptions, TokenStep};
 use livegesture::parity::{batch_bound, Check};
 
-fn pipeline(bundle: &Bundle, kind: BackendKind, form: FormChoice) -> Pipeline {
+fn pipeline(bundle: &Bundle, kind: BackendKind, form: FormChoice) -> LiveGestureGraphs {
     if kind == BackendKind::Ort {
         common::require_ort();
     }
@@ -27,7 +27,7 @@ fn pipeline(bundle: &Bundle, kind: BackendKind, form: FormChoice) -> Pipeline {
         ..Default::default()
     })
     .expect("backend");
-    Pipeline::with_form(bundle, be.as_ref(), form).expect("pipeline")
+    LiveGestureGraphs::with_form(bundle, be.as_ref(), form).expect("pipeline")
 }
 
 /// `seconds` of the reference clip (repeated).
@@ -40,7 +40,7 @@ fn audio(bundle: &Bundle, seconds: f64) -> Vec<f32> {
         .collect()
 }
 
-fn run(p: &mut Pipeline, opts: &StreamOptions, audio: &[f32]) -> Vec<TokenStep> {
+fn run(p: &mut LiveGestureGraphs, opts: &StreamOptions, audio: &[f32]) -> Vec<TokenStep> {
     let mut s = p.new_stream(opts).expect("stream");
     let mut out = Vec::new();
     for c in audio.chunks(16000) {
@@ -92,7 +92,7 @@ fn the_tiny_bundle_carries_every_form() {
         (FormChoice::Attention, "attention"),
         (FormChoice::Auto, lg.default_form("tract")),
     ] {
-        let p = Pipeline::with_form(&bundle, be.as_ref(), choice).unwrap();
+        let p = LiveGestureGraphs::with_form(&bundle, be.as_ref(), choice).unwrap();
         assert_eq!(p.form(), name);
     }
 }
@@ -416,7 +416,7 @@ fn a_bundle_without_the_attention_form_runs_the_canonical_fusion() {
             ..Default::default()
         })
         .unwrap();
-        let e = Pipeline::with_form(&b, be.as_ref(), FormChoice::Attention)
+        let e = LiveGestureGraphs::with_form(&b, be.as_ref(), FormChoice::Attention)
             .err()
             .expect("the attention form is refused");
         let e = format!("{e:#}");

@@ -6,7 +6,7 @@ use livegesture_parity_tests as common;
 use livegesture::audio::read_wav_16k_mono;
 use livegesture::backend::{self, BackendKind, BackendOptions};
 use livegesture::bundle::Bundle;
-use livegesture::model::livegesture::{Pipeline, StreamOptions, TokenStep};
+use livegesture::model::livegesture::{LiveGestureGraphs, StreamOptions, TokenStep};
 use livegesture::output::Frame;
 use livegesture::parity::ReferenceRollout;
 use ndarray::Array2;
@@ -14,7 +14,7 @@ use ndarray::Array2;
 /// Rollout frames (docs/parity.md, scaled).
 const FRAME_BOUND: f64 = 1e-4;
 
-fn pipeline(kind: BackendKind) -> (Bundle, Pipeline) {
+fn pipeline(kind: BackendKind) -> (Bundle, LiveGestureGraphs) {
     if kind == BackendKind::Ort {
         common::require_ort();
     }
@@ -24,7 +24,7 @@ fn pipeline(kind: BackendKind) -> (Bundle, Pipeline) {
         ..Default::default()
     })
     .expect("backend");
-    let p = Pipeline::new(&bundle, be.as_ref()).expect("pipeline");
+    let p = LiveGestureGraphs::new(&bundle, be.as_ref()).expect("pipeline");
     (bundle, p)
 }
 
@@ -46,7 +46,12 @@ fn frames_to(frames: &[Frame], f: impl Fn(&Frame) -> &[f32]) -> Array2<f32> {
     .unwrap()
 }
 
-fn run_all(p: &mut Pipeline, opts: &StreamOptions, audio: &[f32], chunk: usize) -> Vec<TokenStep> {
+fn run_all(
+    p: &mut LiveGestureGraphs,
+    opts: &StreamOptions,
+    audio: &[f32],
+    chunk: usize,
+) -> Vec<TokenStep> {
     let mut s = p.new_stream(opts).unwrap();
     let mut steps = Vec::new();
     for c in audio.chunks(chunk.max(1)) {
@@ -293,7 +298,13 @@ fn the_batch_comparison_fails_on_nan_either_side() {
 
 /// Output up to the token that completes before `cut` is the same for `audio` and `changed` (which
 /// differ from `cut` on), and later output differs (the later audio is used).
-fn check_look_ahead(p: &mut Pipeline, bundle: &Bundle, audio: &[f32], changed: &[f32], cut: usize) {
+fn check_look_ahead(
+    p: &mut LiveGestureGraphs,
+    bundle: &Bundle,
+    audio: &[f32],
+    changed: &[f32],
+    cut: usize,
+) {
     let opts = StreamOptions {
         seed: 5,
         ..Default::default()

@@ -17,7 +17,7 @@ use std::time::Duration;
 use futures_util::{SinkExt, StreamExt};
 use livegesture::audio::AudioSpan;
 use livegesture::bundle::Bundle;
-use livegesture::model::livegesture::{Pipeline, StreamOptions};
+use livegesture::model::livegesture::{LiveGestureGraphs, StreamOptions};
 use livegesture::output::{Frame, FPS};
 use livegesture::serve::{ServeConfig, Server};
 use serve_common::{
@@ -27,10 +27,10 @@ use serve_common::{
 };
 use tokio_tungstenite::tungstenite::Message;
 
-fn make_pipeline() -> (Bundle, Pipeline) {
+fn make_pipeline() -> (Bundle, LiveGestureGraphs) {
     let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
     let be = tract_backend();
-    let p = Pipeline::new(&bundle, be.as_ref()).expect("pipeline");
+    let p = LiveGestureGraphs::new(&bundle, be.as_ref()).expect("pipeline");
     (bundle, p)
 }
 

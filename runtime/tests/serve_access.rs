@@ -13,7 +13,7 @@ use std::time::Duration;
 
 use futures_util::SinkExt;
 use livegesture::bundle::Bundle;
-use livegesture::model::livegesture::Pipeline;
+use livegesture::model::livegesture::LiveGestureGraphs;
 use livegesture::serve::access::AccessConfig;
 use livegesture::serve::{ServeConfig, Server};
 use serve_common::{model_info, pcm_bytes, speech_of, tract_backend, within};
@@ -27,7 +27,7 @@ const TOKEN: &str = "s3cret-token-0123456789";
 fn start(cfg: ServeConfig) -> Server {
     Server::start("127.0.0.1:0".parse().unwrap(), cfg, || {
         let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
-        let p = Pipeline::new(&bundle, tract_backend().as_ref()).expect("pipeline");
+        let p = LiveGestureGraphs::new(&bundle, tract_backend().as_ref()).expect("pipeline");
         let info = model_info("test", &bundle, p.backend_name());
         Ok((p, info))
     })

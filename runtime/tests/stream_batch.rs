@@ -9,11 +9,11 @@ use livegesture::audio::read_wav_16k_mono;
 use livegesture::backend::{self, BackendKind, BackendOptions};
 use livegesture::bundle::Bundle;
 use livegesture::model::livegesture::{
-    Pipeline, Stream, StreamBatch, StreamId, StreamOptions, TokenStep,
+    LiveGestureGraphs, Stream, StreamBatch, StreamId, StreamOptions, TokenStep,
 };
 use ndarray::Array2;
 
-fn pipeline(kind: BackendKind) -> (Bundle, Pipeline) {
+fn pipeline(kind: BackendKind) -> (Bundle, LiveGestureGraphs) {
     if kind == BackendKind::Ort {
         common::require_ort();
     }
@@ -23,7 +23,7 @@ fn pipeline(kind: BackendKind) -> (Bundle, Pipeline) {
         ..Default::default()
     })
     .expect("backend");
-    let p = Pipeline::new(&bundle, be.as_ref()).expect("pipeline");
+    let p = LiveGestureGraphs::new(&bundle, be.as_ref()).expect("pipeline");
     (bundle, p)
 }
 
@@ -68,7 +68,7 @@ enum Place {
 }
 
 /// Token-sized audio chunk `t` of `a` (exactly one token's new samples: zero look-ahead).
-fn token_chunk<'a>(p: &Pipeline, a: &'a [f32], t: u64) -> &'a [f32] {
+fn token_chunk<'a>(p: &LiveGestureGraphs, a: &'a [f32], t: u64) -> &'a [f32] {
     let fe = p.frontend();
     let start = if t == 0 {
         0

@@ -26,8 +26,7 @@ use crate::bundle::{shape_fits, shape_string, GraphSpec};
 pub mod ort;
 pub mod tract;
 
-mod tensor;
-pub use tensor::{DType, Tensor, TensorData};
+pub use crate::tensor::{DType, Tensor, TensorData};
 
 /// A loaded step graph, ready to run.
 pub trait GraphRunner: Send {

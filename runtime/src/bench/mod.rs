@@ -2,7 +2,7 @@
 //!
 //! [`run`] loads a bundle on one backend and measures, on the calling thread:
 //!
-//! - **single stream**: whole-chain per-token step time ([`Pipeline::step`]: every graph, both guidance
+//! - **single stream**: whole-chain per-token step time ([`LiveGestureGraphs::step`]: every graph, both guidance
 //!   branches, sampling, frames) and each graph's share (a [`TimingBackend`] wraps the real backend and
 //!   times every graph run, conversions into and out of the backend included); the log-mel frontend
 //!   per token; the real-time factor;
@@ -10,7 +10,7 @@
 //!   from the first sample's arrival until the first frame comes back, and the compute part after the
 //!   chunk completing token 0's audio arrived;
 //! - **state bytes per stream** ([`crate::model::livegesture::state_bytes`]) and **peak RSS** (`VmHWM`);
-//! - **batched stepping**: [`Pipeline::step_stream_batch`] over a [`crate::model::livegesture::StreamBatch`] of
+//! - **batched stepping**: [`LiveGestureGraphs::step_stream_batch`] over a [`crate::model::livegesture::StreamBatch`] of
 //!   N streams (caches kept stacked on the batch axis between steps; optionally one stream leaving and
 //!   a fresh one joining at every step, the leaving and joining timed with the step), and the streams
 //!   one core sustains in real time.
@@ -27,9 +27,10 @@ use ndarray::Array2;
 use serde::Serialize;
 
 use crate::backend::Backend;
-use crate::bundle::{Bundle, Family};
+use crate::bundle::Bundle;
 use crate::frontend::StreamingLogMel;
-use crate::model::livegesture::{state_bytes, Pipeline, StreamId, StreamOptions};
+use crate::model::livegesture::{state_bytes, LiveGestureGraphs, StreamId, StreamOptions};
+use crate::model::{for_family, FamilyTool};
 
 pub mod diffsheg;
 mod machine;
@@ -228,7 +229,7 @@ fn ms(d: Duration) -> f64 {
 
 /// Paced first-frame measurement on a fresh stream: returns (total ms, compute ms).
 fn first_frame_once(
-    pipe: &mut Pipeline,
+    pipe: &mut LiveGestureGraphs,
     opts: &StreamOptions,
     audio: &[f32],
     chunk: usize,
@@ -262,19 +263,19 @@ pub fn run(
     cfg: &BenchConfig,
     mut progress: impl FnMut(&str),
 ) -> Result<BenchReport> {
-    // the figures below are the LiveGesture family's; [`run_family`] dispatches
-    if bundle.family() != Family::LiveGesture {
-        anyhow::bail!(
+    // the figures below are the LiveGesture family's ([`run_family`] runs the bundle's family's)
+    bundle.livegesture().with_context(|| {
+        format!(
             "{}: bench::run measures LiveGesture bundles; use bench::run_family",
             bundle.dir().display()
-        );
-    }
+        )
+    })?;
     let wall = Instant::now();
     let load_start = loadavg();
     let rec = Arc::new(Recorder::default());
     let timing = TimingBackend::new(backend, rec.clone());
     let t0 = Instant::now();
-    let mut pipe = Pipeline::with_form(bundle, &timing, cfg.form)?;
+    let mut pipe = LiveGestureGraphs::with_form(bundle, &timing, cfg.form)?;
     let load_seconds = t0.elapsed().as_secs_f64();
     let fe = bundle.frontend().clone();
     let sr = fe.sample_rate as f64;
@@ -422,7 +423,7 @@ pub fn run(
 
 #[allow(clippy::too_many_arguments)]
 fn run_batched(
-    pipe: &mut Pipeline,
+    pipe: &mut LiveGestureGraphs,
     rec: &Recorder,
     opts: &StreamOptions,
     mels: &[Array2<f32>],
@@ -551,12 +552,41 @@ pub fn run_family(
     d: &diffsheg::DiffshegBenchConfig,
     progress: impl FnMut(&str),
 ) -> Result<FamilyReport> {
-    Ok(match bundle.family() {
-        Family::LiveGesture => FamilyReport::LiveGesture(run(bundle, backend, cfg, progress)?),
-        Family::DiffSheg => {
-            FamilyReport::DiffSheg(diffsheg::run(bundle, backend, cfg, d, progress)?)
+    struct Bench<'a, P> {
+        backend: &'a dyn Backend,
+        cfg: &'a BenchConfig,
+        d: &'a diffsheg::DiffshegBenchConfig,
+        progress: P,
+    }
+    impl<P: FnMut(&str)> FamilyTool for Bench<'_, P> {
+        type Output = Result<FamilyReport>;
+        fn livegesture(self, bundle: &Bundle) -> Self::Output {
+            Ok(FamilyReport::LiveGesture(run(
+                bundle,
+                self.backend,
+                self.cfg,
+                self.progress,
+            )?))
         }
-    })
+        fn diffsheg(self, bundle: &Bundle) -> Self::Output {
+            Ok(FamilyReport::DiffSheg(diffsheg::run(
+                bundle,
+                self.backend,
+                self.cfg,
+                self.d,
+                self.progress,
+            )?))
+        }
+    }
+    for_family(
+        bundle,
+        Bench {
+            backend,
+            cfg,
+            d,
+            progress,
+        },
+    )
 }
 
 #[cfg(test)]

@@ -11,8 +11,8 @@ use serde::Deserialize;
 use serde_json::Value;
 
 use super::RegionSpec;
-use crate::model::diffsheg::foppas::{SamplerOptions, MOTION_DIM};
-use crate::model::diffsheg::schedule::{alphas_cumprod, parse_f64_bits, Schedule};
+use crate::diffusion::schedule::{alphas_cumprod, parse_f64_bits, Schedule};
+use crate::diffusion::{SamplerOptions, MOTION_DIM};
 
 /// `diffusion.ddim`.
 #[derive(Debug, Clone, Deserialize)]

@@ -5,7 +5,7 @@ use std::fmt;
 use serde::{Deserialize, Deserializer, Serialize};
 use serde_json::Value;
 
-use crate::backend::{DType, Tensor};
+use crate::tensor::{DType, Tensor};
 
 /// One dimension of a tensor in the manifest: the dynamic batch axis, a fixed size, or another named
 /// dynamic axis.

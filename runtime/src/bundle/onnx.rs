@@ -7,7 +7,7 @@ use tract_onnx::pb;
 use tract_onnx::prelude::Framework;
 
 use super::{shape_string, BundleError, Dim, GraphSpec};
-use crate::backend::DType;
+use crate::tensor::DType;
 
 fn onnx_dtype(elem_type: i32) -> Option<DType> {
     match elem_type {

@@ -180,17 +180,11 @@ impl ModelArgs {
     }
 }
 
-/// `--form` chooses among a LiveGesture bundle's forms; a DiffSHEG bundle has one (input error).
+/// `--form` chooses among a LiveGesture bundle's forms; a bundle of a family with one form refuses
+/// it (input error).
 pub fn check_form(bundle: &Bundle, form: FormChoice) -> Result<()> {
-    if form != FormChoice::Auto && bundle.family() != livegesture::bundle::Family::LiveGesture {
-        return Err(InputError(format!(
-            "--form {form}: {} is a {} bundle, which has one graph form; --form chooses the form of a LiveGesture bundle's region eXperts",
-            bundle.dir().display(),
-            bundle.family()
-        ))
-        .into());
-    }
-    Ok(())
+    model::check_load_options(bundle, &model::LoadOptions { form })
+        .map_err(|e| InputError(format!("--form {form}: {e:#}")).into())
 }
 
 /// A new stream of `model`; options the model refuses (out of range, or of another family) are input

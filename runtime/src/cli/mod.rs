@@ -3,10 +3,11 @@
 //! Adding a subcommand: write `src/cli/<name>.rs` with an `Args` struct (clap `Args` derive) and a
 //! `run(args: Args) -> anyhow::Result<()>`, then add its line to [`Command`] and [`run`].
 //!
-//! No subcommand names a model family: `generate` and `stream` run any bundle through
-//! [`livegesture::model::load`] and the [`livegesture::model::MotionStream`] trait, `info` prints the
-//! family-common manifest and [`livegesture::model::MotionModel::describe`], and `parity` / `bench`
-//! call the library's `parity::run` / `bench::run`, which dispatch on the family themselves.
+//! No subcommand names a model family: `generate`, `stream` and `serve` run any bundle through
+//! [`livegesture::model::load_with`] and the [`livegesture::model::MotionStream`] trait, `info` prints
+//! the family-common manifest and [`livegesture::model::describe`], and `parity` / `bench` call the
+//! library's `parity::run` / `bench::run_family`, which reach the family's code through
+//! [`livegesture::model::for_family`].
 
 use clap::{Parser, Subcommand};
 use livegesture::model::livegesture::FormChoice;

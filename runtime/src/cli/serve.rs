@@ -9,11 +9,11 @@ use anyhow::{Context, Result};
 use sha2::{Digest, Sha256};
 
 use livegesture::backend;
-use livegesture::bundle::Family;
-use livegesture::model::livegesture::{FormChoice, Pipeline};
+use livegesture::model::livegesture::FormChoice;
+use livegesture::model::{self, LoadOptions};
 use livegesture::serve::access::AccessConfig;
 use livegesture::serve::tls::load_config as load_tls;
-use livegesture::serve::{ModelInfo, ServeConfig, ServeModel, Server};
+use livegesture::serve::{ModelInfo, ServeConfig, Server};
 
 use super::common::{check_form, InputError, ModelArgs};
 
@@ -174,20 +174,9 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
                 be.describe()
             )
         };
-        // LiveGesture: sessions stepped together (batched token steps); any other family (DiffSHEG):
-        // one stream per session through the family-independent model API
-        let (model, backend_name) = match family {
-            Family::LiveGesture => {
-                let p = Pipeline::with_form(&bundle, be.as_ref(), form).with_context(loading)?;
-                let name = p.backend_name().to_string();
-                (ServeModel::Batched(p), name)
-            }
-            _ => {
-                let m = livegesture::model::load(&bundle, be.as_ref()).with_context(loading)?;
-                let name = m.backend_name().to_string();
-                (ServeModel::PerSession(m), name)
-            }
-        };
+        let model =
+            model::load_with(&bundle, be.as_ref(), &LoadOptions { form }).with_context(loading)?;
+        let backend_name = model.backend_name().to_string();
         let m = bundle.manifest();
         let info = ModelInfo {
             model: m

@@ -25,20 +25,32 @@
 //!
 //! | family | module | look-ahead | batched stepping |
 //! |---|---|---|---|
-//! | `livegesture` | [`livegesture`] | 0 (causal, one token = 4 frames) | [`livegesture::StreamBatch`] |
-//! | `diffsheg` | [`diffsheg`] | its window N (first frame after N frames of audio; then every N - L frames) | CFG rows on the denoiser's batch axis |
+//! | `livegesture` | [`livegesture`] | 0 (causal, one token = 4 frames) | every graph once per token for all streams ([`MotionModel::step_many`]; also [`livegesture::StreamBatch`]) |
+//! | `diffsheg` | [`diffsheg`] | its window N (first frame after N frames of audio; then every N - L frames) | CFG rows, and the due windows of all streams of one length, on the denoiser's batch axis |
+//!
+//! # Stepping many streams
+//!
+//! [`MotionModel::step_many`] takes one [`StreamJob`] per stream (audio to push, and optionally the
+//! end of its input) and returns each stream's frames, exactly those the stream would return on its
+//! own (up to the backend's batch-size rounding, docs/parity.md). A family that can run several
+//! streams in one graph call does so; the default steps the streams one after another.
+//! [`MotionStream::next_unit_samples`] tells a scheduler when pushing a stream's audio will produce
+//! frames, so it can collect the streams that are due together (as `livegesture serve` does).
 //!
 //! # Adding a family
 //!
 //! 1. `bundle/`: its manifest section (see the [`crate::bundle`] docs);
 //! 2. `model/<family>/`: a type implementing [`MotionModel`] and one implementing [`MotionStream`]
 //!    (frames with consecutive indices from 0; `finish` follows [`AudioSpan::frames`]);
-//! 3. one arm in [`load`] and in [`describe`] (what `info` prints of the family);
-//! 4. `parity` and `bench` (features of the same names) dispatch on the family in
-//!    `parity::run` and `bench::run`: add the family's checks and benchmarks there.
+//! 3. its arm in [`for_family`] (the one place that maps a family to its code), a method in
+//!    [`FamilyTool`], and the family's [`load_with`] and [`describe`] there;
+//! 4. `parity` and `bench` (features of the same names) implement [`FamilyTool`]: the compiler
+//!    then asks for the family's checks and benchmarks.
 //!
 //! [`StreamOptions`] carries the settings of every family; a family refuses (in
 //! [`MotionModel::new_stream`]) an option it does not support rather than ignoring it silently.
+
+use std::any::Any;
 
 use anyhow::Result;
 
@@ -110,13 +122,99 @@ pub trait MotionModel: Send + Sync {
     /// A fresh stream (cold start) with `opts`; errors for options out of range or not supported by
     /// the family.
     fn new_stream(&self, opts: &StreamOptions) -> Result<Box<dyn MotionStream>>;
+
+    /// Steps many streams together: each job's audio is pushed into its stream and, with
+    /// [`StreamJob::end`], the stream is then finished ([`MotionStream::finish`]). Returns one result
+    /// per job, in order: the frames the stream emitted, the same frames it would emit on its own.
+    ///
+    /// A family that can batch runs the units (tokens, windows) due in several streams in one graph
+    /// call per graph; streams of another model (or family) in `jobs` are stepped on their own. The
+    /// default steps every job on its own stream ([`StreamJob::run_alone`]). An error in a batched
+    /// graph call fails every job in that call (their streams then refuse work until reset).
+    fn step_many(&self, jobs: &mut [StreamJob<'_>]) -> Vec<Result<Vec<Frame>>> {
+        jobs.iter_mut().map(StreamJob::run_alone).collect()
+    }
+
+    /// [`MotionModel::step_many`] for jobs that push audio only.
+    fn push_many(&self, jobs: &mut [(&mut dyn MotionStream, &[f32])]) -> Vec<Result<Vec<Frame>>> {
+        let mut js: Vec<StreamJob<'_>> = jobs
+            .iter_mut()
+            .map(|(s, a)| StreamJob::push(&mut **s, *a))
+            .collect();
+        self.step_many(&mut js)
+    }
+}
+
+/// One stream's share of a batch step ([`MotionModel::step_many`]).
+pub struct StreamJob<'a> {
+    /// The stream (made by the model that steps it, to be batched).
+    pub stream: &'a mut dyn MotionStream,
+    /// 16 kHz mono samples to push (any length, also empty).
+    pub audio: &'a [f32],
+    /// After the audio, end the stream ([`MotionStream::finish`] with this input span).
+    pub end: Option<AudioSpan>,
+}
+
+impl<'a> StreamJob<'a> {
+    /// Pushes `audio` into `stream`.
+    pub fn push(stream: &'a mut dyn MotionStream, audio: &'a [f32]) -> Self {
+        Self {
+            stream,
+            audio,
+            end: None,
+        }
+    }
+
+    /// Pushes `audio` into `stream`, then finishes it with `end` (docs/output.md).
+    pub fn push_and_finish(
+        stream: &'a mut dyn MotionStream,
+        audio: &'a [f32],
+        end: AudioSpan,
+    ) -> Self {
+        Self {
+            stream,
+            audio,
+            end: Some(end),
+        }
+    }
+
+    /// The job on its own stream: `push_audio`, then `finish` when the job ends the stream.
+    pub fn run_alone(&mut self) -> Result<Vec<Frame>> {
+        let mut out = self.stream.push_audio(self.audio)?;
+        if let Some(end) = self.end {
+            out.extend(self.stream.finish(end)?);
+        }
+        Ok(out)
+    }
+}
+
+impl std::fmt::Debug for StreamJob<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StreamJob")
+            .field("audio", &self.audio.len())
+            .field("end", &self.end)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Lets a family's [`MotionModel::step_many`] recognise its own streams behind `dyn MotionStream`
+/// (implemented for every stream type).
+pub trait StreamAny: Any {
+    /// The stream as [`Any`], for downcasting to the family's stream type.
+    fn as_any_mut(&mut self) -> &mut dyn Any;
+}
+
+impl<T: Any> StreamAny for T {
+    fn as_any_mut(&mut self) -> &mut dyn Any {
+        self
+    }
 }
 
 /// One stream: all its state, stepped by pushing audio (see the module docs).
 ///
 /// Frames come out in order with consecutive indices from 0, `time_s = index / fps`. After an error
 /// the stream refuses further work until [`MotionStream::reset`]; after [`MotionStream::finish`] too.
-pub trait MotionStream: Send {
+pub trait MotionStream: Send + StreamAny {
     /// Pushes 16 kHz mono samples (any chunk size, also empty) and returns the frames they complete.
     fn push_audio(&mut self, samples: &[f32]) -> Result<Vec<Frame>>;
 
@@ -146,6 +244,11 @@ pub trait MotionStream: Send {
 
     /// The classifier-free guidance scale gamma in use (the option, or the bundle's default).
     fn guidance(&self) -> f64;
+
+    /// The number of 16 kHz samples pushed in all at which the next unit's frames come out (a
+    /// scheduler pushes a stream's audio once it reaches this, to step due streams together);
+    /// `u64::MAX` once the stream is finished. For a fresh stream: the audio the first frame waits for.
+    fn next_unit_samples(&self) -> u64;
 }
 
 /// What `info` shows of a bundle's family-specific part, read from the manifest alone (no graph is
@@ -163,9 +266,38 @@ pub struct Description {
 
 /// Describes the family-specific part of `bundle` (see [`Description`]).
 pub fn describe(bundle: &Bundle) -> Result<Description> {
+    struct Describe;
+    impl FamilyTool for Describe {
+        type Output = Result<Description>;
+        fn livegesture(self, bundle: &Bundle) -> Self::Output {
+            livegesture::describe(bundle)
+        }
+        fn diffsheg(self, bundle: &Bundle) -> Self::Output {
+            diffsheg::describe(bundle)
+        }
+    }
+    for_family(bundle, Describe)
+}
+
+/// Code that differs per model family, outside the model (the tools: parity checks, benchmarks,
+/// what `info` shows): one method per family. [`for_family`] runs the method of a bundle's family,
+/// so a tool never matches on [`Family`] itself, and a new family is a compile error in every tool
+/// until it handles it.
+pub trait FamilyTool {
+    /// What the tool returns.
+    type Output;
+    /// A `livegesture` bundle.
+    fn livegesture(self, bundle: &Bundle) -> Self::Output;
+    /// A `diffsheg` bundle.
+    fn diffsheg(self, bundle: &Bundle) -> Self::Output;
+}
+
+/// Runs `tool`'s method for `bundle`'s family: the one place that maps a family to its code
+/// ([`load_with`] and [`describe`] go through it too).
+pub fn for_family<T: FamilyTool>(bundle: &Bundle, tool: T) -> T::Output {
     match bundle.family() {
-        Family::LiveGesture => livegesture::describe(bundle),
-        Family::DiffSheg => diffsheg::describe(bundle),
+        Family::LiveGesture => tool.livegesture(bundle),
+        Family::DiffSheg => tool.diffsheg(bundle),
     }
 }
 
@@ -182,27 +314,58 @@ pub fn load(bundle: &Bundle, backend: &dyn Backend) -> Result<Box<dyn MotionMode
     load_with(bundle, backend, &LoadOptions::default())
 }
 
-/// Loads the model of `bundle`'s family with `backend`. With [`describe`], the only place that maps a
-/// family to its implementation.
+/// Loads the model of `bundle`'s family with `backend` (the family from the manifest, through
+/// [`for_family`]).
 pub fn load_with(
     bundle: &Bundle,
     backend: &dyn Backend,
     opts: &LoadOptions,
 ) -> Result<Box<dyn MotionModel>> {
-    match bundle.family() {
-        Family::LiveGesture => Ok(Box::new(livegesture::LiveGestureModel::load_with_form(
-            bundle, backend, opts.form,
-        )?)),
-        Family::DiffSheg => {
-            anyhow::ensure!(
-                opts.form == livegesture::FormChoice::Auto,
-                "{}: a DiffSHEG bundle has one graph form; the form choice ({}) applies to LiveGesture's region eXperts",
-                bundle.dir().display(),
-                opts.form
-            );
-            Ok(Box::new(diffsheg::DiffshegModel::load(bundle, backend)?))
+    struct Load<'a> {
+        backend: &'a dyn Backend,
+        opts: &'a LoadOptions,
+    }
+    impl FamilyTool for Load<'_> {
+        type Output = Result<Box<dyn MotionModel>>;
+        fn livegesture(self, bundle: &Bundle) -> Self::Output {
+            Ok(Box::new(livegesture::LiveGestureModel::load_with_form(
+                bundle,
+                self.backend,
+                self.opts.form,
+            )?))
+        }
+        fn diffsheg(self, bundle: &Bundle) -> Self::Output {
+            check_load_options(bundle, self.opts)?;
+            Ok(Box::new(diffsheg::DiffshegModel::load(
+                bundle,
+                self.backend,
+            )?))
         }
     }
+    for_family(bundle, Load { backend, opts })
+}
+
+/// Checks that `opts` apply to `bundle`'s family (the form choice is LiveGesture's: a DiffSHEG bundle
+/// has one graph form), without loading anything.
+pub fn check_load_options(bundle: &Bundle, opts: &LoadOptions) -> Result<()> {
+    struct Check<'a>(&'a LoadOptions);
+    impl FamilyTool for Check<'_> {
+        type Output = Result<()>;
+        fn livegesture(self, _: &Bundle) -> Self::Output {
+            Ok(())
+        }
+        fn diffsheg(self, bundle: &Bundle) -> Self::Output {
+            anyhow::ensure!(
+                self.0.form == livegesture::FormChoice::Auto,
+                "{} is a {} bundle, which has one graph form; the form choice ({}) applies to a LiveGesture bundle's region eXperts",
+                bundle.dir().display(),
+                bundle.family(),
+                self.0.form
+            );
+            Ok(())
+        }
+    }
+    for_family(bundle, Check(opts))
 }
 
 #[cfg(test)]

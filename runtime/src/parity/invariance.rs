@@ -3,7 +3,7 @@
 use super::*;
 
 pub(super) fn chunk_rows(
-    p: &mut Pipeline,
+    p: &mut LiveGestureGraphs,
     kind: BackendKind,
     audio: &[f32],
     seed: u64,
@@ -69,7 +69,7 @@ pub(super) fn chunk_rows(
 }
 
 pub(super) fn batch_rows(
-    p: &mut Pipeline,
+    p: &mut LiveGestureGraphs,
     kind: BackendKind,
     clip: &[f32],
     len: usize,
@@ -166,9 +166,9 @@ pub(super) fn batch_rows(
     }
 }
 
-/// Steps `streams` together with [`Pipeline::step_batch`], feeding each its audio in `chunk`s.
+/// Steps `streams` together with [`LiveGestureGraphs::step_batch`], feeding each its audio in `chunk`s.
 pub(super) fn run_batched(
-    p: &mut Pipeline,
+    p: &mut LiveGestureGraphs,
     streams: &[(StreamOptions, Vec<f32>)],
     chunk: usize,
 ) -> Result<Vec<Vec<TokenStep>>> {

@@ -14,7 +14,7 @@
 //! | `rollout` | a bundle with several forms (docs/bundle.md#forms-and-precision): on each backend that runs a form other than canonical (the manifest's `backend_forms`, or `--form`), the canonical form's rollout vs that form's: identical tokens, frames | [`ROLLOUT_FRAMES`] |
 //! | `logmel` | the Rust log-mel frontend on `reference/clip.wav` vs `reference/logmel.npy` | [`LOGMEL`] |
 //! | `chunks` | chunks of 1 sample, 160, 3200, 16000 samples and the whole prefix give identical frames, the stream finished at the end of the prefix as `generate` does (docs/output.md: last partial token completed with silence, `ceil(duration x 30)` frames) (on a prefix of the clip, [`ParityOptions::chunk_seconds`]) | exact |
-//! | `batch` | [`Pipeline::step_batch`] with 1, 2 and 5 streams (different seeds, audio, one without guidance) vs separate runs: identical tokens, frames | [`BATCH_FRAMES`] (ort), [`TRACT_BATCH_FRAMES`] (tract) |
+//! | `batch` | [`LiveGestureGraphs::step_batch`] with 1, 2 and 5 streams (different seeds, audio, one without guidance) vs separate runs: identical tokens, frames | [`BATCH_FRAMES`] (ort), [`TRACT_BATCH_FRAMES`] (tract) |
 //!
 //! Every comparison is one [`Row`]: the check, the graph (or what is compared), the comparison
 //! (`ort vs torch`, ...), the output, the step of the largest error, the error, the bound and the
@@ -67,9 +67,11 @@ use rollout::{frame_rows_steps, rollout_rows, run_stream, token_row};
 
 use crate::audio::{read_wav_16k_mono, AudioSpan};
 use crate::backend::{self, Backend, BackendKind, BackendOptions, Tensor, TensorData};
-use crate::bundle::{Bundle, Family, GraphSpec};
+use crate::bundle::{Bundle, GraphSpec};
 use crate::frontend::logmel;
-use crate::model::livegesture::{FormChoice, Pipeline, StepLogits, StreamOptions, TokenStep};
+use crate::model::livegesture::{
+    FormChoice, LiveGestureGraphs, StepLogits, StreamOptions, TokenStep,
+};
 use crate::output::Frame;
 use crate::sampling::{guide, Draw, SplitMix64, TokenDistribution};
 
@@ -222,6 +224,34 @@ impl Default for ParityOptions {
 
 // ------------------------------------------------------------------------------------------- run
 
+/// The checks of a family other than LiveGesture (whose checks are [`run`]'s own body): returns true
+/// when they ran.
+struct OtherFamilyChecks<'a, 'l> {
+    backends: &'a [(BackendKind, Box<dyn Backend>)],
+    opts: &'a ParityOptions,
+    rows: &'a mut Vec<Row>,
+    notes: &'a mut Vec<String>,
+    log: &'a mut (dyn FnMut(&str) + 'l),
+}
+
+impl crate::model::FamilyTool for OtherFamilyChecks<'_, '_> {
+    type Output = Result<bool>;
+    fn livegesture(self, _: &Bundle) -> Result<bool> {
+        Ok(false)
+    }
+    fn diffsheg(self, bundle: &Bundle) -> Result<bool> {
+        diffsheg::run(
+            bundle,
+            self.backends,
+            self.opts,
+            self.rows,
+            self.notes,
+            self.log,
+        )?;
+        Ok(true)
+    }
+}
+
 /// Runs the parity suite on the bundle in `dir`. `log` receives progress lines.
 ///
 /// Errors when the bundle is invalid ([`crate::bundle::BundleError`]), a reference file is missing
@@ -272,20 +302,26 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
         }
     }
 
-    // the checks below are the LiveGesture family's; DiffSHEG's are in `diffsheg`
-    match bundle.family() {
-        Family::LiveGesture => {}
-        Family::DiffSheg => {
-            diffsheg::run(&bundle, &backends, opts, &mut rows, &mut notes, log)?;
-            return Ok(Report {
-                bundle: bundle.dir().to_path_buf(),
-                backends: kinds.iter().map(|k| k.to_string()).collect(),
-                rows,
-                notes,
-                divergences,
-                seconds: t0.elapsed().as_secs_f64(),
-            });
-        }
+    // the checks below are the LiveGesture family's; another family's run in its own module
+    let other = crate::model::for_family(
+        &bundle,
+        OtherFamilyChecks {
+            backends: &backends,
+            opts,
+            rows: &mut rows,
+            notes: &mut notes,
+            log: &mut *log,
+        },
+    )?;
+    if other {
+        return Ok(Report {
+            bundle: bundle.dir().to_path_buf(),
+            backends: kinds.iter().map(|k| k.to_string()).collect(),
+            rows,
+            notes,
+            divergences,
+            seconds: t0.elapsed().as_secs_f64(),
+        });
     }
 
     let clip_rel = bundle
@@ -378,10 +414,10 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
     let need_pipeline = [Check::Rollout, Check::Chunks, Check::Batch]
         .into_iter()
         .any(want);
-    let mut pipelines: Vec<(BackendKind, Pipeline)> = Vec::new();
+    let mut pipelines: Vec<(BackendKind, LiveGestureGraphs)> = Vec::new();
     if need_pipeline {
         for (k, be) in &backends {
-            match Pipeline::with_form(&bundle, be.as_ref(), opts.form) {
+            match LiveGestureGraphs::with_form(&bundle, be.as_ref(), opts.form) {
                 Ok(p) => pipelines.push((*k, p)),
                 Err(e) => rows.push(Row::failed(
                     Check::Rollout,
@@ -398,7 +434,7 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
     // `--form`) is checked against the canonical form on the rollout, on that backend. A backend that
     // runs the canonical form is checked by the other rows; the other forms are checked on it only
     // when `--form` makes it run them.
-    let mut other_forms: Vec<(BackendKind, Pipeline)> = Vec::new();
+    let mut other_forms: Vec<(BackendKind, LiveGestureGraphs)> = Vec::new();
     if want(Check::Rollout) {
         let forms = bundle.livegesture()?.expert_forms();
         for (k, be) in &backends {
@@ -425,7 +461,7 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
             }
             for f in forms.keys().filter(|f| f.as_str() == "canonical") {
                 let choice: FormChoice = f.parse().map_err(|e: String| anyhow::anyhow!(e))?;
-                match Pipeline::with_form(&bundle, be.as_ref(), choice) {
+                match LiveGestureGraphs::with_form(&bundle, be.as_ref(), choice) {
                     Ok(p) => other_forms.push((*k, p)),
                     Err(e) => rows.push(Row::failed(
                         Check::Rollout,

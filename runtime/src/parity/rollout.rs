@@ -17,7 +17,7 @@ pub(super) fn field(f: &Frame, k: usize) -> &[f32] {
 /// Runs one stream over `audio` in chunks of `chunk` samples; with `finish`, ends it as `generate`
 /// does (docs/output.md: the last partial token completed with silence, frames cut at the audio's end).
 pub(super) fn run_stream(
-    p: &mut Pipeline,
+    p: &mut LiveGestureGraphs,
     opts: &StreamOptions,
     audio: &[f32],
     chunk: usize,
@@ -133,8 +133,8 @@ impl BackendRollout {
 #[allow(clippy::too_many_arguments)]
 pub(super) fn rollout_rows(
     bundle: &Bundle,
-    pipelines: &mut [(BackendKind, Pipeline)],
-    other_forms: &mut [(BackendKind, Pipeline)],
+    pipelines: &mut [(BackendKind, LiveGestureGraphs)],
+    other_forms: &mut [(BackendKind, LiveGestureGraphs)],
     clip: &[f32],
     rows: &mut Vec<Row>,
     notes: &mut Vec<String>,

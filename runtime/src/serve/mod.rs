@@ -1,15 +1,14 @@
 //! `livegesture serve`: many live sessions over WebSocket (docs/serve.md), for any model family.
 //!
-//! What steps the sessions depends on the bundle's family ([`ServeModel`]):
+//! One thread, the [`scheduler`], owns the [`MotionModel`] and one [`crate::model::MotionStream`] per
+//! session, and steps the sessions whose audio completes a unit together, in one
+//! [`MotionModel::step_many`] call per tick: the model decides how they share graph runs (LiveGesture:
+//! every graph once per token for all of them; DiffSHEG: the due windows on the denoiser's batch
+//! axis). Nothing here names a family; the protocol, the limits, the refusals and the drain are the
+//! same for all.
 //!
-//! - LiveGesture: [`scheduler`], the thread that owns the [`Pipeline`] and steps all sessions with a
-//!   complete token in one batched run per graph per token tick;
-//! - any other family (DiffSHEG): [`streams`], the thread that owns the [`MotionModel`] and one
-//!   [`crate::model::MotionStream`] per session, stepped one session at a time as its audio arrives
-//!   (FOPPAS windows: no cross-stream batching).
-//!
-//! The protocol, the limits, the refusals and the drain are the same for both.
-//!
+//! - [`scheduler`]: the scheduler thread;
+//! - [`messages`]: what sessions and the scheduler send each other;
 //! - [`protocol`]: query parameters, client messages and close codes;
 //! - [`session`]: one WebSocket session (decoding, resampling, back-pressure, limits);
 //! - [`metrics`]: counters and histograms, Prometheus text format;
@@ -22,11 +21,11 @@
 //! are stepped and sent, every session is closed with 1001, then [`Server::join`] returns.
 
 pub mod access;
+pub mod messages;
 pub mod metrics;
 pub mod protocol;
 pub mod scheduler;
 pub mod session;
-pub mod streams;
 pub mod tls;
 pub mod web;
 
@@ -44,32 +43,11 @@ use axum::Router;
 use tokio::sync::{mpsc, watch, Notify};
 
 use crate::bundle::Family;
-use crate::model::livegesture::Pipeline;
 use crate::model::MotionModel;
 
+use messages::Cmd;
 use metrics::Metrics;
-use scheduler::{Cmd, SchedConfig, Scheduler};
-use streams::StreamScheduler;
-
-/// The loaded model a server steps its sessions with.
-pub enum ServeModel {
-    /// A LiveGesture pipeline: sessions stepped together, one batched run per graph per token tick.
-    Batched(Pipeline),
-    /// Any family's [`MotionModel`]: one stream per session, stepped on its own (no batching).
-    PerSession(Box<dyn MotionModel>),
-}
-
-impl From<Pipeline> for ServeModel {
-    fn from(p: Pipeline) -> Self {
-        ServeModel::Batched(p)
-    }
-}
-
-impl From<Box<dyn MotionModel>> for ServeModel {
-    fn from(m: Box<dyn MotionModel>) -> Self {
-        ServeModel::PerSession(m)
-    }
-}
+use scheduler::{BatchScheduler, SchedConfig};
 
 /// Limits and settings of a server.
 #[derive(Debug, Clone)]
@@ -85,7 +63,7 @@ pub struct ServeConfig {
     pub max_pending_tokens: usize,
     /// A session without any message for this long is closed with 1008.
     pub idle_timeout: Duration,
-    /// How long the oldest complete token waits for other sessions' tokens to join its step.
+    /// How long the oldest due session (audio completing a unit) waits for others to join its step.
     pub batch_wait: Duration,
     /// On shutdown, how long to wait for sessions to finish before exiting anyway.
     pub drain_timeout: Duration,
@@ -159,13 +137,13 @@ pub struct Server {
 }
 
 impl Server {
-    /// Binds `addr`, builds the model with `make_model` on the scheduler thread (a [`Pipeline`]: the
-    /// batched LiveGesture scheduler; a `Box<dyn MotionModel>`: one stream per session), and serves in
-    /// background threads. Returns once the model is loaded and the socket is listening.
+    /// Binds `addr`, builds the model with `make_model` on the scheduler thread (any family's
+    /// [`MotionModel`], e.g. from [`crate::model::load`]), and serves in background threads. Returns
+    /// once the model is loaded and the socket is listening.
     pub fn start<F, M>(addr: SocketAddr, cfg: ServeConfig, make_model: F) -> Result<Server>
     where
         F: FnOnce() -> Result<(M, ModelInfo)> + Send + 'static,
-        M: Into<ServeModel>,
+        M: Into<Box<dyn MotionModel>>,
     {
         let metrics = Arc::new(Metrics::new());
         let (cmd_tx, cmd_rx) = mpsc::channel::<Cmd>(1024);
@@ -180,12 +158,7 @@ impl Server {
                 Ok((m, info)) => {
                     let frontend = info.frontend.clone();
                     let _ = info_tx.send(Ok(info));
-                    match m.into() {
-                        ServeModel::Batched(p) => Scheduler::new(p, m2, sched_cfg).run(cmd_rx),
-                        ServeModel::PerSession(m) => {
-                            StreamScheduler::new(m, frontend, m2).run(cmd_rx)
-                        }
-                    }
+                    BatchScheduler::new(m.into(), frontend, m2, sched_cfg).run(cmd_rx)
                 }
                 Err(e) => {
                     let _ = info_tx.send(Err(e));

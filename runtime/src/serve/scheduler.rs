@@ -1,187 +1,95 @@
-//! The token scheduler of LiveGesture bundles: one thread owns the [`Pipeline`] and a [`StreamBatch`],
-//! and steps every session that has a complete token in one batched run per graph per token tick.
-//! (Other families: [`super::streams::StreamScheduler`], one stream per session, no batching.)
+//! The server's one scheduler: a thread that owns the [`MotionModel`] and one [`MotionStream`] per
+//! session, and steps the sessions whose audio completes a unit (a LiveGesture token, a DiffSHEG
+//! window) together, in one [`MotionModel::step_many`] call per tick. It never names a model family:
+//! the model decides how the streams of a tick share their graph runs (LiveGesture: every graph once
+//! per token for all of them; DiffSHEG: the due windows on the denoiser's batch axis).
 //!
-//! Sessions send 16 kHz mono audio ([`Cmd::Audio`]); the scheduler runs each session's log-mel
-//! frontend and queues the mel block of every completed token. A tick starts when the oldest queued
-//! token has waited `batch_wait`, or at once when every session has a token queued; it steps all
-//! sessions with a queued token together (sessions without one are parked outside the batch with
-//! their caches, and come back when they have one). A session's tokens are therefore exactly those it
-//! gets stepped alone.
+//! Sessions send 16 kHz mono audio ([`Cmd::Audio`]). Audio that does not complete the stream's next
+//! unit ([`MotionStream::next_unit_samples`]) is pushed at once (it only fills the stream's buffers);
+//! audio that does is held, and from then on the session is *due*. A tick starts when the oldest due
+//! session has waited `batch_wait`, or at once when every session is due; it pushes every due
+//! session's held audio in one `step_many` call and queues the frames. A session's frames are
+//! therefore those it gets on its own: a stream is chunk-size invariant, and batching changes only the
+//! backend's rounding (docs/parity.md).
 //!
-//! At the end of a session's audio ([`Cmd::End`]) the stream's own end rule applies, the one
-//! `generate` and `stream` use (docs/output.md, [`StreamBatch::finish_audio`] / [`Stream::finish_audio`]):
-//! the last partial token is completed with silence and frames at or past
-//! [`AudioSpan::frames`] = `ceil(n_in * 30 / rate_in)` are dropped.
+//! At the end of a session's audio ([`Cmd::End`]) the session is due at once; its job ends the stream
+//! with the input's own span (docs/output.md: the last unit completed with silence, exactly
+//! [`AudioSpan::frames`] frames), then `done` is sent. On shutdown ([`Cmd::Drain`]) the units whose
+//! audio has arrived are stepped, a partial one is not, and the session is closed with 1001.
+//!
+//! Back-pressure: a session's reader takes one credit per frontend token boundary its audio crosses;
+//! the scheduler gives them back once that audio has been pushed into the stream, so at most
+//! `max_pending_tokens` tokens' worth of a session's audio waits here.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::HashMap;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
-use ndarray::Array2;
-use tokio::sync::{mpsc, oneshot, Notify, Semaphore};
+use tokio::sync::{mpsc, Semaphore};
 
 use crate::audio::AudioSpan;
-use crate::model::livegesture::{Pipeline, Stream, StreamBatch, StreamId, StreamOptions};
+use crate::frontend::FrontendConfig;
+use crate::model::{MotionModel, MotionStream, StreamJob, StreamOptions};
 use crate::output::Frame;
 
+use super::messages::{Cmd, Joined, Out, SessionCtl, SessionStats};
 use super::metrics::Metrics;
 use super::protocol::{CLOSE_GOING_AWAY, CLOSE_INTERNAL, CLOSE_POLICY};
-
-/// What the scheduler sends a session's writer.
-#[derive(Debug)]
-pub enum Out {
-    Frame(Box<Frame>),
-    /// All frames sent: `{"type":"done","frames":N}`, then close 1000.
-    Done {
-        frames: u64,
-    },
-    /// Close with this code and reason.
-    Close(u16, String),
-}
-
-/// Shared between a session's tasks and the scheduler: how to cut the session short.
-#[derive(Debug, Default)]
-pub struct SessionCtl {
-    kill: std::sync::Mutex<Option<(u16, String)>>,
-    pub notify: Notify,
-}
-
-impl SessionCtl {
-    /// Asks the session's writer to close with `code` and `reason` (the first request wins).
-    pub fn kill(&self, code: u16, reason: String) {
-        let mut k = self.kill.lock().unwrap_or_else(|e| e.into_inner());
-        if k.is_none() {
-            *k = Some((code, reason));
-        }
-        drop(k);
-        self.notify.notify_one();
-    }
-
-    pub fn take_kill(&self) -> Option<(u16, String)> {
-        self.kill.lock().unwrap_or_else(|e| e.into_inner()).take()
-    }
-}
-
-/// Figures of a session when it ends (for its log line).
-#[derive(Debug, Clone, Default)]
-pub struct SessionStats {
-    pub tokens: u64,
-    pub frames: u64,
-    /// 16 kHz samples received from the client (without the end-of-stream silence).
-    pub samples_16k: u64,
-    /// Token latencies in seconds (message completing the token's audio -> frames queued).
-    pub latencies: Vec<f64>,
-}
-
-/// Accounts one produced unit (a token, or a DiffSHEG window) of a session that took `latency_s` from the
-/// audio completing it, and queues its `frames`. Returns false when the session's queue is full (a client
-/// that does not read): the caller cuts it.
-pub(super) fn deliver_unit(
-    stats: &mut SessionStats,
-    out: &mpsc::Sender<Out>,
-    metrics: &Metrics,
-    latency_s: f64,
-    frames: impl IntoIterator<Item = Frame>,
-) -> bool {
-    stats.tokens += 1;
-    metrics.tokens_total.fetch_add(1, Ordering::Relaxed);
-    stats.latencies.push(latency_s);
-    metrics.token_latency_seconds.observe(latency_s);
-    for f in frames {
-        if out.try_send(Out::Frame(Box::new(f))).is_err() {
-            return false;
-        }
-        stats.frames += 1;
-        metrics.frames_total.fetch_add(1, Ordering::Relaxed);
-    }
-    true
-}
-
-/// What a joining session gets back.
-#[derive(Debug, Clone)]
-pub struct Joined {
-    pub guidance: f64,
-    /// Frames emitted together (LiveGesture: a token, 4; DiffSHEG: a window step, N - L).
-    pub frames_per_unit: u64,
-    /// Audio, in frames, a unit waits for past its own end (LiveGesture 0; DiffSHEG the overlap L).
-    pub lookahead_frames: u64,
-    /// 16 kHz samples the first frame waits for (LiveGesture: the first token's audio span; DiffSHEG:
-    /// the first window's N frames).
-    pub first_frame_samples_16k: u64,
-}
-
-/// Commands from sessions to the scheduler.
-#[derive(Debug)]
-pub enum Cmd {
-    Join {
-        sid: u64,
-        opts: StreamOptions,
-        out: mpsc::Sender<Out>,
-        ctl: Arc<SessionCtl>,
-        credits: Arc<Semaphore>,
-        reply: oneshot::Sender<Result<Joined, String>>,
-    },
-    /// 16 kHz mono samples; `at` is when the message carrying them arrived.
-    Audio {
-        sid: u64,
-        samples: Vec<f32>,
-        at: Instant,
-    },
-    /// The end of the audio: the client's samples per channel at its own rate (the motion covers
-    /// [`AudioSpan::frames`] = ceil(n_in * 30 / rate_in) frames).
-    End { sid: u64, input: AudioSpan },
-    /// Shutdown: step the tokens whose audio has arrived, then close 1001.
-    Drain { sid: u64 },
-    /// The client is gone (or was refused): drop the session; `stats` gets its figures.
-    Leave {
-        sid: u64,
-        stats: oneshot::Sender<SessionStats>,
-    },
-}
-
-struct Sess {
-    /// The session's place in the batch, or its stream parked outside it (exactly one is set).
-    id: Option<StreamId>,
-    parked: Option<Box<Stream>>,
-    out: mpsc::Sender<Out>,
-    ctl: Arc<SessionCtl>,
-    credits: Arc<Semaphore>,
-    /// Mel blocks of the completed tokens not stepped yet, with the arrival of the audio completing them.
-    pending: VecDeque<(Array2<f32>, Instant)>,
-    stats: SessionStats,
-    end_frames: Option<u64>,
-    draining: bool,
-    /// Finished or cut off: nothing more is stepped or sent; waits for its Leave.
-    dead: bool,
-}
 
 /// Scheduler settings.
 #[derive(Debug, Clone)]
 pub struct SchedConfig {
-    /// How long the oldest queued token waits for others to join its step.
+    /// How long the oldest due session waits for others to join its step.
     pub batch_wait: Duration,
 }
 
-pub struct Scheduler {
-    pipeline: Pipeline,
-    batch: StreamBatch,
+struct Sess {
+    stream: Box<dyn MotionStream>,
+    out: mpsc::Sender<Out>,
+    ctl: Arc<SessionCtl>,
+    credits: Arc<Semaphore>,
+    stats: SessionStats,
+    /// Audio held for the next tick (it completes a unit), in arrival order.
+    held: Vec<f32>,
+    /// When the session became due (the arrival of the audio completing a unit, or of the end).
+    due_since: Option<Instant>,
+    /// 16 kHz samples forwarded by the reader (pushed, held, or dropped after an end or a cut).
+    samples_in: u64,
+    /// 16 kHz samples pushed into the stream (or dropped): credits are given back for these.
+    samples_done: u64,
+    /// Frontend tokens of `samples_done` whose credits were given back.
+    tokens_credited: u64,
+    /// The end of the audio, once the client sent it.
+    end: Option<AudioSpan>,
+    draining: bool,
+    frames_per_unit: u64,
+    /// Finished or cut off: nothing more is pushed or sent; waits for its Leave.
+    dead: bool,
+}
+
+/// Steps the sessions' streams, due ones together (see the module docs).
+pub struct BatchScheduler {
+    model: Box<dyn MotionModel>,
+    /// The grid the sessions' readers take credits on (the bundle's frontend).
+    frontend: FrontendConfig,
     sessions: HashMap<u64, Sess>,
-    by_stream: HashMap<StreamId, u64>,
     metrics: Arc<Metrics>,
     cfg: SchedConfig,
 }
 
-impl Scheduler {
-    pub fn new(pipeline: Pipeline, metrics: Arc<Metrics>, cfg: SchedConfig) -> Self {
-        let batch = pipeline.new_batch();
+impl BatchScheduler {
+    pub fn new(
+        model: Box<dyn MotionModel>,
+        frontend: FrontendConfig,
+        metrics: Arc<Metrics>,
+        cfg: SchedConfig,
+    ) -> Self {
         Self {
-            pipeline,
-            batch,
+            model,
+            frontend,
             sessions: HashMap::new(),
-            by_stream: HashMap::new(),
             metrics,
             cfg,
         }
@@ -204,7 +112,7 @@ impl Scheduler {
                 .sessions
                 .values()
                 .filter(|s| !s.dead)
-                .filter_map(|s| s.pending.front().map(|p| p.1))
+                .filter_map(|s| s.due_since)
                 .min();
             let cmd = match oldest {
                 None => match rx.blocking_recv() {
@@ -212,13 +120,13 @@ impl Scheduler {
                     None => break,
                 },
                 Some(t0) => {
-                    let all_ready = self
+                    let all_due = self
                         .sessions
                         .values()
-                        .all(|s| s.dead || !s.pending.is_empty());
+                        .all(|s| s.dead || s.due_since.is_some());
                     let deadline = t0 + self.cfg.batch_wait;
                     let now = Instant::now();
-                    if all_ready || now >= deadline {
+                    if all_due || now >= deadline {
                         // take whatever has already arrived without waiting, then step
                         match rx.try_recv() {
                             Ok(c) => Some(c),
@@ -243,281 +151,6 @@ impl Scheduler {
             }
         }
     }
-}
-
-impl SessionTable for Scheduler {
-    fn metrics(&self) -> &Metrics {
-        &self.metrics
-    }
-
-    fn out(&self, sid: u64) -> Option<&mpsc::Sender<Out>> {
-        self.sessions.get(&sid).map(|s| &s.out)
-    }
-
-    fn join(&mut self, sid: u64, opts: &StreamOptions, link: SessionLink) -> Result<Joined> {
-        let SessionLink { out, ctl, credits } = link;
-        let frames_per_unit = self.pipeline.frontend().frames_per_token;
-        let first_frame_samples_16k = self.pipeline.frontend().token_end(0);
-        self.pipeline.new_stream(opts).map(|st| {
-            let guidance = st.guidance();
-            self.sessions.insert(
-                sid,
-                Sess {
-                    id: None,
-                    parked: Some(Box::new(st)),
-                    out,
-                    ctl,
-                    credits,
-                    pending: VecDeque::new(),
-                    stats: SessionStats::default(),
-                    end_frames: None,
-                    draining: false,
-                    dead: false,
-                },
-            );
-            Joined {
-                guidance,
-                frames_per_unit,
-                lookahead_frames: 0,
-                first_frame_samples_16k,
-            }
-        })
-    }
-
-    /// Feeds a session's frontend with the client's audio.
-    fn push(&mut self, sid: u64, samples: &[f32], at: Instant) {
-        let Some(s) = self.sessions.get_mut(&sid) else {
-            return;
-        };
-        if s.dead || s.end_frames.is_some() {
-            return;
-        }
-        let r = match (s.id, s.parked.as_mut()) {
-            (Some(id), _) => self.batch.push_audio(id, samples),
-            (None, Some(st)) => st.push_audio(samples),
-            (None, None) => return,
-        };
-        s.stats.samples_16k += samples.len() as u64;
-        self.metrics
-            .audio_samples_total
-            .fetch_add(samples.len() as u64, Ordering::Relaxed);
-        match r {
-            Ok(mels) => s.pending.extend(mels.into_iter().map(|m| (m, at))),
-            Err(e) => {
-                let msg = format!("internal error in the audio frontend: {e:#}");
-                self.kill(sid, CLOSE_INTERNAL, msg);
-            }
-        }
-    }
-
-    fn end(&mut self, sid: u64, input: AudioSpan) {
-        let Some(s) = self.sessions.get_mut(&sid) else {
-            return;
-        };
-        if s.dead || s.end_frames.is_some() {
-            return;
-        }
-        // docs/output.md, the streams' own rule: the last partial token completed with silence,
-        // the frame count from the input's own samples and rate
-        let r = match (s.id, s.parked.as_mut()) {
-            (Some(id), _) => self.batch.finish_audio(id, input),
-            (None, Some(st)) => st.finish_audio(input),
-            (None, None) => return,
-        };
-        match r {
-            Ok((mels, total)) => {
-                s.end_frames = Some(total);
-                let at = Instant::now();
-                s.pending.extend(mels.into_iter().map(|m| (m, at)));
-                self.finish_if_complete(sid);
-            }
-            Err(e) => {
-                let msg = format!("internal error at the end of the audio: {e:#}");
-                self.kill(sid, CLOSE_INTERNAL, msg);
-            }
-        }
-    }
-
-    fn drain(&mut self, sid: u64) {
-        if let Some(s) = self.sessions.get_mut(&sid) {
-            s.draining = true;
-        }
-        self.finish_if_complete(sid);
-    }
-
-    fn leave(&mut self, sid: u64) -> Option<SessionStats> {
-        self.retire(sid);
-        self.sessions.remove(&sid).map(|s| s.stats)
-    }
-
-    /// Takes the session's stream out of the batch; nothing more is stepped or sent for it.
-    fn retire(&mut self, sid: u64) {
-        let Some(s) = self.sessions.get_mut(&sid) else {
-            return;
-        };
-        s.dead = true;
-        s.pending.clear();
-        if let Some(id) = s.id.take() {
-            self.by_stream.remove(&id);
-            match self.batch.remove(id) {
-                Ok(st) => s.parked = Some(Box::new(st)),
-                Err(e) => eprintln!("livegesture serve: session {sid}: leaving the batch: {e:#}"),
-            }
-        }
-    }
-
-    /// Cuts a session short: its writer closes with `code` and `reason`.
-    fn kill(&mut self, sid: u64, code: u16, reason: String) {
-        self.retire(sid);
-        if let Some(s) = self.sessions.get(&sid) {
-            s.ctl.kill(code, reason);
-        }
-    }
-}
-
-impl Scheduler {
-    /// Sends done (or, draining, close 1001) when the session has nothing left to step.
-    fn finish_if_complete(&mut self, sid: u64) {
-        let Some(s) = self.sessions.get(&sid) else {
-            return;
-        };
-        if s.dead || !s.pending.is_empty() {
-            return;
-        }
-        let msg = if let Some(frames) = s.end_frames {
-            Out::Done {
-                frames: s.stats.frames.min(frames),
-            }
-        } else if s.draining {
-            Out::Close(CLOSE_GOING_AWAY, "server shutting down".into())
-        } else {
-            return;
-        };
-        self.send_last(sid, msg);
-    }
-
-    /// One batched step of every session with a queued token.
-    fn tick(&mut self) {
-        let sids: Vec<u64> = self.sessions.keys().copied().collect();
-        // sessions without a queued token leave the batch (their caches parked with them) ...
-        for sid in &sids {
-            let s = self.sessions.get_mut(sid).expect("session");
-            if !s.dead && !s.pending.is_empty() {
-                continue;
-            }
-            if let Some(id) = s.id.take() {
-                self.by_stream.remove(&id);
-                match self.batch.remove(id) {
-                    Ok(st) => s.parked = Some(Box::new(st)),
-                    Err(e) => {
-                        let m = format!("internal error: {e:#}");
-                        self.kill(*sid, CLOSE_INTERNAL, m);
-                    }
-                }
-            }
-        }
-        // ... and those with one join it
-        for sid in &sids {
-            let s = self.sessions.get_mut(sid).expect("session");
-            if s.dead || s.pending.is_empty() || s.id.is_some() {
-                continue;
-            }
-            let Some(st) = s.parked.take() else { continue };
-            match self.batch.add(*st) {
-                Ok(id) => {
-                    s.id = Some(id);
-                    self.by_stream.insert(id, *sid);
-                }
-                Err(e) => {
-                    let m = format!("internal error: {e:#}");
-                    self.kill(*sid, CLOSE_INTERNAL, m);
-                }
-            }
-        }
-        let order = self.batch.ids();
-        if order.is_empty() {
-            return;
-        }
-        let mut mels = Vec::with_capacity(order.len());
-        let mut owners = Vec::with_capacity(order.len());
-        for id in &order {
-            let sid = self.by_stream[id];
-            let s = self.sessions.get_mut(&sid).expect("session");
-            let (m, at) = s.pending.pop_front().expect("a ready session has a token");
-            mels.push(m);
-            owners.push((sid, at));
-        }
-        let t0 = Instant::now();
-        let r = self.pipeline.step_stream_batch(&mut self.batch, &mels);
-        let done = Instant::now();
-        self.metrics.step_seconds.observe((done - t0).as_secs_f64());
-        self.metrics.steps_total.fetch_add(1, Ordering::Relaxed);
-        self.metrics.batch_size.observe(order.len() as f64);
-        match r {
-            Ok(steps) => {
-                for ((sid, at), step) in owners.into_iter().zip(steps) {
-                    let Some(s) = self.sessions.get_mut(&sid) else {
-                        continue;
-                    };
-                    s.credits.add_permits(1);
-                    let end = s.end_frames;
-                    let frames = step
-                        .frames
-                        .into_iter()
-                        .filter(|f| end.is_none_or(|n| f.index < n));
-                    let sent = deliver_unit(
-                        &mut s.stats,
-                        &s.out,
-                        &self.metrics,
-                        (done - at).as_secs_f64(),
-                        frames,
-                    );
-                    if !sent {
-                        self.cut_slow(sid);
-                    } else {
-                        self.finish_if_complete(sid);
-                    }
-                }
-            }
-            Err(e) => {
-                let m = format!("internal error in a graph run: {e:#}");
-                eprintln!("livegesture serve: {m}");
-                for (sid, _) in owners {
-                    self.kill(sid, CLOSE_INTERNAL, m.clone());
-                }
-            }
-        }
-    }
-}
-
-/// A joining session's outbound queue, kill switch and credits (from [`Cmd::Join`]).
-pub(super) struct SessionLink {
-    pub out: mpsc::Sender<Out>,
-    pub ctl: Arc<SessionCtl>,
-    pub credits: Arc<Semaphore>,
-}
-
-/// The session commands as both schedulers handle them: [`Scheduler`] (LiveGesture, batched steps)
-/// and [`super::streams::StreamScheduler`] (one stream per session) implement the per-session parts;
-/// the dispatch, a session's last message and the cut-off of a slow client are shared.
-pub(super) trait SessionTable {
-    fn metrics(&self) -> &Metrics;
-    /// The session's outbound queue (None: no such session).
-    fn out(&self, sid: u64) -> Option<&mpsc::Sender<Out>>;
-    /// Opens the session's stream and registers it.
-    fn join(&mut self, sid: u64, opts: &StreamOptions, link: SessionLink) -> Result<Joined>;
-    /// The client's audio (16 kHz mono), arrived at `at`.
-    fn push(&mut self, sid: u64, samples: &[f32], at: Instant);
-    /// The end of the audio (docs/output.md): the stream's own end rule, then done.
-    fn end(&mut self, sid: u64, input: AudioSpan);
-    /// Shutdown: what has arrived is stepped, then close 1001.
-    fn drain(&mut self, sid: u64);
-    /// Drops the session; its figures.
-    fn leave(&mut self, sid: u64) -> Option<SessionStats>;
-    /// Nothing more is stepped or sent for the session; it waits for its Leave.
-    fn retire(&mut self, sid: u64);
-    /// Cuts a session short: its writer closes with `code` and `reason`.
-    fn kill(&mut self, sid: u64, code: u16, reason: String);
 
     fn handle(&mut self, cmd: Cmd) {
         match cmd {
@@ -529,24 +162,232 @@ pub(super) trait SessionTable {
                 credits,
                 reply,
             } => {
-                let r = self.join(sid, &opts, SessionLink { out, ctl, credits });
+                let r = self.join(sid, &opts, out, ctl, credits);
                 let _ = reply.send(r.map_err(|e| format!("{e:#}")));
             }
-            Cmd::Audio { sid, samples, at } => self.push(sid, &samples, at),
+            Cmd::Audio { sid, samples, at } => self.audio(sid, samples, at),
             Cmd::End { sid, input } => self.end(sid, input),
-            Cmd::Drain { sid } => self.drain(sid),
+            Cmd::Drain { sid } => {
+                if let Some(s) = self.sessions.get_mut(&sid) {
+                    s.draining = true;
+                }
+                self.close_if_complete(sid);
+            }
             Cmd::Leave { sid, stats } => {
-                if let Some(s) = self.leave(sid) {
-                    let _ = stats.send(s);
+                if let Some(s) = self.sessions.remove(&sid) {
+                    let _ = stats.send(s.stats);
                 }
             }
         }
     }
 
+    fn join(
+        &mut self,
+        sid: u64,
+        opts: &StreamOptions,
+        out: mpsc::Sender<Out>,
+        ctl: Arc<SessionCtl>,
+        credits: Arc<Semaphore>,
+    ) -> Result<Joined> {
+        let stream = self.model.new_stream(opts)?;
+        let joined = Joined {
+            guidance: stream.guidance(),
+            frames_per_unit: stream.frames_per_unit(),
+            lookahead_frames: stream.lookahead_frames(),
+            // a fresh stream's next unit is its first: the audio the first frame waits for
+            first_frame_samples_16k: stream.next_unit_samples(),
+        };
+        self.sessions.insert(
+            sid,
+            Sess {
+                frames_per_unit: stream.frames_per_unit().max(1),
+                stream,
+                out,
+                ctl,
+                credits,
+                stats: SessionStats::default(),
+                held: Vec::new(),
+                due_since: None,
+                samples_in: 0,
+                samples_done: 0,
+                tokens_credited: 0,
+                end: None,
+                draining: false,
+                dead: false,
+            },
+        );
+        Ok(joined)
+    }
+
+    /// The client's audio: pushed at once when it completes no unit, else held for the next tick.
+    fn audio(&mut self, sid: u64, samples: Vec<f32>, at: Instant) {
+        let Some(s) = self.sessions.get_mut(&sid) else {
+            return;
+        };
+        s.samples_in += samples.len() as u64;
+        if s.dead || s.end.is_some() {
+            s.samples_done = s.samples_in;
+            self.give_credits(sid);
+            return;
+        }
+        s.stats.samples_16k += samples.len() as u64;
+        self.metrics
+            .audio_samples_total
+            .fetch_add(samples.len() as u64, Ordering::Relaxed);
+        if s.due_since.is_none() && s.samples_in < s.stream.next_unit_samples() {
+            // fills the stream's buffers only
+            let r = s.stream.push_audio(&samples);
+            s.samples_done = s.samples_in;
+            match r {
+                Ok(frames) => {
+                    self.deliver(sid, frames, at);
+                }
+                Err(e) => {
+                    let msg = format!("internal error in the audio frontend: {e:#}");
+                    self.kill(sid, CLOSE_INTERNAL, msg);
+                }
+            }
+            self.give_credits(sid);
+        } else {
+            s.held.extend_from_slice(&samples);
+            s.due_since.get_or_insert(at);
+        }
+    }
+
+    fn end(&mut self, sid: u64, input: AudioSpan) {
+        let Some(s) = self.sessions.get_mut(&sid) else {
+            return;
+        };
+        if s.dead || s.end.is_some() {
+            return;
+        }
+        s.end = Some(input);
+        s.due_since.get_or_insert_with(Instant::now);
+    }
+
+    /// Gives back the credits of the session's audio that has been pushed (or dropped).
+    fn give_credits(&mut self, sid: u64) {
+        let Some(s) = self.sessions.get_mut(&sid) else {
+            return;
+        };
+        let tokens = self.frontend.n_tokens(s.samples_done);
+        if tokens > s.tokens_credited {
+            s.credits.add_permits((tokens - s.tokens_credited) as usize);
+            s.tokens_credited = tokens;
+        }
+    }
+
+    /// One [`MotionModel::step_many`] call for every due session.
+    fn tick(&mut self) {
+        let mut sids = Vec::new();
+        let mut jobs = Vec::new();
+        for (sid, s) in self.sessions.iter_mut() {
+            if s.dead || s.due_since.is_none() {
+                continue;
+            }
+            sids.push((
+                *sid,
+                s.due_since.unwrap_or_else(Instant::now),
+                s.end.is_some(),
+            ));
+            jobs.push(StreamJob {
+                stream: s.stream.as_mut(),
+                audio: &s.held,
+                end: s.end,
+            });
+        }
+        if jobs.is_empty() {
+            return;
+        }
+        let t0 = Instant::now();
+        let results = self.model.step_many(&mut jobs);
+        drop(jobs);
+        let done = Instant::now();
+        self.metrics.step_seconds.observe((done - t0).as_secs_f64());
+        self.metrics.steps_total.fetch_add(1, Ordering::Relaxed);
+        self.metrics.batch_size.observe(sids.len() as f64);
+        for ((sid, at, ended), r) in sids.into_iter().zip(results) {
+            let Some(s) = self.sessions.get_mut(&sid) else {
+                continue;
+            };
+            s.held.clear();
+            s.due_since = None;
+            s.samples_done = s.samples_in;
+            self.give_credits(sid);
+            match r {
+                Ok(frames) => {
+                    if !self.deliver(sid, frames, at) {
+                        continue;
+                    }
+                    if ended {
+                        let frames = self.sessions.get(&sid).map_or(0, |s| s.stats.frames);
+                        self.send_last(sid, Out::Done { frames });
+                    } else {
+                        self.close_if_complete(sid);
+                    }
+                }
+                Err(e) => {
+                    let m = format!("internal error in a graph run: {e:#}");
+                    eprintln!("livegesture serve: session {sid}: {m}");
+                    self.kill(sid, CLOSE_INTERNAL, m);
+                }
+            }
+        }
+    }
+
+    /// Queues `frames` (of audio that arrived at `at`); a full queue is a slow client, cut off
+    /// (returns false).
+    fn deliver(&mut self, sid: u64, frames: Vec<Frame>, at: Instant) -> bool {
+        let Some(s) = self.sessions.get_mut(&sid) else {
+            return false;
+        };
+        if frames.is_empty() || s.dead {
+            return !s.dead;
+        }
+        let latency = Instant::now().saturating_duration_since(at).as_secs_f64();
+        let units = (frames.len() as u64).div_ceil(s.frames_per_unit);
+        s.stats.tokens += units;
+        self.metrics
+            .tokens_total
+            .fetch_add(units, Ordering::Relaxed);
+        s.stats.latencies.push(latency);
+        self.metrics.token_latency_seconds.observe(latency);
+        let mut full = false;
+        for f in frames {
+            if s.out.try_send(Out::Frame(Box::new(f))).is_err() {
+                full = true;
+                break;
+            }
+            s.stats.frames += 1;
+            self.metrics.frames_total.fetch_add(1, Ordering::Relaxed);
+        }
+        if full {
+            self.cut_slow(sid);
+        }
+        !full
+    }
+
+    /// On shutdown: close 1001 once nothing whose audio has arrived is left to step.
+    fn close_if_complete(&mut self, sid: u64) {
+        let Some(s) = self.sessions.get(&sid) else {
+            return;
+        };
+        if s.dead || !s.draining || s.due_since.is_some() {
+            return;
+        }
+        self.send_last(
+            sid,
+            Out::Close(CLOSE_GOING_AWAY, "server shutting down".into()),
+        );
+    }
+
     /// Queues the session's last message (done, or close 1001 on shutdown) and retires it; a full
     /// queue is a slow client, cut off.
     fn send_last(&mut self, sid: u64, msg: Out) {
-        let sent = self.out(sid).is_some_and(|o| o.try_send(msg).is_ok());
+        let sent = self
+            .sessions
+            .get(&sid)
+            .is_some_and(|s| s.out.try_send(msg).is_ok());
         if sent {
             self.retire(sid);
         } else {
@@ -554,13 +395,32 @@ pub(super) trait SessionTable {
         }
     }
 
+    /// Nothing more is pushed or sent for the session; it waits for its Leave.
+    fn retire(&mut self, sid: u64) {
+        if let Some(s) = self.sessions.get_mut(&sid) {
+            s.dead = true;
+            s.held = Vec::new();
+            s.due_since = None;
+            s.samples_done = s.samples_in;
+        }
+        self.give_credits(sid);
+    }
+
+    /// Cuts a session short: its writer closes with `code` and `reason`.
+    fn kill(&mut self, sid: u64, code: u16, reason: String) {
+        self.retire(sid);
+        if let Some(s) = self.sessions.get(&sid) {
+            s.ctl.kill(code, reason);
+        }
+    }
+
     /// A client whose outbound queue is full: counted (`livegesture_refusals_total{reason="slow_client"}`), closed 1008.
     fn cut_slow(&mut self, sid: u64) {
-        self.metrics().refuse("slow_client");
-        self.kill(sid, CLOSE_POLICY, slow_reason());
+        self.metrics.refuse("slow_client");
+        self.kill(
+            sid,
+            CLOSE_POLICY,
+            "client too slow: its outbound frame queue is full".into(),
+        );
     }
-}
-
-fn slow_reason() -> String {
-    "client too slow: its outbound frame queue is full".into()
 }

@@ -15,10 +15,10 @@ use futures_util::stream::{SplitSink, StreamExt};
 use futures_util::SinkExt;
 use tokio::sync::{mpsc, oneshot, Semaphore};
 
-use crate::model::livegesture::StreamOptions;
+use crate::model::StreamOptions;
 
+use super::messages::{Cmd, Out, SessionCtl, SessionStats};
 use super::protocol::*;
-use super::scheduler::{Cmd, Out, SessionCtl, SessionStats};
 use super::AppState;
 
 /// Releases the session slot when the session (or the refused upgrade) is over.

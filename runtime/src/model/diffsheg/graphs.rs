@@ -9,7 +9,7 @@ use super::stream::WindowGraphs;
 use crate::backend::{GraphRunner, Tensor};
 
 /// The two loaded graphs of a DiffSHEG bundle.
-pub struct RunnerGraphs {
+pub struct DiffshegGraphs {
     /// `speech_encoder`.
     pub encoder: Box<dyn GraphRunner>,
     /// `denoiser`.
@@ -20,16 +20,16 @@ pub struct RunnerGraphs {
     pub audio_dim: usize,
 }
 
-impl std::fmt::Debug for RunnerGraphs {
+impl std::fmt::Debug for DiffshegGraphs {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("RunnerGraphs")
+        f.debug_struct("DiffshegGraphs")
             .field("n_mels", &self.n_mels)
             .field("audio_dim", &self.audio_dim)
             .finish_non_exhaustive()
     }
 }
 
-impl RunnerGraphs {
+impl DiffshegGraphs {
     /// `speech_encoder` on a batch of windows of `n` frames: mel (B, 2n, n_mels) -> (B, n, audio_dim).
     pub fn encode_batch(&mut self, mel: Vec<f32>, batch: usize, n: usize) -> Result<Vec<f32>> {
         let t = Tensor::f32(vec![batch, 2 * n, self.n_mels], mel)?;
@@ -82,7 +82,7 @@ impl RunnerGraphs {
     }
 }
 
-impl WindowGraphs for RunnerGraphs {
+impl WindowGraphs for DiffshegGraphs {
     fn encode(&mut self, mel: &[f32], n: usize) -> Result<Vec<f32>> {
         self.encode_batch(mel.to_vec(), 1, n)
     }

@@ -5,15 +5,18 @@
 //! - [`foppas`]: DDIM + classifier-free guidance + FOPPAS for one window, operation by operation;
 //! - [`stream`]: one stream's windowing, buffer and carried state (`foppas.state`);
 //! - [`graphs`]: the window's graph chain on a backend;
-//! - [`model`]: [`DiffshegModel`] and [`DiffshegStream`], the family behind the [`crate::model`] traits.
+//! - [`model`]: [`DiffshegModel`] and [`DiffshegStream`], the family behind the [`crate::model`] traits;
+//! - `batch`: the windows due in several streams, run together ([`crate::model::MotionModel::step_many`]).
 //!
 //! The manifest sections are [`crate::bundle::DiffshegManifest`].
 
+mod batch;
 pub mod foppas;
 pub mod graphs;
 pub mod model;
 pub mod noise;
 pub mod reference;
-pub mod schedule;
+/// The schedule lives in [`crate::diffusion`] (the bundle reads it too); re-exported under its old path.
+pub use crate::diffusion::schedule;
 pub mod stream;
 pub use model::{describe, DiffshegModel, DiffshegStream};

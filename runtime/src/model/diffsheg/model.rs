@@ -11,7 +11,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use anyhow::{anyhow, bail, ensure, Context, Result};
 
 use super::foppas::{SamplerOptions, MOTION_DIM};
-use super::graphs::RunnerGraphs;
+use super::graphs::DiffshegGraphs;
 use super::schedule::Schedule;
 use super::stream::{Emitted, FoppasStream};
 use crate::audio::AudioSpan;
@@ -19,7 +19,7 @@ use crate::backend::Backend;
 use crate::bundle::{Bundle, DiffshegManifest, Family};
 use crate::frontend::FrontendConfig;
 use crate::model::regions::{assemble_frame, resolve_layouts, RegionLayout};
-use crate::model::{MotionModel, MotionStream, StreamOptions};
+use crate::model::{MotionModel, MotionStream, StreamJob, StreamOptions};
 use crate::output::Frame;
 
 /// Everything a DiffSHEG stream needs besides the graphs, shared by the streams of a model.
@@ -119,12 +119,12 @@ impl Shared {
 /// A loaded DiffSHEG bundle ([`MotionModel`] of the `diffsheg` family).
 #[derive(Debug, Clone)]
 pub struct DiffshegModel {
-    graphs: Arc<Mutex<RunnerGraphs>>,
-    shared: Arc<Shared>,
+    pub(super) graphs: Arc<Mutex<DiffshegGraphs>>,
+    pub(super) shared: Arc<Shared>,
     backend: String,
 }
 
-fn lock(g: &Mutex<RunnerGraphs>) -> Result<MutexGuard<'_, RunnerGraphs>> {
+pub(super) fn lock(g: &Mutex<DiffshegGraphs>) -> Result<MutexGuard<'_, DiffshegGraphs>> {
     g.lock().map_err(|_| {
         anyhow!("the model's graphs were left inconsistent by a panic in another stream")
     })
@@ -166,7 +166,7 @@ impl DiffshegModel {
             "graph 'speech_encoder' takes {n_mels} mel bands, the frontend makes {}",
             shared.frontend.n_mels
         );
-        let graphs = RunnerGraphs {
+        let graphs = DiffshegGraphs {
             encoder: load("speech_encoder")?,
             denoiser: load("denoiser")?,
             n_mels,
@@ -180,7 +180,7 @@ impl DiffshegModel {
     }
 
     /// The shared graphs (for parity and bench tools that run them directly).
-    pub fn graphs(&self) -> &Arc<Mutex<RunnerGraphs>> {
+    pub fn graphs(&self) -> &Arc<Mutex<DiffshegGraphs>> {
         &self.graphs
     }
 
@@ -226,15 +226,22 @@ impl MotionModel for DiffshegModel {
     fn new_stream(&self, opts: &StreamOptions) -> Result<Box<dyn MotionStream>> {
         Ok(Box::new(self.stream(opts, false)?))
     }
+
+    /// The windows due in several streams run together: windows of the same length share each
+    /// `speech_encoder` and `denoiser` call, every stream's rows (both guidance rows with guidance)
+    /// on the batch axis ([`super::batch`]).
+    fn step_many(&self, jobs: &mut [StreamJob<'_>]) -> Vec<Result<Vec<Frame>>> {
+        super::batch::step_many(self, jobs)
+    }
 }
 
 /// One DiffSHEG stream ([`MotionStream`]).
 #[derive(Debug)]
 pub struct DiffshegStream {
-    graphs: Arc<Mutex<RunnerGraphs>>,
-    shared: Arc<Shared>,
-    inner: FoppasStream,
-    poisoned: bool,
+    pub(super) graphs: Arc<Mutex<DiffshegGraphs>>,
+    pub(super) shared: Arc<Shared>,
+    pub(super) inner: FoppasStream,
+    pub(super) poisoned: bool,
 }
 
 impl DiffshegStream {
@@ -245,7 +252,7 @@ impl DiffshegStream {
 
     fn guarded(
         &mut self,
-        f: impl FnOnce(&mut FoppasStream, &mut RunnerGraphs) -> Result<Vec<Emitted>>,
+        f: impl FnOnce(&mut FoppasStream, &mut DiffshegGraphs) -> Result<Vec<Emitted>>,
     ) -> Result<Vec<Frame>> {
         ensure!(
             !self.poisoned,
@@ -259,6 +266,25 @@ impl DiffshegStream {
                 Err(e)
             }
         }
+    }
+}
+
+impl DiffshegStream {
+    /// The frames that cover `input` (the audio the caller received, at its own rate); errors when
+    /// the samples pushed do not match it.
+    pub(super) fn frames_covering(&self, input: AudioSpan) -> Result<usize> {
+        let t = input.frames(self.shared.frontend.fps) as usize;
+        let pushed = self.inner.samples_received();
+        let cover = (t as u64) * self.shared.frontend.sample_rate / self.shared.frontend.fps;
+        // the 16 kHz samples pushed must cover the input up to less than one frame (resampling)
+        let frame = self.shared.frontend.sample_rate / self.shared.frontend.fps + 1;
+        ensure!(
+            pushed + 2 * frame >= cover && pushed <= cover + 2 * frame,
+            "finish: {} input samples at {} Hz make {t} frames, but {pushed} samples at 16 kHz were pushed",
+            input.samples,
+            input.sample_rate
+        );
+        Ok(t)
     }
 }
 
@@ -276,17 +302,7 @@ impl MotionStream for DiffshegStream {
     }
 
     fn finish(&mut self, input: AudioSpan) -> Result<Vec<Frame>> {
-        let t = input.frames(self.shared.frontend.fps) as usize;
-        let pushed = self.inner.samples_received();
-        let cover = (t as u64) * self.shared.frontend.sample_rate / self.shared.frontend.fps;
-        // the 16 kHz samples pushed must cover the input up to less than one frame (resampling)
-        let frame = self.shared.frontend.sample_rate / self.shared.frontend.fps + 1;
-        ensure!(
-            pushed + 2 * frame >= cover && pushed <= cover + 2 * frame,
-            "finish: {} input samples at {} Hz make {t} frames, but {pushed} samples at 16 kHz were pushed",
-            input.samples,
-            input.sample_rate
-        );
+        let t = self.frames_covering(input)?;
         self.guarded(|s, g| s.finish(g, t))
     }
 
@@ -315,6 +331,10 @@ impl MotionStream for DiffshegStream {
 
     fn guidance(&self) -> f64 {
         self.inner.options().guidance
+    }
+
+    fn next_unit_samples(&self) -> u64 {
+        self.inner.next_window_samples()
     }
 }
 

@@ -95,9 +95,29 @@ pub struct FoppasStream {
     overlap: Option<Vec<f32>>,
     noise: NoiseStream,
     emitted: usize,
+    /// Set by [`FoppasStream::begin_finish`]: the frames that cover the whole input.
+    finishing: Option<usize>,
     finished: bool,
     windows_run: usize,
     record: Option<Vec<WindowRecord>>,
+}
+
+/// A window begun by [`FoppasStream::start_window`]: where it lies and its log-mel frames. The
+/// caller encodes the frames (`speech_encoder`), runs the window's [`WindowSampler`]
+/// ([`FoppasStream::sampler`]) and hands the result to [`FoppasStream::complete_window`]; windows of
+/// several streams can so share graph calls.
+#[derive(Debug, Clone)]
+pub struct WindowStart {
+    /// First frame.
+    pub start: usize,
+    /// Frames.
+    pub n: usize,
+    /// True for the stream's last window (it emits all its frames).
+    pub last: bool,
+    /// Log-mel frames (2n x n_mels, row-major).
+    pub mel: Vec<f32>,
+    overlap_in: usize,
+    noise_start: u64,
 }
 
 impl FoppasStream {
@@ -123,6 +143,7 @@ impl FoppasStream {
             overlap: None,
             noise: NoiseStream::new(seed),
             emitted: 0,
+            finishing: None,
             finished: false,
             windows_run: 0,
             record: record.then(Vec::new),
@@ -138,6 +159,7 @@ impl FoppasStream {
         self.overlap = None;
         self.noise = NoiseStream::new(self.seed);
         self.emitted = 0;
+        self.finishing = None;
         self.finished = false;
         self.windows_run = 0;
         if let Some(r) = &mut self.record {
@@ -180,6 +202,11 @@ impl FoppasStream {
         self.finished
     }
 
+    /// True when the stream records its windows (parity tools).
+    pub fn is_recording(&self) -> bool {
+        self.record.is_some()
+    }
+
     /// The recorded windows (recording on).
     pub fn records(&self) -> &[WindowRecord] {
         self.record.as_deref().unwrap_or(&[])
@@ -199,8 +226,19 @@ impl FoppasStream {
 
     /// Pushes samples (any chunk size) and runs every window whose audio is complete.
     pub fn push(&mut self, graphs: &mut dyn WindowGraphs, samples: &[f32]) -> Result<Vec<Emitted>> {
+        self.accept(samples)?;
+        let mut out = Vec::new();
+        while let Some((n, last)) = self.next_window() {
+            out.push(self.run_window(graphs, n, last)?);
+        }
+        Ok(out)
+    }
+
+    /// Buffers samples without running any window (see [`FoppasStream::next_window`]). Errors,
+    /// changing nothing, for a finished stream or a non-finite sample.
+    pub fn accept(&mut self, samples: &[f32]) -> Result<()> {
         ensure!(
-            !self.finished,
+            !self.finished && self.finishing.is_none(),
             "the stream has finished; reset it before pushing more audio"
         );
         if let Some(i) = samples.iter().position(|x| !x.is_finite()) {
@@ -212,11 +250,33 @@ impl FoppasStream {
         }
         self.buf.extend_from_slice(samples);
         self.n_samples += samples.len() as u64;
-        let mut out = Vec::new();
-        while self.window_ready_sample(self.next_start) <= self.n_samples {
-            out.push(self.run_window(graphs, self.opts.window, false)?);
+        Ok(())
+    }
+
+    /// The next window that is due, `(frames, last)`: one whose audio has arrived, or, after
+    /// [`FoppasStream::begin_finish`], the next of the windows that cover the input. `None` when
+    /// nothing is due.
+    pub fn next_window(&self) -> Option<(usize, bool)> {
+        if self.finished {
+            return None;
         }
-        Ok(out)
+        let s = self.next_start;
+        match self.finishing {
+            Some(t) => Some((self.opts.window.min(t - s), s + self.opts.window >= t)),
+            None => {
+                (self.window_ready_sample(s) <= self.n_samples).then_some((self.opts.window, false))
+            }
+        }
+    }
+
+    /// The number of samples pushed in all at which the next window runs; `u64::MAX` once the stream
+    /// is finished (or finishing).
+    pub fn next_window_samples(&self) -> u64 {
+        if self.finished || self.finishing.is_some() {
+            u64::MAX
+        } else {
+            self.window_ready_sample(self.next_start)
+        }
     }
 
     /// Ends the stream so that exactly `total_frames` frames are emitted in all (for 16 kHz input
@@ -229,16 +289,34 @@ impl FoppasStream {
         if self.finished {
             return Ok(Vec::new());
         }
+        if let Some(e) = self.begin_finish(total_frames)? {
+            return Ok(vec![e]);
+        }
+        let mut out = Vec::new();
+        while let Some((n, last)) = self.next_window() {
+            out.push(self.run_window(graphs, n, last)?);
+        }
+        Ok(out)
+    }
+
+    /// Begins the end of the stream at `total_frames` frames in all (see [`FoppasStream::finish`]):
+    /// pads the audio with silence. Returns the held overlap's rows when they alone complete the
+    /// stream (it is then finished); otherwise the windows still to run come from
+    /// [`FoppasStream::next_window`]. Run the windows due by audio first.
+    pub fn begin_finish(&mut self, total_frames: usize) -> Result<Option<Emitted>> {
+        ensure!(
+            !self.finished && self.finishing.is_none(),
+            "the stream has finished; reset it before finishing it again"
+        );
         let t = total_frames;
         ensure!(
             t >= self.next_start + self.overlap.as_ref().map_or(0, |o| o.len() / MOTION_DIM),
             "finish: {t} frames requested, but windows up to frame {} have already run",
             self.next_start + self.overlap.as_ref().map_or(0, |o| o.len() / MOTION_DIM)
         );
-        let mut out = Vec::new();
         if t == 0 {
             self.finished = true;
-            return Ok(out);
+            return Ok(None);
         }
         let cfg = self.analyzer.config();
         let need = t as u64 * cfg.sample_rate as u64 / cfg.fps;
@@ -247,7 +325,7 @@ impl FoppasStream {
             self.buf
                 .resize(self.buf.len() + (need - have) as usize, 0.0);
         }
-        let (n_win, l) = (self.opts.window, self.opts.overlap);
+        let l = self.opts.overlap;
         let s = self.next_start;
         if let Some(held) = &self.overlap {
             if t - s <= l {
@@ -255,16 +333,11 @@ impl FoppasStream {
                 self.emitted = t;
                 self.overlap = None;
                 self.finished = true;
-                out.push(Emitted { start: s, rows });
-                return Ok(out);
+                return Ok(Some(Emitted { start: s, rows }));
             }
         }
-        while !self.finished {
-            let s = self.next_start;
-            let n = n_win.min(t - s);
-            out.push(self.run_window(graphs, n, s + n_win >= t)?);
-        }
-        Ok(out)
+        self.finishing = Some(t);
+        Ok(None)
     }
 
     /// Log-mel frames `2s .. 2(s+n) - 1` from the buffer (zeros before sample 0).
@@ -304,27 +377,18 @@ impl FoppasStream {
         n: usize,
         last: bool,
     ) -> Result<Emitted> {
-        let s = self.next_start;
+        let w = self.start_window(n, last)?;
+        let s = w.start;
         let d = MOTION_DIM;
-        let l_in = self.overlap.as_ref().map_or(0, |o| o.len() / d);
-        let mel = self.mel(s, n)?;
         let audio = graphs
-            .encode(&mel, n)
+            .encode(&w.mel, n)
             .with_context(|| format!("window at frame {s}: speech_encoder"))?;
-        let noise_start = self.noise.position;
-        let want_trace = self.record.is_some() && self.windows_run == 1;
-        let mut trace = want_trace.then(Vec::new);
+        let mut trace = self.wants_trace().then(Vec::new);
         let rows = self.opts.rows();
         let conds = [1.0f32, 0.0][..rows].to_vec();
         let (speaker, gamma) = (self.speaker, self.opts.guidance);
-        let mut w = WindowSampler::new(
-            n,
-            self.overlap.as_deref(),
-            self.opts,
-            self.schedule.clone(),
-            self.noise,
-        )?;
-        while let Some(c) = w.next_call() {
+        let mut sampler = self.sampler(&w)?;
+        while let Some(c) = sampler.next_call() {
             let out = graphs
                 .denoise(c.x, n, c.t, &audio, speaker, &conds)
                 .with_context(|| format!("window at frame {s}: denoiser at t = {}", c.t))?;
@@ -342,9 +406,56 @@ impl FoppasStream {
                     eps: eps.clone(),
                 });
             }
-            w.feed(&eps)?;
+            sampler.feed(&eps)?;
         }
-        let (x0, noise) = w.finish()?;
+        let (x0, noise) = sampler.finish()?;
+        Ok(self.complete_window(w, audio, x0, noise, trace))
+    }
+
+    /// Begins the window of `n` frames at the next start (`last`: the stream's last window): its
+    /// log-mel frames from the buffer.
+    pub fn start_window(&mut self, n: usize, last: bool) -> Result<WindowStart> {
+        let s = self.next_start;
+        let overlap_in = self.overlap.as_ref().map_or(0, |o| o.len() / MOTION_DIM);
+        let mel = self.mel(s, n)?;
+        Ok(WindowStart {
+            start: s,
+            n,
+            last,
+            mel,
+            overlap_in,
+            noise_start: self.noise.position,
+        })
+    }
+
+    /// The sampler of window `w`: from the held overlap and the stream's noise.
+    pub fn sampler(&self, w: &WindowStart) -> Result<WindowSampler> {
+        WindowSampler::new(
+            w.n,
+            self.overlap.as_deref(),
+            self.opts,
+            self.schedule.clone(),
+            self.noise,
+        )
+    }
+
+    /// True when the next window's denoiser calls are to be recorded (recording on, window 1).
+    pub fn wants_trace(&self) -> bool {
+        self.record.is_some() && self.windows_run == 1
+    }
+
+    /// Completes window `w` with its speech features `audio`, the sampler's clean motion `x0` and
+    /// the noise after it: records it (recording on), holds the overlap, moves to the next window.
+    pub fn complete_window(
+        &mut self,
+        w: WindowStart,
+        audio: Vec<f32>,
+        x0: Vec<f32>,
+        noise: NoiseStream,
+        trace: Option<Vec<TraceCall>>,
+    ) -> Emitted {
+        let d = MOTION_DIM;
+        let (s, n, last) = (w.start, w.n, w.last);
         self.noise = noise;
         let emit = if last { n } else { n - self.opts.overlap };
         if let Some(r) = &mut self.record {
@@ -352,10 +463,10 @@ impl FoppasStream {
                 start: s,
                 n,
                 emitted: emit,
-                overlap_in: l_in,
-                noise_start,
+                overlap_in: w.overlap_in,
+                noise_start: w.noise_start,
                 noise_end: self.noise.position,
-                mel,
+                mel: w.mel,
                 audio,
                 known: self.overlap.clone(),
                 x0: x0.clone(),
@@ -367,6 +478,7 @@ impl FoppasStream {
         self.emitted = s + emit;
         if last {
             self.overlap = None;
+            self.finishing = None;
             self.finished = true;
         } else {
             let l = self.opts.overlap;
@@ -382,9 +494,9 @@ impl FoppasStream {
                 self.buf_offset += drop as u64;
             }
         }
-        Ok(Emitted {
+        Emitted {
             start: s,
             rows: rows_out,
-        })
+        }
     }
 }

@@ -29,7 +29,7 @@ pub(super) struct Member {
 /// Stream `i` (in [`StreamBatch::ids`] order) occupies row `i` of the `audio_encoder` and decoder
 /// caches, and [`Stream::branch_rows`] consecutive rows (2 with guidance: conditional, then
 /// unconditional) of the expert and fusion caches, after the rows of the streams before it.
-/// [`Pipeline::step_stream_batch`] hands these stacked caches to each graph and keeps the graph's
+/// [`LiveGestureGraphs::step_stream_batch`] hands these stacked caches to each graph and keeps the graph's
 /// new caches in their place: no per-step stacking or splitting.
 ///
 /// Streams join ([`StreamBatch::add`], their rows appended) and leave ([`StreamBatch::remove`]) at
@@ -40,7 +40,7 @@ pub(super) struct Member {
 /// Buffers keep their capacity, so a stream joining after one left costs no reallocation.
 ///
 /// After a failed step the batch refuses to step again until all its streams have been removed
-/// (they come back poisoned: [`Pipeline::reset`] them).
+/// (they come back poisoned: [`LiveGestureGraphs::reset`] them).
 #[derive(Debug)]
 pub struct StreamBatch {
     pub(super) members: Vec<Member>,
@@ -78,7 +78,7 @@ impl StreamBatch {
         self.members.is_empty()
     }
 
-    /// The streams in batch order: the order [`Pipeline::step_stream_batch`] takes mel blocks in and
+    /// The streams in batch order: the order [`LiveGestureGraphs::step_stream_batch`] takes mel blocks in and
     /// returns token steps in. Changes only with [`StreamBatch::add`] (appends) and
     /// [`StreamBatch::remove`].
     pub fn ids(&self) -> Vec<StreamId> {
@@ -123,7 +123,7 @@ impl StreamBatch {
     }
 
     /// Feeds audio to stream `id`'s frontend, returning the mel frames of each completed token (for
-    /// [`Pipeline::step_stream_batch`]).
+    /// [`LiveGestureGraphs::step_stream_batch`]).
     pub fn push_audio(&mut self, id: StreamId, chunk: &[f32]) -> Result<Vec<Array2<f32>>> {
         let m = self
             .members
@@ -134,7 +134,7 @@ impl StreamBatch {
     }
 
     /// Ends stream `id`'s audio (docs/output.md): the mel blocks of its silence-completed last token (step
-    /// them with [`Pipeline::step_stream_batch`](super::Pipeline::step_stream_batch) like any other)
+    /// them with [`LiveGestureGraphs::step_stream_batch`](super::LiveGestureGraphs::step_stream_batch) like any other)
     /// and the number of frames that covers `input`; keep only the frames whose index is below it
     /// ([`super::cut_frames`]). See [`Stream::finish_audio`].
     pub fn finish_audio(
@@ -150,7 +150,7 @@ impl StreamBatch {
         m.state.finish_audio(input)
     }
 
-    /// Adds `stream` (fresh from [`Pipeline::new_stream`], or one that has already stepped, e.g. one
+    /// Adds `stream` (fresh from [`LiveGestureGraphs::new_stream`], or one that has already stepped, e.g. one
     /// taken out of another batch) at the end of the batch: its caches are appended to the stacked
     /// ones. Errors for a poisoned stream or batch, or a stream of a bundle with other caches.
     pub fn add(&mut self, stream: Stream) -> Result<StreamId> {

@@ -124,7 +124,7 @@ pub(super) trait CacheStore {
     fn put(&mut self, slot: Slot, new: Vec<Tensor>, old: Vec<Tensor>) -> Result<()>;
 }
 
-/// Separately owned per-stream caches ([`Pipeline::step_batch`]): stacked before each graph run and
+/// Separately owned per-stream caches ([`LiveGestureGraphs::step_batch`]): stacked before each graph run and
 /// split back after it.
 pub(super) struct SeparateCaches<'a> {
     pub(super) caches: Vec<&'a mut Caches>,

@@ -5,7 +5,7 @@ use ndarray::Array2;
 
 use super::caches::{CacheStore, Slot};
 use super::stream::StreamState;
-use super::{Pipeline, StepLogits, TokenStep};
+use super::{LiveGestureGraphs, StepLogits, TokenStep};
 use crate::backend::{Backend, GraphRunner, Tensor};
 use crate::bundle::{Bundle, GraphSpec, TensorSpec};
 use crate::sampling::sample_token;
@@ -183,9 +183,9 @@ struct Branches {
     cond: Tensor,
 }
 
-impl Pipeline {
+impl LiveGestureGraphs {
     /// One token step of `streams` from their mel blocks (checked by the caller): steps 1-7 of the
-    /// module docs. Shared by [`Pipeline::step_batch`] and [`Pipeline::step_stream_batch`], which
+    /// module docs. Shared by [`LiveGestureGraphs::step_batch`] and [`LiveGestureGraphs::step_stream_batch`], which
     /// differ only in where the caches live (`store`). On error the caches in `store` are incomplete.
     pub(super) fn step_inner(
         &mut self,
@@ -374,7 +374,7 @@ impl Pipeline {
     /// Step 6: every region's decoder on its sampled tokens (one row per stream); returns the region
     /// features `(streams, frames_per_token, dim)` in region order, or in the fused form the one
     /// output of `decoders_fused`, `(streams, frames_per_token, sum of the dims)` with the regions
-    /// side by side (see [`Pipeline::assemble_frames`]).
+    /// side by side (see [`LiveGestureGraphs::assemble_frames`]).
     fn run_decoders(
         &mut self,
         store: &mut impl CacheStore,

@@ -3,7 +3,7 @@
 
 use anyhow::Result;
 
-use super::Pipeline;
+use super::LiveGestureGraphs;
 use crate::backend::Tensor;
 use crate::bundle::Bundle;
 use crate::model::regions::assemble_frame;
@@ -58,7 +58,7 @@ pub fn state_bytes(bundle: &Bundle, guided: bool) -> Result<usize> {
     Ok(caches + span * std::mem::size_of::<f64>() + n_regions * 8)
 }
 
-impl Pipeline {
+impl LiveGestureGraphs {
     /// Builds the frames of stream row `i` from the decoders' outputs: one `(batch,
     /// frames_per_token, dim)` tensor per region (canonical form), or one `(batch,
     /// frames_per_token, sum of the dims)` tensor with the regions side by side in region order

@@ -24,13 +24,13 @@
 //!
 //! A [`Stream`] owns all per-stream state (frontend buffer, every graph's caches, previous tokens, the
 //! PRNG, the token counter). Its size is fixed: it does not grow with the stream's length. A
-//! [`Pipeline`] owns the loaded graphs and is shared by any number of streams.
+//! [`LiveGestureGraphs`] owns the loaded graphs and is shared by any number of streams.
 //!
 //! Two ways to step many streams at once, every graph running once for all of them:
 //!
-//! - [`Pipeline::step_batch`] on separately owned [`Stream`]s: their caches are stacked on the batch
+//! - [`LiveGestureGraphs::step_batch`] on separately owned [`Stream`]s: their caches are stacked on the batch
 //!   axis before each graph run and split back after it (a copy of every cache, twice, per step);
-//! - a [`StreamBatch`] ([`Pipeline::new_batch`], [`Pipeline::step_stream_batch`]) keeps the caches of
+//! - a [`StreamBatch`] ([`LiveGestureGraphs::new_batch`], [`LiveGestureGraphs::step_stream_batch`]) keeps the caches of
 //!   its streams stacked between steps: each graph gets them as they are and its new caches simply
 //!   replace them. Streams join and leave between steps ([`StreamBatch::add`], [`StreamBatch::remove`]).
 //!
@@ -38,18 +38,18 @@
 //! frames.
 //!
 //! After an error inside a graph the caches are incomplete: the stream refuses further work until
-//! [`Pipeline::reset`], a batch until its streams have been removed.
+//! [`LiveGestureGraphs::reset`], a batch until its streams have been removed.
 //!
 //! # The end of the audio (docs/output.md)
 //!
-//! [`Pipeline::finish`] completes the last partial token with silence and cuts its frames at the
+//! [`LiveGestureGraphs::finish`] completes the last partial token with silence and cuts its frames at the
 //! audio's end, so a stream emits exactly [`AudioSpan::frames`] frames, `ceil(duration * 30)`, in
 //! total. For a [`StreamBatch`] member, [`StreamBatch::finish_audio`] gives the silence-completed
 //! mel blocks and the frame count; step them with the batch and keep the frames below the count.
 //!
 //! # Layout
 //!
-//! - here: [`Pipeline`] (the loaded graphs; streams, steps, finish);
+//! - here: [`LiveGestureGraphs`] (the loaded graphs; streams, steps, finish);
 //! - `stream`: [`Stream`], its options in use and counters, [`TokenStep`];
 //! - `batch`: [`StreamBatch`], streams whose caches stay stacked between steps;
 //! - `caches`: where each graph's caches live (separate per stream, or stacked in a batch);
@@ -88,7 +88,7 @@ use caches::{Caches, SeparateCaches, StackedCaches};
 use chain::Stage;
 use stream::StreamState;
 
-/// Which form of the region eXperts, fusion and decoders a [`Pipeline`] runs (docs/bundle.md#forms-and-precision).
+/// Which form of the region eXperts, fusion and decoders a [`LiveGestureGraphs`] runs (docs/bundle.md#forms-and-precision).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum FormChoice {
     /// The form the bundle's manifest names for the backend (`backend_forms`), else canonical.
@@ -131,7 +131,7 @@ impl std::str::FromStr for FormChoice {
 }
 
 /// The loaded graphs of a bundle, shared by any number of [`Stream`]s.
-pub struct Pipeline {
+pub struct LiveGestureGraphs {
     frontend: FrontendConfig,
     regions: Vec<RegionLayout>,
     bos: i64,
@@ -150,9 +150,9 @@ pub struct Pipeline {
     decoders: Vec<Stage>,
 }
 
-impl std::fmt::Debug for Pipeline {
+impl std::fmt::Debug for LiveGestureGraphs {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Pipeline")
+        f.debug_struct("LiveGestureGraphs")
             .field("backend", &self.backend)
             .field("form", &self.form)
             .field(
@@ -163,7 +163,7 @@ impl std::fmt::Debug for Pipeline {
     }
 }
 
-impl Pipeline {
+impl LiveGestureGraphs {
     /// Loads every graph of `bundle` with `backend`, the eXperts, fusion and decoders in the
     /// bundle's form for the backend (`backend_forms`, else canonical).
     pub fn new(bundle: &Bundle, backend: &dyn Backend) -> Result<Self> {
@@ -223,7 +223,7 @@ impl Pipeline {
             chain::check_decoder_output(d, &[l.dim], fpt)?;
         }
         let s = &lg.sampling;
-        Ok(Pipeline {
+        Ok(LiveGestureGraphs {
             frontend: bundle.frontend().clone(),
             regions,
             bos: lg.vocab.bos_token,
@@ -239,7 +239,7 @@ impl Pipeline {
         })
     }
 
-    /// The form of the region eXperts, fusion and decoders this pipeline runs (`canonical`,
+    /// The form of the region eXperts, fusion and decoders these graphs run (`canonical`,
     /// `fused` or `attention`, docs/bundle.md#forms-and-precision).
     pub fn form(&self) -> &str {
         &self.form
@@ -313,7 +313,7 @@ impl Pipeline {
         }
     }
 
-    /// An empty [`StreamBatch`] for this pipeline's graphs; add streams with [`StreamBatch::add`].
+    /// An empty [`StreamBatch`] for these graphs; add streams with [`StreamBatch::add`].
     pub fn new_batch(&self) -> StreamBatch {
         StreamBatch::new(self.initial_caches(0, 0))
     }
@@ -333,7 +333,7 @@ impl Pipeline {
             .collect())
     }
 
-    /// Like [`Pipeline::push`], returning each token step (tokens, optional logits, frames).
+    /// Like [`LiveGestureGraphs::push`], returning each token step (tokens, optional logits, frames).
     pub fn push_steps(&mut self, stream: &mut Stream, chunk: &[f32]) -> Result<Vec<TokenStep>> {
         ensure!(
             !stream.poisoned,
@@ -346,7 +346,7 @@ impl Pipeline {
     /// Ends `stream` (docs/output.md): completes its last partial token with silence and returns the frames
     /// still missing, cut at the end of `input` (the audio the caller received, at its own rate), so
     /// that the stream has emitted exactly [`AudioSpan::frames`] frames. The stream then refuses more
-    /// audio until [`Pipeline::reset`]. Errors when `input` does not match the audio pushed (see
+    /// audio until [`LiveGestureGraphs::reset`]. Errors when `input` does not match the audio pushed (see
     /// [`Stream::finish_audio`]).
     pub fn finish(&mut self, stream: &mut Stream, input: AudioSpan) -> Result<Vec<Frame>> {
         Ok(self
@@ -356,7 +356,7 @@ impl Pipeline {
             .collect())
     }
 
-    /// Like [`Pipeline::finish`], returning the token steps (their frames already cut).
+    /// Like [`LiveGestureGraphs::finish`], returning the token steps (their frames already cut).
     pub fn finish_steps(
         &mut self,
         stream: &mut Stream,
@@ -398,7 +398,7 @@ impl Pipeline {
     /// One token step of several separately owned streams at once (`mels[i]` for `streams[i]`):
     /// every graph runs once with the streams' caches stacked on the batch axis before the run and
     /// split back after it. Streams may differ in guidance. For a set of streams stepped together
-    /// again and again, a [`StreamBatch`] ([`Pipeline::step_stream_batch`]) avoids the stacking.
+    /// again and again, a [`StreamBatch`] ([`LiveGestureGraphs::step_stream_batch`]) avoids the stacking.
     pub fn step_batch(
         &mut self,
         streams: &mut [&mut Stream],
@@ -475,9 +475,9 @@ mod tests {
     fn assert_send<T: Send>() {}
 
     #[test]
-    fn streams_and_pipelines_move_between_threads() {
+    fn streams_and_graphs_move_between_threads() {
         assert_send::<Stream>();
-        assert_send::<Pipeline>();
+        assert_send::<LiveGestureGraphs>();
         assert_send::<StreamBatch>();
     }
 }

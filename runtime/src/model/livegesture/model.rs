@@ -1,32 +1,36 @@
 //! The LiveGesture family behind the family-independent traits ([`MotionModel`], [`MotionStream`]).
 //!
-//! [`LiveGestureModel`] shares one [`Pipeline`] (the loaded graphs) between its streams behind a
+//! [`LiveGestureModel`] shares one [`LiveGestureGraphs`] (the loaded graphs) between its streams behind a
 //! mutex: a graph run needs the runner exclusively (tract caches a plan per batch size, ort binds
 //! its outputs), and a stream steps only while it holds the lock, so streams on other threads wait
 //! for each other's token steps. To run many streams in parallel, load one model per thread; to
-//! step many streams in one graph run, use a [`super::StreamBatch`] directly.
+//! step many streams in one graph run per graph per token, use [`MotionModel::step_many`] (the
+//! streams keep their own caches, stacked for each run and split after it: [`LiveGestureGraphs::step_batch`]),
+//! or a [`super::StreamBatch`] directly (caches kept stacked between steps).
 
+use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
 
-use anyhow::{anyhow, Result};
+use anyhow::{anyhow, ensure, Result};
+use ndarray::Array2;
 
-use super::{FormChoice, Pipeline, Stream};
+use super::{FormChoice, LiveGestureGraphs, Stream};
 use crate::audio::AudioSpan;
 use crate::backend::Backend;
 use crate::bundle::{Bundle, Family};
-use crate::model::{MotionModel, MotionStream, StreamOptions};
+use crate::model::{MotionModel, MotionStream, StreamJob, StreamOptions};
 use crate::output::Frame;
 
 /// A loaded LiveGesture bundle ([`MotionModel`] of the `livegesture` family).
 #[derive(Debug, Clone)]
 pub struct LiveGestureModel {
-    pipeline: Arc<Mutex<Pipeline>>,
+    graphs: Arc<Mutex<LiveGestureGraphs>>,
     backend: String,
     fps: u64,
     frames_per_token: u64,
 }
 
-fn lock(p: &Mutex<Pipeline>) -> Result<MutexGuard<'_, Pipeline>> {
+fn lock(p: &Mutex<LiveGestureGraphs>) -> Result<MutexGuard<'_, LiveGestureGraphs>> {
     p.lock().map_err(|_| {
         anyhow!("the model's graphs were left inconsistent by a panic in another stream")
     })
@@ -34,30 +38,39 @@ fn lock(p: &Mutex<Pipeline>) -> Result<MutexGuard<'_, Pipeline>> {
 
 impl LiveGestureModel {
     /// Loads every graph of `bundle` (family `livegesture`) with `backend`, the region eXperts in
-    /// the bundle's form for the backend.
-    pub fn load(bundle: &Bundle, backend: &dyn Backend) -> Result<Self> {
-        Self::load_with_form(bundle, backend, FormChoice::Auto)
-    }
-
-    /// As [`Self::load`], the region eXperts in the form `form` (docs/bundle.md#forms-and-precision).
+    /// the form `form` (docs/bundle.md#forms-and-precision; auto: the bundle's form for the backend).
     pub fn load_with_form(
         bundle: &Bundle,
         backend: &dyn Backend,
         form: FormChoice,
     ) -> Result<Self> {
-        let pipeline = Pipeline::with_form(bundle, backend, form)?;
-        let f = bundle.frontend();
-        Ok(Self {
-            backend: pipeline.backend_name().to_string(),
-            fps: f.fps,
-            frames_per_token: f.frames_per_token,
-            pipeline: Arc::new(Mutex::new(pipeline)),
-        })
+        Ok(Self::from(LiveGestureGraphs::with_form(
+            bundle, backend, form,
+        )?))
     }
 
-    /// The shared pipeline (for LiveGesture-specific work: token steps, batches).
-    pub fn pipeline(&self) -> &Arc<Mutex<Pipeline>> {
-        &self.pipeline
+    /// The shared graphs (for LiveGesture-specific work: token steps, batches).
+    pub fn graphs(&self) -> &Arc<Mutex<LiveGestureGraphs>> {
+        &self.graphs
+    }
+}
+
+impl From<LiveGestureGraphs> for LiveGestureModel {
+    /// The model of already loaded graphs.
+    fn from(graphs: LiveGestureGraphs) -> Self {
+        let f = graphs.frontend();
+        Self {
+            backend: graphs.backend_name().to_string(),
+            fps: f.fps,
+            frames_per_token: f.frames_per_token,
+            graphs: Arc::new(Mutex::new(graphs)),
+        }
+    }
+}
+
+impl From<LiveGestureGraphs> for Box<dyn MotionModel> {
+    fn from(graphs: LiveGestureGraphs) -> Self {
+        Box::new(LiveGestureModel::from(graphs))
     }
 }
 
@@ -82,19 +95,158 @@ impl MotionModel for LiveGestureModel {
                 set.join(", ")
             );
         }
-        let stream = lock(&self.pipeline)?.new_stream(opts)?;
+        let stream = lock(&self.graphs)?.new_stream(opts)?;
         Ok(Box::new(LiveGestureStream {
-            pipeline: Arc::clone(&self.pipeline),
+            graphs: Arc::clone(&self.graphs),
             stream,
             frames_per_token: self.frames_per_token,
         }))
+    }
+
+    /// Pushes every job's audio into its stream's frontend, then steps token by token: each round
+    /// runs every graph once for all streams that still have a completed token
+    /// ([`LiveGestureGraphs::step_batch`]). A job that ends its stream adds the silence-completed last token
+    /// and its frames are cut at the end of the input, as [`MotionStream::finish`] does.
+    fn step_many(&self, jobs: &mut [StreamJob<'_>]) -> Vec<Result<Vec<Frame>>> {
+        let mut results: Vec<Option<Result<Vec<Frame>>>> = jobs.iter().map(|_| None).collect();
+        let mut mine: Vec<Pending<'_>> = Vec::new();
+        for (i, job) in jobs.iter_mut().enumerate() {
+            let ours = job
+                .stream
+                .as_any_mut()
+                .downcast_mut::<LiveGestureStream>()
+                .is_some_and(|s| Arc::ptr_eq(&s.graphs, &self.graphs));
+            if !ours {
+                results[i] = Some(job.run_alone());
+                continue;
+            }
+            let (audio, end) = (job.audio, job.end);
+            let Some(s) = job.stream.as_any_mut().downcast_mut::<LiveGestureStream>() else {
+                continue;
+            };
+            match prepare(&mut s.stream, audio, end) {
+                Ok((mels, total)) => mine.push(Pending {
+                    job: i,
+                    stream: &mut s.stream,
+                    mels,
+                    total,
+                    frames: Vec::new(),
+                    failed: None,
+                }),
+                Err(e) => results[i] = Some(Err(e)),
+            }
+        }
+        if !mine.is_empty() {
+            match lock(&self.graphs) {
+                Ok(mut p) => step_rounds(&mut p, &mut mine),
+                Err(e) => {
+                    for m in &mut mine {
+                        m.failed = Some(format!("{e:#}"));
+                    }
+                }
+            }
+        }
+        for m in mine {
+            results[m.job] = Some(match m.failed {
+                Some(e) => Err(anyhow!(e)),
+                None => {
+                    let mut frames = m.frames;
+                    if let Some(total) = m.total {
+                        frames.retain(|f| f.index < total);
+                    }
+                    Ok(frames)
+                }
+            });
+        }
+        results
+            .into_iter()
+            .map(|r| r.unwrap_or_else(|| Err(anyhow!("the stream was not stepped"))))
+            .collect()
+    }
+}
+
+/// A stream of [`LiveGestureModel::step_many`] with its completed tokens' mel blocks.
+struct Pending<'a> {
+    job: usize,
+    stream: &'a mut Stream,
+    mels: VecDeque<Array2<f32>>,
+    /// Frames that cover the input, when the job ends the stream.
+    total: Option<u64>,
+    frames: Vec<Frame>,
+    failed: Option<String>,
+}
+
+/// Feeds a job's audio (and, ending it, the silence-completed last token) to the stream's frontend.
+fn prepare(
+    stream: &mut Stream,
+    audio: &[f32],
+    end: Option<AudioSpan>,
+) -> Result<(VecDeque<Array2<f32>>, Option<u64>)> {
+    ensure!(
+        !stream.is_poisoned(),
+        "the stream failed earlier; reset it before pushing more audio"
+    );
+    let mut mels: VecDeque<_> = stream.push_audio(audio)?.into();
+    let mut total = None;
+    if let Some(end) = end {
+        match stream.finish_audio(end) {
+            Ok((more, t)) => {
+                mels.extend(more);
+                total = Some(t);
+            }
+            Err(e) => {
+                // the audio's tokens are in the frontend but will not be stepped
+                if !mels.is_empty() {
+                    stream.poisoned = true;
+                }
+                return Err(e);
+            }
+        }
+    }
+    Ok((mels, total))
+}
+
+/// Steps the streams' tokens in rounds, one token of every stream that has one per round.
+fn step_rounds(p: &mut LiveGestureGraphs, mine: &mut [Pending<'_>]) {
+    loop {
+        let mut owners = Vec::new();
+        let mut blocks = Vec::new();
+        let mut refs: Vec<&mut Stream> = Vec::new();
+        for (k, m) in mine.iter_mut().enumerate() {
+            if m.failed.is_some() {
+                continue;
+            }
+            if let Some(b) = m.mels.pop_front() {
+                owners.push(k);
+                blocks.push(b);
+                refs.push(&mut *m.stream);
+            }
+        }
+        if refs.is_empty() {
+            return;
+        }
+        let r = p.step_batch(&mut refs, &blocks);
+        drop(refs);
+        match r {
+            Ok(steps) => {
+                for (k, st) in owners.into_iter().zip(steps) {
+                    mine[k].frames.extend(st.frames);
+                }
+            }
+            Err(e) => {
+                let msg = format!("{e:#}");
+                for k in owners {
+                    mine[k].failed = Some(msg.clone());
+                }
+            }
+        }
     }
 }
 
 /// One LiveGesture stream ([`MotionStream`]): a [`Stream`] and the model it steps on.
 #[derive(Debug)]
 pub struct LiveGestureStream {
-    pipeline: Arc<Mutex<Pipeline>>,
+    graphs: Arc<Mutex<LiveGestureGraphs>>,
     stream: Stream,
     frames_per_token: u64,
 }
@@ -108,15 +260,15 @@ impl LiveGestureStream {
 
 impl MotionStream for LiveGestureStream {
     fn push_audio(&mut self, samples: &[f32]) -> Result<Vec<Frame>> {
-        lock(&self.pipeline)?.push(&mut self.stream, samples)
+        lock(&self.graphs)?.push(&mut self.stream, samples)
     }
 
     fn finish(&mut self, input: AudioSpan) -> Result<Vec<Frame>> {
-        lock(&self.pipeline)?.finish(&mut self.stream, input)
+        lock(&self.graphs)?.finish(&mut self.stream, input)
     }
 
     fn reset(&mut self) -> Result<()> {
-        lock(&self.pipeline)?.reset(&mut self.stream)
+        lock(&self.graphs)?.reset(&mut self.stream)
     }
 
     fn frames_emitted(&self) -> u64 {
@@ -137,5 +289,9 @@ impl MotionStream for LiveGestureStream {
 
     fn guidance(&self) -> f64 {
         self.stream.guidance()
+    }
+
+    fn next_unit_samples(&self) -> u64 {
+        self.stream.next_token_samples()
     }
 }
