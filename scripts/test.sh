@@ -7,12 +7,13 @@
 #      with the oldest supported and the newest ONNX Runtime (JUnit reports in target/parity/);
 #   4. the Rust tests (runtime numerics, bundles, pipeline, CLI, serve, parity suite incl. its must-fail cases);
 #   5. the bindings: the C example and C# declarations (mono) against the CLI;
-#   6. the serve protocol with independent Python/JS clients, BVH read back with a PyPI reader;
+#   6. the serve protocol with independent Python/JS clients, BVH read back with a PyPI reader, and
+#      a rolling restart of serve replicas behind HAProxy;
 #   7. avatars: glTF and BVH of a real recording through the Khronos glTF validator and Blender's
 #      importers (Debian's blender), the VRM retargeting's node tests;
 #   8. the browser page in Debian's chromium with a fake microphone, the skinned figure, a .glb in
-#      GLTFLoader and a VRM avatar following a WAV (screenshots in target/browser/).
-#   8. the runtime compiled to WebAssembly: the static page in chromium (parity of both shipped bundles,
+#      GLTFLoader and a VRM avatar following a WAV (screenshots in target/browser/);
+#   9. the runtime compiled to WebAssembly: the static page in chromium (parity of both shipped bundles,
 #      a perturbed weight, the microphone, a WAV vs native tract; report in target/browser-wasm/);
 # and first, the docs check (scripts/check_docs.py: relative links in the Markdown resolve).
 set -euo pipefail
@@ -97,6 +98,12 @@ LIVEGESTURE_BIN="$PWD/target/release/livegesture" "$LIVEGESTURE_PY" -m pytest -q
 
 stage "serve and BVH: independent Python/JS clients vs generate, BVH read back by the bvh package"
 "$LIVEGESTURE_VENV/bin/pip" install -q websockets==15.0.1 bvh==0.3
+# replicas behind a load balancer (runtime/tests/py/test_haproxy.py, docs/deploy.md): Debian's haproxy
+if ! command -v haproxy >/dev/null 2>&1 || ! command -v openssl >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ]; then _sudo=""; else _sudo="sudo"; fi
+  $_sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $_sudo apt-get install -y -qq haproxy openssl >/dev/null
+fi
+export LIVEGESTURE_REQUIRE_HAPROXY=1
 LIVEGESTURE_BIN="$PWD/target/release/livegesture" "$LIVEGESTURE_PY" -m pytest -q runtime/tests/py
 
 stage "avatars: glTF/BVH of a real recording, Khronos glTF validator, Blender imports, retargeting tests"

@@ -1,6 +1,8 @@
 //! `livegesture serve`: the WebSocket server of docs/serve.md (see `docs/serve.md`).
 
 use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
@@ -9,6 +11,8 @@ use sha2::{Digest, Sha256};
 use livegesture::backend;
 use livegesture::model::livegesture::FormChoice;
 use livegesture::model::{self, LoadOptions};
+use livegesture::serve::access::AccessConfig;
+use livegesture::serve::tls::load_config as load_tls;
 use livegesture::serve::{ModelInfo, ServeConfig, Server};
 
 use super::common::{check_form, InputError, ModelArgs};
@@ -48,6 +52,72 @@ pub struct Args {
     /// (scripts/build_web_static.sh -> target/web-static), so /?engine=wasm runs in the browser.
     #[arg(long, value_name = "DIR")]
     pub web_dir: Option<std::path::PathBuf>,
+    /// Seconds to keep running on SIGINT/SIGTERM with /healthz at 503 and new sessions refused,
+    /// before live sessions are closed (1001); sessions that end meanwhile complete. A load
+    /// balancer's health check sees the replica leave in that time (docs/deploy.md).
+    #[arg(long, default_value_t = 0.0)]
+    pub drain_delay: f64,
+    #[command(flatten)]
+    pub access: AccessArgs,
+}
+
+/// Who may connect (docs/deploy.md#who-may-connect).
+#[derive(Debug, clap::Args)]
+pub struct AccessArgs {
+    /// File holding a shared secret (one line, at least 16 characters); sessions must present it as
+    /// `Authorization: Bearer <token>` or `?token=<token>` (else HTTP 401). /healthz, /metrics and
+    /// the page stay open.
+    #[arg(long, value_name = "FILE")]
+    pub auth_token_file: Option<PathBuf>,
+    /// Origin (scheme://host[:port]) whose pages may open sessions, besides the served page's own;
+    /// repeat or separate with commas. Other Origins get HTTP 403. Not given: any origin.
+    #[arg(long, value_name = "ORIGIN", value_delimiter = ',')]
+    pub allowed_origin: Vec<String>,
+    /// Most live sessions per client IP (HTTP 429 beyond); 0: no limit besides --max-sessions.
+    #[arg(long, default_value_t = 0)]
+    pub max_sessions_per_client: usize,
+    /// Take the client IP for --max-sessions-per-client from the last X-Forwarded-For entry (only
+    /// behind a proxy that sets it, e.g. HAProxy with `option forwardfor`).
+    #[arg(long)]
+    pub trust_forwarded_for: bool,
+    /// TLS certificate chain (PEM): serve https and wss in the process (with --tls-key).
+    #[arg(long, value_name = "PEM", requires = "tls_key")]
+    pub tls_cert: Option<PathBuf>,
+    /// TLS private key (PEM: PKCS#8, PKCS#1 or SEC1), with --tls-cert.
+    #[arg(long, value_name = "PEM", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
+}
+
+impl AccessArgs {
+    fn config(
+        &self,
+    ) -> Result<(
+        AccessConfig,
+        Option<Arc<tokio_rustls::rustls::ServerConfig>>,
+    )> {
+        let token = match &self.auth_token_file {
+            Some(p) => Some(AccessConfig::read_token(p).map_err(|e| InputError(format!("{e:#}")))?),
+            None => None,
+        };
+        let allowed_origins = self
+            .allowed_origin
+            .iter()
+            .map(|o| AccessConfig::parse_origin(o).map_err(|e| InputError(format!("{e:#}"))))
+            .collect::<Result<_, _>>()?;
+        let tls = match (&self.tls_cert, &self.tls_key) {
+            (Some(c), Some(k)) => Some(load_tls(c, k).map_err(|e| InputError(format!("{e:#}")))?),
+            _ => None,
+        };
+        Ok((
+            AccessConfig {
+                token,
+                allowed_origins,
+                max_sessions_per_client: self.max_sessions_per_client,
+                trust_forwarded_for: self.trust_forwarded_for,
+            },
+            tls,
+        ))
+    }
 }
 
 fn secs(name: &str, v: f64) -> Result<Duration> {
@@ -72,6 +142,11 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
         )
         .into());
     }
+    let (access, tls) = a.access.config()?;
+    if !a.addr.ip().is_loopback() && access.token.is_none() {
+        eprintln!("livegesture serve: warning: listening on {} beyond loopback without --auth-token-file: anyone who reaches it may open sessions", a.addr);
+    }
+    let scheme = if tls.is_some() { "https" } else { "http" };
     let cfg = ServeConfig {
         max_sessions: a.max_sessions,
         max_message_bytes: a.max_message_bytes,
@@ -81,6 +156,13 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
         batch_wait: secs("batch-wait-ms", a.batch_wait_ms / 1e3)?,
         drain_timeout: secs("drain-timeout", a.drain_timeout)?,
         web_dir: a.web_dir.clone(),
+        drain_delay: if a.drain_delay == 0.0 {
+            Duration::ZERO
+        } else {
+            secs("drain-delay", a.drain_delay)?
+        },
+        access,
+        tls,
     };
     if let Some(d) = &a.web_dir {
         if !d.join("wasm").is_dir() {
@@ -127,7 +209,7 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
         Ok((model, info))
     })?;
     eprintln!(
-        "livegesture serve: listening on http://{} (WebSocket /v1/stream, page /, /healthz, /metrics)",
+        "livegesture serve: listening on {scheme}://{} (WebSocket /v1/stream, page /, /healthz, /metrics)",
         server.addr()
     );
     let rt = tokio::runtime::Builder::new_current_thread()

@@ -3,6 +3,10 @@
 use std::fmt::Write as _;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+/// The window of [`Histogram::recent_max`]: the largest value of the last 10-20 s.
+const RECENT: Duration = Duration::from_secs(10);
 
 /// A histogram with fixed upper bounds (cumulative buckets are computed when rendered).
 #[derive(Debug)]
@@ -16,6 +20,27 @@ struct HistState {
     counts: Vec<u64>,
     sum: f64,
     count: u64,
+    /// Largest value of the current and of the previous [`RECENT`] window, and the current one's start.
+    recent: [f64; 2],
+    recent_start: Option<Instant>,
+}
+
+impl HistState {
+    fn roll(&mut self, now: Instant) {
+        match self.recent_start {
+            Some(t) if now.duration_since(t) < RECENT => {}
+            Some(t) => {
+                self.recent[1] = if now.duration_since(t) < 2 * RECENT {
+                    self.recent[0]
+                } else {
+                    0.0
+                };
+                self.recent[0] = 0.0;
+                self.recent_start = Some(now);
+            }
+            None => self.recent_start = Some(now),
+        }
+    }
 }
 
 impl Histogram {
@@ -36,6 +61,17 @@ impl Histogram {
         }
         s.sum += v;
         s.count += 1;
+        s.roll(Instant::now());
+        if v > s.recent[0] {
+            s.recent[0] = v;
+        }
+    }
+
+    /// The largest value observed in the last 10-20 seconds (0 when none).
+    pub fn recent_max(&self) -> f64 {
+        let mut s = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        s.roll(Instant::now());
+        s.recent[0].max(s.recent[1])
     }
 
     fn render(&self, out: &mut String, name: &str, help: &str) {
@@ -65,7 +101,7 @@ fn fmt_f64(v: f64) -> String {
 }
 
 /// Reasons a session or connection is refused or cut (label values of `livegesture_refusals_total`).
-pub const REFUSAL_REASONS: [&str; 8] = [
+pub const REFUSAL_REASONS: [&str; 12] = [
     "bad_request",
     "capacity",
     "shutting_down",
@@ -74,6 +110,11 @@ pub const REFUSAL_REASONS: [&str; 8] = [
     "oversize",
     "idle",
     "slow_client",
+    // who may connect (access.rs, tls.rs)
+    "unauthorized",
+    "forbidden_origin",
+    "client_limit",
+    "tls_handshake",
 ];
 
 /// All counters and histograms of one server.
@@ -202,6 +243,11 @@ impl Metrics {
             &mut o,
             "livegesture_token_latency_seconds",
             "From the message completing a token's audio to its frames queued for sending.",
+        );
+        let _ = writeln!(
+            o,
+            "# HELP livegesture_tick_lag_seconds Largest token latency of the last 10-20 s (what an autoscaler watches).\n# TYPE livegesture_tick_lag_seconds gauge\nlivegesture_tick_lag_seconds {}",
+            fmt_f64(self.token_latency_seconds.recent_max())
         );
         o
     }

@@ -12,17 +12,21 @@
 //! - [`protocol`]: query parameters, client messages and close codes;
 //! - [`session`]: one WebSocket session (decoding, resampling, back-pressure, limits);
 //! - [`metrics`]: counters and histograms, Prometheus text format;
-//! - [`web`]: the browser page, embedded in the binary.
+//! - [`web`]: the browser page, embedded in the binary;
+//! - [`access`]: who may open a session (token, origins, per-client limit);
+//! - [`tls`]: the listener, plain TCP or TLS (rustls).
 //!
 //! [`Server::start`] binds, loads the model on the scheduler thread and serves until
 //! [`Server::shutdown`]: new connections are refused, every session's tokens whose audio has arrived
 //! are stepped and sent, every session is closed with 1001, then [`Server::join`] returns.
 
+pub mod access;
 pub mod messages;
 pub mod metrics;
 pub mod protocol;
 pub mod scheduler;
 pub mod session;
+pub mod tls;
 pub mod web;
 
 use std::net::SocketAddr;
@@ -67,6 +71,14 @@ pub struct ServeConfig {
     /// build of the page with the WebAssembly runtime and a bundle (`scripts/build_web_static.sh`,
     /// docs/wasm.md), so that `/?engine=wasm` runs the model in the browser.
     pub web_dir: Option<std::path::PathBuf>,
+    /// On shutdown, how long to stay up draining before the sessions are closed: `/healthz` says
+    /// 503 and new sessions are refused at once, live sessions go on (those that end in time
+    /// complete), then the rest get their arrived tokens and close 1001. Zero: close at once.
+    pub drain_delay: Duration,
+    /// Who may open a session ([`access`]).
+    pub access: access::AccessConfig,
+    /// TLS in the process ([`tls::load_config`]); `None`: plain TCP.
+    pub tls: Option<Arc<tokio_rustls::rustls::ServerConfig>>,
 }
 
 impl Default for ServeConfig {
@@ -80,6 +92,9 @@ impl Default for ServeConfig {
             batch_wait: Duration::from_millis(30),
             drain_timeout: Duration::from_secs(10),
             web_dir: None,
+            drain_delay: Duration::ZERO,
+            access: access::AccessConfig::default(),
+            tls: None,
         }
     }
 }
@@ -112,6 +127,8 @@ pub(crate) struct AppState {
     pub next_sid: AtomicU64,
     /// Notified whenever a session ends.
     pub ended: Notify,
+    /// Live sessions per client ([`access`]).
+    pub clients: Arc<access::ClientTable>,
 }
 
 /// A running server.
@@ -164,6 +181,8 @@ impl Server {
             .with_context(|| format!("--addr {addr}: cannot listen"))?;
         std_listener.set_nonblocking(true)?;
         let local = std_listener.local_addr()?;
+        // the shutdown request (Server::shutdown) and, after the drain delay, the sessions' signal
+        let (req_tx, req_rx) = watch::channel(false);
         let (sd_tx, sd_rx) = watch::channel(false);
         let state = Arc::new(AppState {
             cfg: cfg.clone(),
@@ -175,6 +194,7 @@ impl Server {
             slots: AtomicU64::new(0),
             next_sid: AtomicU64::new(1),
             ended: Notify::new(),
+            clients: Arc::default(),
         });
         let finished = Arc::new(Notify::new());
         let finished_flag = Arc::new(AtomicBool::new(false));
@@ -187,7 +207,7 @@ impl Server {
                     .enable_all()
                     .build()
                     .context("building the async runtime")?;
-                let r = rt.block_on(serve_until_shutdown(std_listener, state, sd_rx));
+                let r = rt.block_on(serve_until_shutdown(std_listener, state, req_rx, sd_tx));
                 // the last command senders are gone with the state: the scheduler ends
                 drop(rt);
                 let _ = sched.join();
@@ -198,7 +218,7 @@ impl Server {
             .context("starting the server thread")?;
         Ok(Server {
             addr: local,
-            shutdown: sd_tx,
+            shutdown: req_tx,
             thread: Some(thread),
             metrics,
             finished,
@@ -245,28 +265,48 @@ impl Server {
 async fn serve_until_shutdown(
     std_listener: std::net::TcpListener,
     state: Arc<AppState>,
-    mut sd: watch::Receiver<bool>,
+    mut req: watch::Receiver<bool>,
+    sd: watch::Sender<bool>,
 ) -> Result<()> {
     let listener = tokio::net::TcpListener::from_std(std_listener)?;
+    let listener = tls::Incoming::start(listener, state.cfg.tls.clone(), state.metrics.clone())?;
+    // only sessions pass the access checks; the page, /healthz and /metrics stay open
+    let stream = get(session::upgrade).layer(axum::middleware::from_fn_with_state(
+        state.clone(),
+        access::check,
+    ));
     let app = Router::new()
-        .route("/v1/stream", get(session::upgrade))
+        .route("/v1/stream", stream)
         .route("/healthz", get(healthz))
         .route("/metrics", get(metrics_text))
         .merge(web::routes())
+        .layer(axum::middleware::from_fn(access::peer_info))
         .with_state(state.clone());
-    let mut sd2 = sd.clone();
-    let st2 = state.clone();
+    // the listener stays open while draining: /healthz answers 503 and new sessions a 503 with a
+    // reason (a balancer retries them elsewhere) instead of connection refused
+    let (stop_tx, mut stop_rx) = watch::channel(false);
     let http = axum::serve(
         listener,
-        app.into_make_service_with_connect_info::<SocketAddr>(),
+        app.into_make_service_with_connect_info::<access::ClientAddr>(),
     )
     .with_graceful_shutdown(async move {
-        let _ = sd2.wait_for(|v| *v).await;
-        st2.draining.store(true, Ordering::SeqCst);
+        let _ = stop_rx.wait_for(|v| *v).await;
     });
     let http = tokio::spawn(async move { http.await });
-    let _ = sd.wait_for(|v| *v).await;
+    let _ = req.wait_for(|v| *v).await;
     state.draining.store(true, Ordering::SeqCst);
+    // the drain delay: live sessions go on until they end or the delay is over
+    let delay_end = tokio::time::Instant::now() + state.cfg.drain_delay;
+    loop {
+        let n = state.ended.notified();
+        if state.slots.load(Ordering::SeqCst) == 0 {
+            break;
+        }
+        if tokio::time::timeout_at(delay_end, n).await.is_err() {
+            break;
+        }
+    }
+    let _ = sd.send(true);
     // sessions see the same signal: they stop reading, their arrived tokens are stepped, close 1001
     let deadline = tokio::time::Instant::now() + state.cfg.drain_timeout;
     loop {
@@ -282,6 +322,7 @@ async fn serve_until_shutdown(
             break;
         }
     }
+    let _ = stop_tx.send(true);
     let _ = tokio::time::timeout(Duration::from_secs(2), http).await;
     Ok(())
 }
@@ -314,7 +355,27 @@ async fn metrics_text(State(st): State<Arc<AppState>>) -> Response {
             header::CONTENT_TYPE,
             "text/plain; version=0.0.4; charset=utf-8",
         )],
-        st.metrics.render(),
+        st.metrics.render() + &capacity_text(&st),
     )
         .into_response()
+}
+
+/// The gauges an autoscaler and a load balancer read besides [`Metrics::render`]: capacity, slots
+/// taken, draining.
+fn capacity_text(st: &AppState) -> String {
+    let draining = st.draining.load(Ordering::SeqCst) || *st.shutdown.borrow();
+    format!(
+        "# HELP livegesture_sessions_capacity Most concurrent sessions (--max-sessions).\n\
+         # TYPE livegesture_sessions_capacity gauge\n\
+         livegesture_sessions_capacity {}\n\
+         # HELP livegesture_sessions_slots Session slots taken (live sessions and upgrades in progress).\n\
+         # TYPE livegesture_sessions_slots gauge\n\
+         livegesture_sessions_slots {}\n\
+         # HELP livegesture_draining 1 from the moment the server starts draining (/healthz is then 503).\n\
+         # TYPE livegesture_draining gauge\n\
+         livegesture_draining {}\n",
+        st.cfg.max_sessions,
+        st.slots.load(Ordering::SeqCst),
+        u8::from(draining)
+    )
 }
