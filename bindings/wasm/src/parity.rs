@@ -17,7 +17,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use livegesture::audio::AudioSpan;
 use livegesture::backend::tract::TractBackend;
 use livegesture::backend::{Backend, Tensor, TensorData};
-use livegesture::bundle::{Bundle, Family, GraphSpec};
+use livegesture::bundle::{Bundle, GraphSpec};
 use livegesture::compare::{diff, Diff};
 use livegesture::model::livegesture::LiveGestureGraphs;
 use livegesture::model::{self, StreamOptions};
@@ -141,14 +141,34 @@ pub fn run(bundle: &Bundle) -> Result<Report> {
             report.line(false, format!("graph {}: {e:#}", spec.name));
         }
     }
-    let res = match bundle.family() {
-        Family::LiveGesture => livegesture_rollout(bundle, &backend, &mut report),
-        Family::DiffSheg => diffsheg_rollout(bundle, &backend, &mut report),
-    };
+    let res = model::for_family(
+        bundle,
+        Rollout {
+            backend: &backend,
+            report: &mut report,
+        },
+    );
     if let Err(e) = res {
         report.line(false, format!("rollout: {e:#}"));
     }
     Ok(report)
+}
+
+/// The whole reference rollout of the bundle's family ([`model::for_family`]: the one place that maps
+/// a family to its code).
+struct Rollout<'a> {
+    backend: &'a dyn Backend,
+    report: &'a mut Report,
+}
+
+impl model::FamilyTool for Rollout<'_> {
+    type Output = Result<()>;
+    fn livegesture(self, bundle: &Bundle) -> Result<()> {
+        livegesture_rollout(bundle, self.backend, self.report)
+    }
+    fn diffsheg(self, bundle: &Bundle) -> Result<()> {
+        diffsheg_rollout(bundle, self.backend, self.report)
+    }
 }
 
 /// One graph over its reference steps (module docs).

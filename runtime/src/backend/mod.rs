@@ -301,6 +301,7 @@ pub const TRACT_VERSION: &str = "0.23.9";
 /// The inference runtimes this process ran, one line each: `tract <version>` and, once an ort
 /// backend was created, `ONNX Runtime <version, as the loaded library reports it> (<library>)`.
 pub fn runtime_versions() -> Vec<String> {
+    #[cfg_attr(not(feature = "ort"), allow(unused_mut))]
     let mut v = vec![format!("tract {TRACT_VERSION}")];
     #[cfg(feature = "ort")]
     if let Some((version, path)) = self::ort::loaded_runtime() {

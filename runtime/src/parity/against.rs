@@ -163,6 +163,45 @@ fn graph_rows_against(
 
 /// The LiveGesture rollout rows: both bundles on the old bundle's reference audio and seed.
 #[allow(clippy::too_many_arguments)]
+/// The whole-rollout comparison of the family of the new bundle (through [`crate::model::for_family`],
+/// the one place that maps a family to its code).
+struct AgainstRollout<'a> {
+    old: &'a Bundle,
+    backend: &'a dyn Backend,
+    cmp: &'a str,
+    o: &'a AgainstOptions,
+    rows: &'a mut Vec<Row>,
+    notes: &'a mut Vec<String>,
+    divergences: &'a mut Vec<Divergence>,
+}
+
+impl crate::model::FamilyTool for AgainstRollout<'_> {
+    type Output = Result<()>;
+    fn livegesture(self, new: &Bundle) -> Result<()> {
+        livegesture_rollout(
+            new,
+            self.old,
+            self.backend,
+            self.cmp,
+            self.o,
+            self.rows,
+            self.notes,
+            self.divergences,
+        )
+    }
+    fn diffsheg(self, new: &Bundle) -> Result<()> {
+        diffsheg_rollout(
+            new,
+            self.old,
+            self.backend,
+            self.cmp,
+            self.o,
+            self.rows,
+            self.notes,
+        )
+    }
+}
+
 fn livegesture_rollout(
     new: &Bundle,
     old: &Bundle,
@@ -426,21 +465,18 @@ pub fn against(
     }
     if want(Check::Rollout) {
         let t = Instant::now();
-        let r = match new.family() {
-            Family::LiveGesture => livegesture_rollout(
-                &new,
-                &old,
-                be.as_ref(),
-                &cmp,
+        let r = crate::model::for_family(
+            &new,
+            AgainstRollout {
+                old: &old,
+                backend: be.as_ref(),
+                cmp: &cmp,
                 o,
-                &mut rows,
-                &mut notes,
-                &mut divergences,
-            ),
-            Family::DiffSheg => {
-                diffsheg_rollout(&new, &old, be.as_ref(), &cmp, o, &mut rows, &mut notes)
-            }
-        };
+                rows: &mut rows,
+                notes: &mut notes,
+                divergences: &mut divergences,
+            },
+        );
         if let Err(e) = r {
             if e.chain().any(|c| c.is::<ReferenceError>()) {
                 return Err(e);
