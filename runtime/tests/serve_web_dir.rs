@@ -10,14 +10,14 @@ use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream};
 
 use livegesture::bundle::Bundle;
-use livegesture::model::livegesture::Pipeline;
+use livegesture::model::livegesture::LiveGestureGraphs;
 use livegesture::serve::{ServeConfig, Server};
 use serve_common::{model_info, tract_backend};
 
 fn start(cfg: ServeConfig) -> Server {
     Server::start("127.0.0.1:0".parse().unwrap(), cfg, || {
         let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
-        let p = Pipeline::new(&bundle, tract_backend().as_ref()).expect("pipeline");
+        let p = LiveGestureGraphs::new(&bundle, tract_backend().as_ref()).expect("pipeline");
         let info = model_info("test", &bundle, p.backend_name());
         Ok((p, info))
     })
