@@ -288,18 +288,12 @@ fn livegesture_rollout(bundle: &Bundle, backend: &dyn Backend, report: &mut Repo
     let r = bundle
         .reference()
         .ok_or_else(|| anyhow!("manifest.json has no `reference`"))?;
-    let rel = r
-        .rollout
-        .clone()
-        .unwrap_or_else(|| "reference/rollout.npz".into());
+    let rel = bundle.reference_rollout();
     let refv = Npz::read(bundle, &rel)?;
     let seed = r
         .rollout_seed
         .ok_or_else(|| anyhow!("manifest.json: reference.rollout_seed is missing"))?;
-    let clip_rel = r
-        .clip
-        .clone()
-        .unwrap_or_else(|| "reference/clip.wav".into());
+    let clip_rel = bundle.reference_clip();
     let clip = clip_16k(bundle, &clip_rel)?;
     let repeats = refv.int("clip_repeats")?.max(1) as usize;
     let audio: Vec<f32> = std::iter::repeat_n(&clip[..], repeats)
@@ -386,13 +380,10 @@ fn livegesture_rollout(bundle: &Bundle, backend: &dyn Backend, report: &mut Repo
 }
 
 fn diffsheg_rollout(bundle: &Bundle, backend: &dyn Backend, report: &mut Report) -> Result<()> {
-    let r = bundle
+    bundle
         .reference()
         .ok_or_else(|| anyhow!("manifest.json has no `reference`"))?;
-    let rel = r
-        .rollout
-        .clone()
-        .unwrap_or_else(|| "reference/rollout.npz".into());
+    let rel = bundle.reference_rollout();
     let refv = Npz::read(bundle, &rel)?;
     let raw: serde_json::Value = serde_json::from_slice(&bundle.read("manifest.json")?)?;
     let ro = &raw["reference"]["rollout_options"];

@@ -520,6 +520,21 @@ impl Bundle {
         self.manifest.reference.as_ref()
     }
 
+    /// The reference clip's name inside the bundle: `reference.clip`, else `reference/clip.wav`.
+    pub fn reference_clip(&self) -> String {
+        self.reference()
+            .and_then(|r| r.clip.clone())
+            .unwrap_or_else(|| "reference/clip.wav".into())
+    }
+
+    /// The reference rollout's name inside the bundle: `reference.rollout`, else
+    /// `reference/rollout.npz`.
+    pub fn reference_rollout(&self) -> String {
+        self.reference()
+            .and_then(|r| r.rollout.clone())
+            .unwrap_or_else(|| "reference/rollout.npz".into())
+    }
+
     fn manifest_err(&self, detail: impl Into<String>) -> BundleError {
         BundleError::Manifest {
             path: self.manifest_path(),

@@ -212,16 +212,10 @@ fn livegesture_rollout(
     notes: &mut Vec<String>,
     divergences: &mut Vec<Divergence>,
 ) -> Result<()> {
-    let clip_rel = old
-        .reference()
-        .and_then(|r| r.clip.clone())
-        .unwrap_or_else(|| "reference/clip.wav".into());
+    let clip_rel = old.reference_clip();
     let clip_path = old.path(&clip_rel);
     let clip = read_wav_16k_mono(&clip_path).map_err(|e| ref_err(&clip_path, e))?;
-    let ro_rel = old
-        .reference()
-        .and_then(|r| r.rollout.clone())
-        .unwrap_or_else(|| "reference/rollout.npz".into());
+    let ro_rel = old.reference_rollout();
     let reference = ReferenceRollout::load(&old.path(&ro_rel))?;
     let seed = old
         .reference()
@@ -320,10 +314,7 @@ fn diffsheg_rollout(
     notes: &mut Vec<String>,
 ) -> Result<()> {
     use crate::model::diffsheg::reference::RolloutReference;
-    let rel = old
-        .reference()
-        .and_then(|r| r.rollout.clone())
-        .unwrap_or_else(|| "reference/rollout.npz".into());
+    let rel = old.reference_rollout();
     let path = old.path(&rel);
     let mut reference =
         RolloutReference::open(&path).map_err(|e| ref_err(&path, format!("{e:#}")))?;

@@ -210,10 +210,7 @@ pub(super) fn run(
     if !(want(Check::Rollout) || want(Check::Logmel) || want(Check::Chunks)) {
         return Ok(());
     }
-    let rel = bundle
-        .reference()
-        .and_then(|r| r.rollout.clone())
-        .unwrap_or_else(|| "reference/rollout.npz".into());
+    let rel = bundle.reference_rollout();
     let path = bundle.path(&rel);
     let mut reference =
         RolloutReference::open(&path).map_err(|e| ref_err(&path, format!("{e:#}")))?;

@@ -329,10 +329,7 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
         });
     }
 
-    let clip_rel = bundle
-        .reference()
-        .and_then(|r| r.clip.clone())
-        .unwrap_or_else(|| "reference/clip.wav".into());
+    let clip_rel = bundle.reference_clip();
     let clip_path = bundle.path(&clip_rel);
     let need_clip = [Check::Rollout, Check::Logmel, Check::Chunks, Check::Batch]
         .into_iter()

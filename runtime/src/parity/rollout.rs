@@ -146,10 +146,7 @@ pub(super) fn rollout_rows(
     divergences: &mut Vec<Divergence>,
     log: &mut dyn FnMut(&str),
 ) -> Result<(), ReferenceError> {
-    let rel = bundle
-        .reference()
-        .and_then(|r| r.rollout.clone())
-        .unwrap_or_else(|| "reference/rollout.npz".into());
+    let rel = bundle.reference_rollout();
     let path = bundle.path(&rel);
     let reference = ReferenceRollout::load(&path)?;
     let seed = bundle
