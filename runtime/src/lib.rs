@@ -44,6 +44,8 @@ pub mod compare;
 pub mod diffusion;
 pub mod frontend;
 pub mod generate;
+#[cfg(feature = "loadtest")]
+pub mod loadtest;
 pub mod model;
 pub mod output;
 #[cfg(feature = "parity")]

@@ -277,6 +277,32 @@ impl Tensor {
         Ok(())
     }
 
+    /// Appends rows `start .. start + count` of `src` (same dtype and row shape) on the batch axis,
+    /// in place (no intermediate copy).
+    pub fn append_rows_of(&mut self, src: &Tensor, start: usize, count: usize) -> Result<()> {
+        src.check_rows(start, count)?;
+        ensure!(
+            !self.shape.is_empty()
+                && self.shape.len() == src.shape.len()
+                && self.shape[1..] == src.shape[1..]
+                && self.dtype() == src.dtype(),
+            "cannot append rows of shape {:?} ({}) to a tensor of shape {:?} ({})",
+            src.shape,
+            src.dtype(),
+            self.shape,
+            self.dtype()
+        );
+        let rl = src.row_len();
+        let range = start * rl..(start + count) * rl;
+        match (&mut self.data, &src.data) {
+            (TensorData::F32(a), TensorData::F32(b)) => a.extend_from_slice(&b[range]),
+            (TensorData::I64(a), TensorData::I64(b)) => a.extend_from_slice(&b[range]),
+            _ => unreachable!("dtypes checked above"),
+        }
+        self.shape[0] += count;
+        Ok(())
+    }
+
     /// Removes rows `start .. start + count`, shifting the later rows down (their order is kept); the
     /// buffer keeps its capacity.
     pub fn remove_rows(&mut self, start: usize, count: usize) -> Result<()> {
@@ -318,6 +344,85 @@ impl Tensor {
         self.shape[0] -= count;
         Ok(())
     }
+
+    /// Makes this tensor the concatenation of `parts` on the batch axis (like [`Tensor::concat`]),
+    /// in its own buffer: no allocation once the buffer is large enough (a scratch tensor reused
+    /// from run to run).
+    pub fn stack_from(&mut self, parts: &[&Tensor]) -> Result<()> {
+        let first = parts
+            .first()
+            .ok_or_else(|| anyhow::anyhow!("stack of no tensors"))?;
+        let mut batch = 0;
+        for p in parts {
+            ensure!(
+                p.shape.len() == first.shape.len()
+                    && p.shape[1..] == first.shape[1..]
+                    && p.dtype() == first.dtype(),
+                "cannot stack tensors of shapes {:?} ({}) and {:?} ({})",
+                first.shape,
+                first.dtype(),
+                p.shape,
+                p.dtype()
+            );
+            batch += p.batch();
+        }
+        let mut shape = first.shape.clone();
+        shape[0] = batch;
+        fn fill<T: Copy>(v: &mut Vec<T>, parts: &[&[T]]) {
+            v.clear();
+            for p in parts {
+                v.extend_from_slice(p);
+            }
+        }
+        match (&mut self.data, first.dtype()) {
+            (TensorData::F32(v), DType::F32) => {
+                let ps = parts
+                    .iter()
+                    .map(|p| p.as_f32("stack"))
+                    .collect::<Result<Vec<_>>>()?;
+                fill(v, &ps);
+            }
+            (TensorData::I64(v), DType::I64) => {
+                let ps = parts
+                    .iter()
+                    .map(|p| p.as_i64("stack"))
+                    .collect::<Result<Vec<_>>>()?;
+                fill(v, &ps);
+            }
+            _ => {
+                let owned: Vec<Tensor> = parts.iter().map(|p| (*p).clone()).collect();
+                *self = Tensor::concat(&owned)?;
+                return Ok(());
+            }
+        }
+        self.shape = shape;
+        Ok(())
+    }
+
+    /// Copies rows `start .. start + dst.batch()` of this tensor into `dst` (same dtype and row
+    /// shape), in place.
+    pub fn copy_rows_to(&self, start: usize, dst: &mut Tensor) -> Result<()> {
+        let count = dst.batch();
+        self.check_rows(start, count)?;
+        ensure!(
+            dst.shape.len() == self.shape.len()
+                && dst.shape[1..] == self.shape[1..]
+                && dst.dtype() == self.dtype(),
+            "cannot copy rows of shape {:?} ({}) into a tensor of shape {:?} ({})",
+            self.shape,
+            self.dtype(),
+            dst.shape,
+            dst.dtype()
+        );
+        let rl = self.row_len();
+        let range = start * rl..(start + count) * rl;
+        match (&self.data, &mut dst.data) {
+            (TensorData::F32(a), TensorData::F32(b)) => b.copy_from_slice(&a[range]),
+            (TensorData::I64(a), TensorData::I64(b)) => b.copy_from_slice(&a[range]),
+            _ => unreachable!("dtypes checked above"),
+        }
+        Ok(())
+    }
 }
 
 #[cfg(test)]
@@ -333,6 +438,48 @@ mod tests {
         let parts = c.split(&[1, 2]).unwrap();
         assert_eq!(parts, vec![a, b]);
         assert!(c.split(&[1, 1]).is_err());
+    }
+
+    #[test]
+    fn stack_from_and_copy_rows_to_reuse_buffers() {
+        let a = Tensor::f32(vec![1, 2], vec![1.0, 2.0]).unwrap();
+        let b = Tensor::f32(vec![2, 2], vec![3.0, 4.0, 5.0, 6.0]).unwrap();
+        let mut s = Tensor::f32(vec![4, 2], vec![9.0; 8]).unwrap();
+        let cap = match &s.data {
+            TensorData::F32(v) => v.as_ptr(),
+            _ => unreachable!(),
+        };
+        s.stack_from(&[&a, &b]).unwrap();
+        assert_eq!(s, Tensor::concat(&[a.clone(), b.clone()]).unwrap());
+        // the same buffer, no allocation
+        assert!(matches!(&s.data, TensorData::F32(v) if v.as_ptr() == cap));
+        let mut a2 = Tensor::zeros(DType::F32, vec![1, 2]);
+        let mut b2 = Tensor::zeros(DType::F32, vec![2, 2]);
+        s.copy_rows_to(0, &mut a2).unwrap();
+        s.copy_rows_to(1, &mut b2).unwrap();
+        assert_eq!((a2, b2), (a.clone(), b.clone()));
+        // out of range, other row shapes or dtypes are refused
+        assert!(s
+            .copy_rows_to(2, &mut Tensor::zeros(DType::F32, vec![2, 2]))
+            .is_err());
+        assert!(s
+            .copy_rows_to(0, &mut Tensor::zeros(DType::F32, vec![1, 3]))
+            .is_err());
+        assert!(s
+            .copy_rows_to(0, &mut Tensor::zeros(DType::I64, vec![1, 2]))
+            .is_err());
+        assert!(s
+            .stack_from(&[&a, &Tensor::zeros(DType::F32, vec![1, 3])])
+            .is_err());
+        let mut t = Tensor::zeros(DType::F32, vec![0, 2]);
+        t.append_rows_of(&b, 1, 1).unwrap();
+        t.append_rows_of(&a, 0, 1).unwrap();
+        assert_eq!(t.as_f32("t").unwrap(), &[5.0, 6.0, 1.0, 2.0]);
+        assert!(t.append_rows_of(&b, 1, 2).is_err());
+        // another dtype than the buffer's: a fresh one
+        let i = Tensor::i64(vec![2], vec![4, 7]).unwrap();
+        s.stack_from(&[&i, &i]).unwrap();
+        assert_eq!(s.as_i64("s").unwrap(), &[4, 7, 4, 7]);
     }
 
     fn rows_of(t: &Tensor) -> Vec<Vec<f32>> {

@@ -200,3 +200,90 @@ fn foreign_streams_step_alone_and_a_bad_job_fails_alone() {
         assert!(r[1].is_ok());
     }
 }
+
+/// The caches of LiveGesture streams stepped together stay stacked between `step_many` calls (the
+/// model's cohorts): streams that change company from call to call, step alone in between (their
+/// caches called home), are reset, or are dropped while their caches are stacked with others', each
+/// keep the frames they get alone.
+#[test]
+fn livegesture_streams_changing_company_keep_their_frames() {
+    let (bundle, m) = load(common::tiny_bundle());
+    let tok = bundle.frontend().token_end(0) as usize;
+    let n = 5;
+    let len = tok * 14 + 321;
+    let audios: Vec<Vec<f32>> = (0..n).map(|i| audio(&bundle, i * 5003, len)).collect();
+    let os: Vec<StreamOptions> = (0..n)
+        .map(|i| opts(i as u64 + 1, (i == 2).then_some(1.0)))
+        .collect();
+    let mut streams: Vec<Box<dyn MotionStream>> =
+        os.iter().map(|o| m.new_stream(o).unwrap()).collect();
+    let mut pos = vec![0usize; n];
+    let mut out: Vec<Vec<Frame>> = vec![Vec::new(); n];
+    // a stream that steps with the others and is dropped while its caches are stacked with theirs
+    let mut extra = Some(m.new_stream(&opts(99, None)).unwrap());
+    let filler = audio(&bundle, 0, tok);
+    for round in 0..12 {
+        let mut jobs = Vec::new();
+        let mut who = Vec::new();
+        for (i, s) in streams.iter_mut().enumerate() {
+            // varying company: stream i sits out some rounds; stream 4 steps alone on odd rounds
+            if (round + i) % 3 == 0 && round % 4 != 0 {
+                continue;
+            }
+            let end = (pos[i] + tok).min(len);
+            let piece = &audios[i][pos[i]..end];
+            pos[i] = end;
+            if i == 4 && round % 2 == 1 {
+                out[i].extend(s.push_audio(piece).unwrap());
+                continue;
+            }
+            jobs.push(StreamJob::push(s.as_mut(), piece));
+            who.push(i);
+        }
+        if let Some(e) = extra.as_mut() {
+            jobs.push(StreamJob::push(e.as_mut(), &filler));
+        }
+        let results = m.step_many(&mut jobs);
+        drop(jobs);
+        for (k, r) in results.into_iter().enumerate() {
+            let frames = r.expect("job");
+            if let Some(&i) = who.get(k) {
+                out[i].extend(frames);
+            }
+        }
+        if round == 5 {
+            extra = None;
+        }
+        if round == 7 {
+            // stream 3 starts over
+            streams[3].reset().unwrap();
+            pos[3] = 0;
+            out[3].clear();
+        }
+    }
+    // the rest of every stream's audio and its end, all together
+    let mut jobs: Vec<StreamJob> = streams
+        .iter_mut()
+        .enumerate()
+        .map(|(i, s)| {
+            StreamJob::push_and_finish(
+                s.as_mut(),
+                &audios[i][pos[i]..],
+                AudioSpan::at_16k(len as u64),
+            )
+        })
+        .collect();
+    let results = m.step_many(&mut jobs);
+    drop(jobs);
+    for (i, r) in results.into_iter().enumerate() {
+        out[i].extend(r.expect("job"));
+    }
+    for i in 0..n {
+        let want = alone(m.as_ref(), &os[i], &audios[i]);
+        assert_eq!(out[i].len(), want.len(), "stream {i}: frame count");
+        let d = max_diff(&out[i], &want);
+        assert!(d <= BOUND, "stream {i}: together vs alone differ by {d}");
+    }
+    // the comparison can fail: another stream's audio gives other motion
+    assert!(max_diff(&out[0], &alone(m.as_ref(), &os[0], &audios[1])) > BOUND);
+}

@@ -47,6 +47,15 @@ pub trait GraphRunner: Send {
         Ok(())
     }
 
+    /// Prepares runs of batch sizes `sizes` before the first of them, so that none pays for a
+    /// one-time preparation later (a server calls it before its first session). tract builds the
+    /// plans of these sizes and one with the batch left symbolic for every other size (no plan is
+    /// optimised after this call). Default: nothing to prepare.
+    fn prepare_batches(&mut self, sizes: &[usize]) -> Result<()> {
+        let _ = sizes;
+        Ok(())
+    }
+
     /// Runs one step with inputs given by name (any order); returns `(name, tensor)` in graph order.
     fn run_named(&mut self, inputs: &[(&str, &Tensor)]) -> Result<Vec<(String, Tensor)>> {
         let names: Vec<String> = self

@@ -62,6 +62,9 @@ pub struct TractGraph {
     symbols: Vec<(Symbol, usize, usize)>,
     /// Plans per size of each symbol (in `symbols` order).
     plans: HashMap<Vec<usize>, TypedSimpleState>,
+    /// After [`GraphRunner::prepare_batches`]: one plan with every symbol left symbolic (sizes
+    /// resolved at run time), for the sizes without a plan of their own: no new plan is built.
+    symbolic: Option<TypedSimpleState>,
 }
 
 impl std::fmt::Debug for TractGraph {
@@ -132,12 +135,13 @@ impl TractGraph {
             typed,
             symbols,
             plans: HashMap::new(),
+            symbolic: None,
         })
     }
 
-    fn state_for(&mut self, inputs: &[LgTensor]) -> Result<&mut TypedSimpleState> {
-        let key: Vec<usize> = self
-            .symbols
+    /// The sizes of each symbol for these inputs (in `symbols` order).
+    fn key_of(&self, inputs: &[LgTensor]) -> Vec<usize> {
+        self.symbols
             .iter()
             .map(|&(_, i, axis)| {
                 inputs
@@ -146,30 +150,45 @@ impl TractGraph {
                     .copied()
                     .unwrap_or(1)
             })
-            .collect();
+            .collect()
+    }
+
+    /// Optimises the model for the symbol sizes `key` and spawns its state.
+    fn build(&self, key: &[usize]) -> Result<TypedSimpleState> {
+        let what = || {
+            format!(
+                "tract: optimising graph '{}' ({}) for sizes {key:?}",
+                self.spec.name, self.path
+            )
+        };
+        let model = if self.symbols.is_empty() {
+            self.typed.clone()
+        } else {
+            let subs: HashMap<Symbol, TDim> = self
+                .symbols
+                .iter()
+                .zip(key)
+                .map(|((s, _, _), &v)| (s.clone(), TDim::Val(v as i64)))
+                .collect();
+            self.typed.set_symbols(&subs).with_context(what)?
+        };
+        let plan = model
+            .into_optimized()
+            .and_then(|m| m.into_runnable())
+            .with_context(what)?;
+        plan.spawn().with_context(what)
+    }
+
+    fn state_for(&mut self, inputs: &[LgTensor]) -> Result<&mut TypedSimpleState> {
+        let key = self.key_of(inputs);
         if !self.plans.contains_key(&key) {
-            let what = || {
-                format!(
-                    "tract: optimising graph '{}' ({}) for sizes {key:?}",
-                    self.spec.name, self.path
-                )
-            };
-            let model = if self.symbols.is_empty() {
-                self.typed.clone()
-            } else {
-                let subs: HashMap<Symbol, TDim> = self
-                    .symbols
-                    .iter()
-                    .zip(&key)
-                    .map(|((s, _, _), &v)| (s.clone(), TDim::Val(v as i64)))
-                    .collect();
-                self.typed.set_symbols(&subs).with_context(what)?
-            };
-            let plan = model
-                .into_optimized()
-                .and_then(|m| m.into_runnable())
-                .with_context(what)?;
-            let state = plan.spawn().with_context(what)?;
+            if self.symbolic.is_some() {
+                return self
+                    .symbolic
+                    .as_mut()
+                    .ok_or_else(|| anyhow!("tract: no symbolic plan"));
+            }
+            let state = self.build(&key)?;
             self.plans.insert(key.clone(), state);
         }
         self.plans
@@ -214,6 +233,36 @@ fn from_tract(v: &TValue, want: DType, what: &str) -> Result<LgTensor> {
 impl GraphRunner for TractGraph {
     fn spec(&self) -> &GraphSpec {
         &self.spec
+    }
+
+    /// Builds the plans of batch sizes `sizes` (a graph whose only symbol is the batch), and one
+    /// plan with the symbols left symbolic that every other size runs on from now on: no run
+    /// afterwards optimises a plan (which takes up to a second on a new batch size).
+    fn prepare_batches(&mut self, sizes: &[usize]) -> Result<()> {
+        if self.symbols.len() == 1 {
+            for &b in sizes {
+                if !self.plans.contains_key(&vec![b]) {
+                    let state = self.build(&[b])?;
+                    self.plans.insert(vec![b], state);
+                }
+            }
+        }
+        if self.symbolic.is_none() && !self.symbols.is_empty() {
+            let what = || {
+                format!(
+                    "tract: optimising graph '{}' ({}) with symbolic sizes",
+                    self.spec.name, self.path
+                )
+            };
+            let plan = self
+                .typed
+                .clone()
+                .into_optimized()
+                .and_then(|m| m.into_runnable())
+                .with_context(what)?;
+            self.symbolic = Some(plan.spawn().with_context(what)?);
+        }
+        Ok(())
     }
 
     fn run(&mut self, inputs: &[LgTensor]) -> Result<Vec<LgTensor>> {

@@ -17,6 +17,8 @@ pub mod bench;
 pub mod common;
 pub mod generate;
 pub mod info;
+#[cfg(feature = "loadtest")]
+pub mod loadtest;
 #[cfg(feature = "parity")]
 pub mod parity;
 #[cfg(feature = "serve")]
@@ -75,6 +77,10 @@ pub enum Command {
     #[cfg(feature = "serve")]
     /// Serve live sessions over WebSocket (docs/serve.md), stepped together in batches; the browser page at /.
     Serve(serve::Args),
+    #[cfg(feature = "loadtest")]
+    /// Load-test a running server: real-time speech sessions ramped until p99 token latency crosses
+    /// a bound; sessions held per core, latency and server CPU as a table, JSON and an SVG plot.
+    Loadtest(loadtest::Args),
 }
 
 /// Runs the parsed command.
@@ -90,5 +96,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(a) => bench::run(a, form),
         #[cfg(feature = "serve")]
         Command::Serve(a) => serve::run(a, form),
+        #[cfg(feature = "loadtest")]
+        Command::Loadtest(a) => loadtest::run(a),
     }
 }

@@ -135,6 +135,15 @@ pub trait MotionModel: Send + Sync {
         jobs.iter_mut().map(StreamJob::run_alone).collect()
     }
 
+    /// Prepares the backend for [`MotionModel::step_many`] calls of up to `max_streams` streams
+    /// before the first of them (a server calls it before taking sessions), so that no call later
+    /// pays for a one-time preparation (tract optimises a plan per batch size: up to a second each).
+    /// The default prepares nothing.
+    fn prepare_batches(&self, max_streams: usize) -> Result<()> {
+        let _ = max_streams;
+        Ok(())
+    }
+
     /// [`MotionModel::step_many`] for jobs that push audio only.
     fn push_many(&self, jobs: &mut [(&mut dyn MotionStream, &[f32])]) -> Vec<Result<Vec<Frame>>> {
         let mut js: Vec<StreamJob<'_>> = jobs

@@ -88,6 +88,43 @@ impl Histogram {
     }
 }
 
+/// The process's own figures under their standard Prometheus names (Linux `/proc/self`; empty
+/// elsewhere): `process_cpu_seconds_total` (user + system) and `process_resident_memory_bytes`. A
+/// load test reads the CPU of a server it cannot see (`livegesture loadtest`).
+pub fn process_text() -> String {
+    let mut o = String::new();
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // fields after the command name's closing parenthesis: utime and stime are the 12th and 13th
+    let f: Vec<&str> = stat
+        .rfind(')')
+        .map_or("", |i| &stat[i + 1..])
+        .split_whitespace()
+        .collect();
+    let tick = |i: usize| f.get(i).and_then(|v| v.parse::<u64>().ok());
+    if let (Some(u), Some(s)) = (tick(11), tick(12)) {
+        // USER_HZ is 100 on every Linux ABI the runtime builds for
+        let secs = (u + s) as f64 / 100.0;
+        let _ = writeln!(
+            o,
+            "# HELP process_cpu_seconds_total Total user and system CPU time spent in seconds.\n# TYPE process_cpu_seconds_total counter\nprocess_cpu_seconds_total {}",
+            fmt_f64(secs)
+        );
+    }
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    let rss_kib = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next()?.parse::<u64>().ok());
+    if let Some(k) = rss_kib {
+        let _ = writeln!(
+            o,
+            "# HELP process_resident_memory_bytes Resident memory size in bytes.\n# TYPE process_resident_memory_bytes gauge\nprocess_resident_memory_bytes {}",
+            k * 1024
+        );
+    }
+    o
+}
+
 fn fmt_f64(v: f64) -> String {
     if v.is_finite() {
         format!("{v:?}")

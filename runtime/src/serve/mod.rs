@@ -157,16 +157,27 @@ impl Server {
             batch_wait: cfg.batch_wait,
         };
         let m2 = metrics.clone();
+        let max_sessions = cfg.max_sessions;
         let sched = std::thread::Builder::new()
             .name("livegesture-scheduler".into())
-            .spawn(move || match make_model() {
-                Ok((m, info)) => {
-                    let frontend = info.frontend.clone();
-                    let _ = info_tx.send(Ok(info));
-                    BatchScheduler::new(m.into(), frontend, m2, sched_cfg).run(cmd_rx)
-                }
-                Err(e) => {
-                    let _ = info_tx.send(Err(e));
+            .spawn(move || {
+                // the backend prepares every batch size before the first session (tract: no plan
+                // is optimised while sessions wait)
+                let loaded = make_model().and_then(|(m, info)| {
+                    let m: Box<dyn MotionModel> = m.into();
+                    m.prepare_batches(max_sessions)
+                        .context("preparing the model's batch sizes")?;
+                    Ok((m, info))
+                });
+                match loaded {
+                    Ok((m, info)) => {
+                        let frontend = info.frontend.clone();
+                        let _ = info_tx.send(Ok(info));
+                        BatchScheduler::new(m, frontend, m2, sched_cfg).run(cmd_rx)
+                    }
+                    Err(e) => {
+                        let _ = info_tx.send(Err(e));
+                    }
                 }
             })
             .context("starting the scheduler thread")?;
@@ -355,7 +366,7 @@ async fn metrics_text(State(st): State<Arc<AppState>>) -> Response {
             header::CONTENT_TYPE,
             "text/plain; version=0.0.4; charset=utf-8",
         )],
-        st.metrics.render() + &capacity_text(&st),
+        st.metrics.render() + &capacity_text(&st) + &metrics::process_text(),
     )
         .into_response()
 }

@@ -7,8 +7,13 @@
 //! Sessions send 16 kHz mono audio ([`Cmd::Audio`]). Audio that does not complete the stream's next
 //! unit ([`MotionStream::next_unit_samples`]) is pushed at once (it only fills the stream's buffers);
 //! audio that does is held, and from then on the session is *due*. A tick starts when the oldest due
-//! session has waited `batch_wait`, or at once when every session is due; it pushes every due
-//! session's held audio in one `step_many` call and queues the frames. A session's frames are
+//! session has waited `batch_wait` or at once when every session is due (both: every due session
+//! steps), or at once when every session stepped in the oldest due one's last tick is due again
+//! (those step, with new sessions). Real-time sessions complete their tokens at steady phases, so
+//! the same sessions step together tick after tick: no wait for sessions that are not coming, and
+//! the model keeps their caches stacked between ticks (a session that misses its group's tick
+//! steps with the next). A tick pushes its sessions' held audio in one `step_many` call and queues
+//! the frames. A session's frames are
 //! therefore those it gets on its own: a stream is chunk-size invariant, and batching changes only the
 //! backend's rounding (docs/parity.md).
 //!
@@ -67,6 +72,8 @@ struct Sess {
     frames_per_unit: u64,
     /// Finished or cut off: nothing more is pushed or sent; waits for its Leave.
     dead: bool,
+    /// The tick that last stepped it (0: none yet): the sessions stepped together then.
+    group: u64,
 }
 
 /// Steps the sessions' streams, due ones together (see the module docs).
@@ -77,6 +84,8 @@ pub struct BatchScheduler {
     sessions: HashMap<u64, Sess>,
     metrics: Arc<Metrics>,
     cfg: SchedConfig,
+    /// Ticks so far.
+    ticks: u64,
 }
 
 impl BatchScheduler {
@@ -92,7 +101,30 @@ impl BatchScheduler {
             sessions: HashMap::new(),
             metrics,
             cfg,
+            ticks: 0,
         }
+    }
+
+    /// When to step: the arrival of the oldest due session's audio, and what to step at once:
+    /// `Some(None)` every due session (every live session is due), `Some(Some(g))` the sessions of
+    /// tick `g` (and new ones) when every live session of the oldest due one's last tick `g` is due
+    /// again; `None` nothing yet (at the deadline, every due session). `None` overall: nothing is due.
+    fn due(&self) -> Option<(Instant, Option<Option<u64>>)> {
+        let (t0, group) = self
+            .sessions
+            .values()
+            .filter(|s| !s.dead)
+            .filter_map(|s| s.due_since.map(|t| (t, s.group)))
+            .min()?;
+        let live = || self.sessions.values().filter(|s| !s.dead);
+        if live().all(|s| s.due_since.is_some()) {
+            return Some((t0, Some(None)));
+        }
+        let group_done = group != 0
+            && live()
+                .filter(|s| s.group == group)
+                .all(|s| s.due_since.is_some());
+        Some((t0, group_done.then_some(Some(group))))
     }
 
     /// Runs until every command sender is dropped.
@@ -108,30 +140,20 @@ impl BatchScheduler {
             }
         };
         loop {
-            let oldest = self
-                .sessions
-                .values()
-                .filter(|s| !s.dead)
-                .filter_map(|s| s.due_since)
-                .min();
-            let cmd = match oldest {
+            let cmd = match self.due() {
                 None => match rx.blocking_recv() {
                     Some(c) => Some(c),
                     None => break,
                 },
-                Some(t0) => {
-                    let all_due = self
-                        .sessions
-                        .values()
-                        .all(|s| s.dead || s.due_since.is_some());
+                Some((t0, ready)) => {
                     let deadline = t0 + self.cfg.batch_wait;
                     let now = Instant::now();
-                    if all_due || now >= deadline {
+                    if ready.is_some() || now >= deadline {
                         // take whatever has already arrived without waiting, then step
                         match rx.try_recv() {
                             Ok(c) => Some(c),
                             Err(_) => {
-                                self.tick();
+                                self.tick(ready.flatten());
                                 continue;
                             }
                         }
@@ -214,6 +236,7 @@ impl BatchScheduler {
                 end: None,
                 draining: false,
                 dead: false,
+                group: 0,
             },
         );
         Ok(joined)
@@ -277,12 +300,16 @@ impl BatchScheduler {
         }
     }
 
-    /// One [`MotionModel::step_many`] call for every due session.
-    fn tick(&mut self) {
+    /// One [`MotionModel::step_many`] call for every due session (of tick `only` and new ones,
+    /// when given).
+    fn tick(&mut self, only: Option<u64>) {
         let mut sids = Vec::new();
         let mut jobs = Vec::new();
         for (sid, s) in self.sessions.iter_mut() {
             if s.dead || s.due_since.is_none() {
+                continue;
+            }
+            if only.is_some_and(|g| s.group != g && s.group != 0) {
                 continue;
             }
             sids.push((
@@ -299,6 +326,8 @@ impl BatchScheduler {
         if jobs.is_empty() {
             return;
         }
+        self.ticks += 1;
+        let group = self.ticks;
         let t0 = Instant::now();
         let results = self.model.step_many(&mut jobs);
         drop(jobs);
@@ -312,6 +341,7 @@ impl BatchScheduler {
             };
             s.held.clear();
             s.due_since = None;
+            s.group = group;
             s.samples_done = s.samples_in;
             self.give_credits(sid);
             match r {

@@ -1,52 +1,19 @@
 //! Where each graph's caches live during a token step: separately owned per stream (stacked before
 //! each graph run and split after it) or already stacked in a [`super::StreamBatch`].
 
-use anyhow::Result;
+use std::collections::HashMap;
+
+use anyhow::{ensure, Result};
 
 use crate::backend::Tensor;
 use crate::bundle::CacheSpec;
-
-/// Stacks the per-stream caches of one graph (`per_stream[i][c]`) into one tensor per cache, moving
-/// instead of copying for a single stream.
-pub(super) fn stack_caches(mut per_stream: Vec<Vec<Tensor>>) -> Result<Vec<Tensor>> {
-    if per_stream.len() == 1 {
-        return Ok(per_stream.pop().unwrap_or_default());
-    }
-    let n = per_stream.first().map(Vec::len).unwrap_or(0);
-    (0..n)
-        .map(|c| {
-            let parts: Vec<Tensor> = per_stream
-                .iter_mut()
-                .map(|s| std::mem::take(&mut s[c]))
-                .collect();
-            Tensor::concat(&parts)
-        })
-        .collect()
-}
-
-/// Splits stacked caches back into per-stream caches of `rows[i]` rows.
-pub(super) fn split_caches(stacked: Vec<Tensor>, rows: &[usize]) -> Result<Vec<Vec<Tensor>>> {
-    if rows.len() == 1 {
-        return Ok(vec![stacked]);
-    }
-    let mut out: Vec<Vec<Tensor>> = rows
-        .iter()
-        .map(|_| Vec::with_capacity(stacked.len()))
-        .collect();
-    for t in stacked {
-        for (i, part) in t.split(rows)?.into_iter().enumerate() {
-            out[i].push(part);
-        }
-    }
-    Ok(out)
-}
 
 pub(super) fn zeros_for(caches: &[CacheSpec], rows: usize) -> Vec<Tensor> {
     caches.iter().map(|c| c.zeros(rows)).collect()
 }
 
 /// A graph of the chain, as a place for caches.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub(super) enum Slot {
     AudioEncoder,
     Expert(usize),
@@ -124,34 +91,75 @@ pub(super) trait CacheStore {
     fn put(&mut self, slot: Slot, new: Vec<Tensor>, old: Vec<Tensor>) -> Result<()>;
 }
 
-/// Separately owned per-stream caches ([`LiveGestureGraphs::step_batch`]): stacked before each graph run and
-/// split back after it.
+/// Buffers a [`SeparateCaches`] step reuses from step to step, per graph: the stacked input
+/// caches and the buffers the graph writes its new caches into. A steady server allocates nothing
+/// for its caches; the buffers keep the size of the largest batch seen.
+#[derive(Debug, Default)]
+pub(super) struct Scratch {
+    stacked: HashMap<Slot, Vec<Tensor>>,
+    /// Output buffers per graph, apart for single streams (whose new caches are kept, buffers and
+    /// all: a batch-sized buffer must not end up held by one stream).
+    spare: HashMap<(Slot, bool), Vec<Tensor>>,
+}
+
+/// Separately owned per-stream caches ([`LiveGestureGraphs::step_batch`]): copied into stacked
+/// scratch buffers before each graph run and copied back into the streams' own buffers after it (a
+/// single stream's caches are moved, not copied). No allocation once the scratch buffers are large
+/// enough.
 pub(super) struct SeparateCaches<'a> {
     pub(super) caches: Vec<&'a mut Caches>,
     pub(super) branch_rows: Vec<usize>,
-    pub(super) ones: Vec<usize>,
+    pub(super) scratch: &'a mut Scratch,
 }
 
 impl CacheStore for SeparateCaches<'_> {
     fn take(&mut self, slot: Slot) -> Result<(Vec<Tensor>, Vec<Tensor>)> {
-        let stacked = stack_caches(
-            self.caches
-                .iter_mut()
-                .map(|c| std::mem::take(c.slot_mut(slot)))
-                .collect(),
-        )?;
-        Ok((stacked, Vec::new()))
+        let single = self.caches.len() == 1;
+        let spare = self
+            .scratch
+            .spare
+            .remove(&(slot, single))
+            .unwrap_or_default();
+        if single {
+            return Ok((std::mem::take(self.caches[0].slot_mut(slot)), spare));
+        }
+        let n = self.caches.first().map_or(0, |c| c.slot(slot).len());
+        let mut stacked = self.scratch.stacked.remove(&slot).unwrap_or_default();
+        stacked.resize_with(n, Tensor::default);
+        for (c, t) in stacked.iter_mut().enumerate() {
+            let parts: Vec<&Tensor> = self.caches.iter().map(|s| &s.slot(slot)[c]).collect();
+            t.stack_from(&parts)?;
+        }
+        Ok((stacked, spare))
     }
 
-    fn put(&mut self, slot: Slot, new: Vec<Tensor>, _old: Vec<Tensor>) -> Result<()> {
-        let rows = if slot.branched() {
-            &self.branch_rows
-        } else {
-            &self.ones
-        };
-        for (c, part) in self.caches.iter_mut().zip(split_caches(new, rows)?) {
-            *c.slot_mut(slot) = part;
+    fn put(&mut self, slot: Slot, new: Vec<Tensor>, old: Vec<Tensor>) -> Result<()> {
+        if self.caches.len() == 1 {
+            *self.caches[0].slot_mut(slot) = new;
+            self.scratch.spare.insert((slot, true), old);
+            return Ok(());
         }
+        let mut start = 0;
+        for (i, c) in self.caches.iter_mut().enumerate() {
+            let rows = if slot.branched() {
+                self.branch_rows[i]
+            } else {
+                1
+            };
+            let mine = c.slot_mut(slot);
+            ensure!(
+                mine.len() == new.len(),
+                "a graph returned {} caches, the stream has {}",
+                new.len(),
+                mine.len()
+            );
+            for (dst, src) in mine.iter_mut().zip(&new) {
+                src.copy_rows_to(start, dst)?;
+            }
+            start += rows;
+        }
+        self.scratch.stacked.insert(slot, old);
+        self.scratch.spare.insert((slot, false), new);
         Ok(())
     }
 }
@@ -176,28 +184,5 @@ impl CacheStore for StackedCaches<'_> {
         *self.cur.slot_mut(slot) = new;
         *self.spare.slot_mut(slot) = old;
         Ok(())
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn cache_stacking_round_trips() {
-        let a = vec![
-            Tensor::f32(vec![2, 3], vec![1.0; 6]).unwrap(),
-            Tensor::i64(vec![2], vec![4, 4]).unwrap(),
-        ];
-        let b = vec![
-            Tensor::f32(vec![1, 3], vec![2.0; 3]).unwrap(),
-            Tensor::i64(vec![1], vec![7]).unwrap(),
-        ];
-        let stacked = stack_caches(vec![a.clone(), b.clone()]).unwrap();
-        assert_eq!(stacked[0].shape, vec![3, 3]);
-        assert_eq!(stacked[1].as_i64("step").unwrap(), &[4, 4, 7]);
-        assert_eq!(split_caches(stacked, &[2, 1]).unwrap(), vec![a.clone(), b]);
-        // a single stream moves without copying and comes back unchanged
-        assert_eq!(stack_caches(vec![a.clone()]).unwrap(), a);
     }
 }

@@ -64,6 +64,10 @@ impl Stage {
         })
     }
 
+    pub(super) fn runner_mut(&mut self) -> &mut dyn GraphRunner {
+        self.runner.as_mut()
+    }
+
     /// Runs with data inputs built by `data(role)` and the stacked `caches`, writing the new caches
     /// into the buffers of `spare` where the backend can (empty: fresh buffers). Returns (data
     /// outputs, new caches, the input caches: spare buffers for the next run).

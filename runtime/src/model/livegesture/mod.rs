@@ -74,6 +74,7 @@ pub use crate::model::StreamOptions;
 mod batch;
 mod caches;
 mod chain;
+mod cohorts;
 mod layout;
 mod model;
 mod stream;
@@ -130,6 +131,13 @@ impl std::str::FromStr for FormChoice {
     }
 }
 
+/// Batch sizes (rows) up to which [`LiveGestureGraphs::prepare_batches`] optimises tract plans
+/// ahead; every larger size runs on one plan with the batch left symbolic. A concrete plan runs
+/// 10-20% faster than the symbolic one at 8-64 rows, but each holds its own packed weights (the
+/// default bundle: about 34 MiB per size) and takes about 0.2 s to optimise: one per size up to 64
+/// sessions would be 2 GiB; one stream alone (1 row, 2 with guidance) keeps its concrete plans.
+pub const PREPARED_ROWS: usize = 2;
+
 /// The loaded graphs of a bundle, shared by any number of [`Stream`]s.
 pub struct LiveGestureGraphs {
     frontend: FrontendConfig,
@@ -148,6 +156,8 @@ pub struct LiveGestureGraphs {
     /// The region SVQ decoders: one stage per region (canonical form, and the fused form of a bundle
     /// without `decoders_fused`) or one for all (`decoders_fused`).
     decoders: Vec<Stage>,
+    /// Buffers of [`LiveGestureGraphs::step_batch`] reused from step to step.
+    scratch: caches::Scratch,
 }
 
 impl std::fmt::Debug for LiveGestureGraphs {
@@ -236,6 +246,7 @@ impl LiveGestureGraphs {
             form,
             fusion,
             decoders,
+            scratch: Default::default(),
         })
     }
 
@@ -311,6 +322,30 @@ impl LiveGestureGraphs {
                 .map(|d| caches::zeros_for(&d.spec.caches, rows))
                 .collect(),
         }
+    }
+
+    /// Prepares every graph's backend for steps of up to `max_streams` streams before the first
+    /// of them ([`crate::backend::GraphRunner::prepare_batches`]): tract optimises the plans of
+    /// sizes up to [`PREPARED_ROWS`] (rows: the expert and fusion graphs carry two rows per guided
+    /// stream) and one with the batch left symbolic for all others, so that no later step optimises
+    /// a plan. Other backends prepare nothing.
+    pub fn prepare_batches(&mut self, max_streams: usize) -> Result<()> {
+        let rows = |most: usize| -> Vec<usize> { (1..=most.min(PREPARED_ROWS)).collect() };
+        let (one, two) = (rows(max_streams.max(1)), rows(2 * max_streams.max(1)));
+        self.audio_encoder.runner_mut().prepare_batches(&one)?;
+        for e in &mut self.experts {
+            e.runner_mut().prepare_batches(&two)?;
+        }
+        self.fusion.runner_mut().prepare_batches(&two)?;
+        for d in &mut self.decoders {
+            d.runner_mut().prepare_batches(&one)?;
+        }
+        Ok(())
+    }
+
+    /// Every cache with zero rows (the layout of stacked caches).
+    fn empty_caches(&self) -> Caches {
+        self.initial_caches(0, 0)
     }
 
     /// An empty [`StreamBatch`] for these graphs; add streams with [`StreamBatch::add`].
@@ -418,10 +453,11 @@ impl LiveGestureGraphs {
             s.poisoned = true;
         }
         let mut states = Vec::with_capacity(streams.len());
+        let mut scratch = std::mem::take(&mut self.scratch);
         let mut store = SeparateCaches {
             caches: Vec::with_capacity(streams.len()),
             branch_rows: Vec::with_capacity(streams.len()),
-            ones: vec![1; streams.len()],
+            scratch: &mut scratch,
         };
         for s in streams.iter_mut() {
             let s = &mut **s;
@@ -429,7 +465,13 @@ impl LiveGestureGraphs {
             states.push(&mut s.state);
             store.caches.push(&mut s.caches);
         }
-        let out = self.step_inner(&mut states, &mut store, mels)?;
+        let out = self.step_inner(&mut states, &mut store, mels);
+        drop(store);
+        // after a failed run the scratch buffers may be partial: they are rebuilt on the next step
+        if out.is_ok() {
+            self.scratch = scratch;
+        }
+        let out = out?;
         for s in streams.iter_mut() {
             s.poisoned = false;
         }

@@ -5,8 +5,8 @@
 //! its outputs), and a stream steps only while it holds the lock, so streams on other threads wait
 //! for each other's token steps. To run many streams in parallel, load one model per thread; to
 //! step many streams in one graph run per graph per token, use [`MotionModel::step_many`] (the
-//! streams keep their own caches, stacked for each run and split after it: [`LiveGestureGraphs::step_batch`]),
-//! or a [`super::StreamBatch`] directly (caches kept stacked between steps).
+//! caches of streams stepped together stay stacked between calls, in the model's cohorts: see
+//! `cohorts`), or a [`super::StreamBatch`] directly (caches kept stacked between steps).
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -14,6 +14,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use anyhow::{anyhow, ensure, Result};
 use ndarray::Array2;
 
+use super::cohorts::{Cohorts, Member};
 use super::{FormChoice, LiveGestureGraphs, Stream};
 use crate::audio::AudioSpan;
 use crate::backend::Backend;
@@ -25,12 +26,15 @@ use crate::output::Frame;
 #[derive(Debug, Clone)]
 pub struct LiveGestureModel {
     graphs: Arc<Mutex<LiveGestureGraphs>>,
+    /// Where the streams' caches stay stacked between [`MotionModel::step_many`] calls; locked
+    /// after `graphs`, never the other way round.
+    cohorts: Arc<Mutex<Cohorts>>,
     backend: String,
     fps: u64,
     frames_per_token: u64,
 }
 
-fn lock(p: &Mutex<LiveGestureGraphs>) -> Result<MutexGuard<'_, LiveGestureGraphs>> {
+fn lock<T>(p: &Mutex<T>) -> Result<MutexGuard<'_, T>> {
     p.lock().map_err(|_| {
         anyhow!("the model's graphs were left inconsistent by a panic in another stream")
     })
@@ -63,6 +67,7 @@ impl From<LiveGestureGraphs> for LiveGestureModel {
             backend: graphs.backend_name().to_string(),
             fps: f.fps,
             frames_per_token: f.frames_per_token,
+            cohorts: Arc::new(Mutex::new(Cohorts::new(graphs.empty_caches()))),
             graphs: Arc::new(Mutex::new(graphs)),
         }
     }
@@ -96,17 +101,29 @@ impl MotionModel for LiveGestureModel {
             );
         }
         let stream = lock(&self.graphs)?.new_stream(opts)?;
+        let key = lock(&self.cohorts)?.key();
         Ok(Box::new(LiveGestureStream {
             graphs: Arc::clone(&self.graphs),
+            cohorts: Arc::clone(&self.cohorts),
+            key,
+            away: false,
             stream,
             frames_per_token: self.frames_per_token,
         }))
     }
 
+    /// Every graph's backend prepares batch sizes up to `max_streams` streams
+    /// ([`LiveGestureGraphs::prepare_batches`]).
+    fn prepare_batches(&self, max_streams: usize) -> Result<()> {
+        lock(&self.graphs)?.prepare_batches(max_streams)
+    }
+
     /// Pushes every job's audio into its stream's frontend, then steps token by token: each round
-    /// runs every graph once for all streams that still have a completed token
-    /// ([`LiveGestureGraphs::step_batch`]). A job that ends its stream adds the silence-completed last token
-    /// and its frames are cut at the end of the input, as [`MotionStream::finish`] does.
+    /// runs every graph once for all streams that still have a completed token, on their caches
+    /// kept stacked in a cohort between calls (`cohorts`: streams stepped together again are not
+    /// copied; those that join or leave the cohort are). A job that ends its stream adds the
+    /// silence-completed last token and its frames are cut at the end of the input, as
+    /// [`MotionStream::finish`] does.
     fn step_many(&self, jobs: &mut [StreamJob<'_>]) -> Vec<Result<Vec<Frame>>> {
         let mut results: Vec<Option<Result<Vec<Frame>>>> = jobs.iter().map(|_| None).collect();
         let mut mine: Vec<Pending<'_>> = Vec::new();
@@ -127,6 +144,8 @@ impl MotionModel for LiveGestureModel {
             match prepare(&mut s.stream, audio, end) {
                 Ok((mels, total)) => mine.push(Pending {
                     job: i,
+                    key: s.key,
+                    away: &mut s.away,
                     stream: &mut s.stream,
                     mels,
                     total,
@@ -137,8 +156,8 @@ impl MotionModel for LiveGestureModel {
             }
         }
         if !mine.is_empty() {
-            match lock(&self.graphs) {
-                Ok(mut p) => step_rounds(&mut p, &mut mine),
+            match lock(&self.graphs).and_then(|p| Ok((p, lock(&self.cohorts)?))) {
+                Ok((mut p, mut c)) => step_rounds(&mut p, &mut c, &mut mine),
                 Err(e) => {
                     for m in &mut mine {
                         m.failed = Some(format!("{e:#}"));
@@ -168,6 +187,8 @@ impl MotionModel for LiveGestureModel {
 /// A stream of [`LiveGestureModel::step_many`] with its completed tokens' mel blocks.
 struct Pending<'a> {
     job: usize,
+    key: u64,
+    away: &'a mut bool,
     stream: &'a mut Stream,
     mels: VecDeque<Array2<f32>>,
     /// Frames that cover the input, when the job ends the stream.
@@ -207,11 +228,11 @@ fn prepare(
 }
 
 /// Steps the streams' tokens in rounds, one token of every stream that has one per round.
-fn step_rounds(p: &mut LiveGestureGraphs, mine: &mut [Pending<'_>]) {
+fn step_rounds(p: &mut LiveGestureGraphs, c: &mut Cohorts, mine: &mut [Pending<'_>]) {
     loop {
         let mut owners = Vec::new();
         let mut blocks = Vec::new();
-        let mut refs: Vec<&mut Stream> = Vec::new();
+        let mut members: Vec<Member<'_>> = Vec::new();
         for (k, m) in mine.iter_mut().enumerate() {
             if m.failed.is_some() {
                 continue;
@@ -219,14 +240,18 @@ fn step_rounds(p: &mut LiveGestureGraphs, mine: &mut [Pending<'_>]) {
             if let Some(b) = m.mels.pop_front() {
                 owners.push(k);
                 blocks.push(b);
-                refs.push(&mut *m.stream);
+                members.push(Member {
+                    key: m.key,
+                    away: &mut *m.away,
+                    stream: &mut *m.stream,
+                });
             }
         }
-        if refs.is_empty() {
+        if members.is_empty() {
             return;
         }
-        let r = p.step_batch(&mut refs, &blocks);
-        drop(refs);
+        let r = c.step(p, &mut members, &blocks);
+        drop(members);
         match r {
             Ok(steps) => {
                 for (k, st) in owners.into_iter().zip(steps) {
@@ -247,8 +272,23 @@ fn step_rounds(p: &mut LiveGestureGraphs, mine: &mut [Pending<'_>]) {
 #[derive(Debug)]
 pub struct LiveGestureStream {
     graphs: Arc<Mutex<LiveGestureGraphs>>,
+    cohorts: Arc<Mutex<Cohorts>>,
+    /// The stream's key in `cohorts`.
+    key: u64,
+    /// Its caches are in a cohort (its own are empty meanwhile).
+    away: bool,
     stream: Stream,
     frames_per_token: u64,
+}
+
+impl Drop for LiveGestureStream {
+    fn drop(&mut self) {
+        if self.away {
+            if let Ok(mut c) = self.cohorts.lock() {
+                c.forget(self.key, &mut self.away);
+            }
+        }
+    }
 }
 
 impl LiveGestureStream {
@@ -259,16 +299,36 @@ impl LiveGestureStream {
 }
 
 impl MotionStream for LiveGestureStream {
+    /// Audio that completes no token only fills the frontend (the caches may stay in their
+    /// cohort); a token is stepped on the stream alone, its caches called home first.
     fn push_audio(&mut self, samples: &[f32]) -> Result<Vec<Frame>> {
-        lock(&self.graphs)?.push(&mut self.stream, samples)
+        let mut g = lock(&self.graphs)?;
+        ensure!(
+            !self.stream.is_poisoned(),
+            "the stream failed earlier; reset it before pushing more audio"
+        );
+        let mels = self.stream.push_audio(samples)?;
+        if mels.is_empty() {
+            return Ok(Vec::new());
+        }
+        lock(&self.cohorts)?.recall(self.key, &mut self.away, &mut self.stream)?;
+        let mut out = Vec::new();
+        for m in &mels {
+            out.extend(g.step(&mut self.stream, m)?.frames);
+        }
+        Ok(out)
     }
 
     fn finish(&mut self, input: AudioSpan) -> Result<Vec<Frame>> {
-        lock(&self.graphs)?.finish(&mut self.stream, input)
+        let mut g = lock(&self.graphs)?;
+        lock(&self.cohorts)?.recall(self.key, &mut self.away, &mut self.stream)?;
+        g.finish(&mut self.stream, input)
     }
 
     fn reset(&mut self) -> Result<()> {
-        lock(&self.graphs)?.reset(&mut self.stream)
+        let g = lock(&self.graphs)?;
+        lock(&self.cohorts)?.forget(self.key, &mut self.away);
+        g.reset(&mut self.stream)
     }
 
     fn frames_emitted(&self) -> u64 {

@@ -1,0 +1,339 @@
+//! Where a [`super::LiveGestureModel`]'s streams keep their caches between
+//! [`MotionModel::step_many`](crate::model::MotionModel::step_many) calls: stacked on the batch axis
+//! in **cohorts**, the streams last stepped together.
+//!
+//! A server steps the same streams together tick after tick (real-time sessions complete their
+//! tokens at steady phases). Stacking every stream's caches before each graph run and splitting them
+//! after it copied all of them twice per step; a cohort keeps them stacked, so a step of the same
+//! streams hands the graphs their caches as they are (moved, as in a [`super::StreamBatch`]). When the
+//! set of streams changes, only the streams that join or leave the cohort are copied.
+//!
+//! A stream whose caches are in a cohort is *away* ([`super::LiveGestureStream`] keeps a key and a
+//! flag; its own caches are empty meanwhile). Stepping it alone (its own `push_audio`, `finish`)
+//! first calls it home ([`Cohorts::recall`]: its rows copied out of the cohort); dropping it drops
+//! its rows ([`Cohorts::forget`]). Every cohort operation runs under the model's graphs lock, then
+//! this one's.
+
+use anyhow::{anyhow, ensure, Result};
+use ndarray::Array2;
+
+use super::caches::{Caches, StackedCaches};
+use super::{LiveGestureGraphs, Stream, TokenStep};
+
+/// Caches of streams stepped together, stacked in member order.
+#[derive(Debug)]
+struct Cohort {
+    keys: Vec<u64>,
+    /// Rows of each member in the expert and fusion caches (2 with guidance, else 1).
+    branch: Vec<usize>,
+    caches: Caches,
+    /// The last step's input caches: output buffers for the next step.
+    spare: Caches,
+}
+
+impl Cohort {
+    fn new(empty: &Caches) -> Self {
+        Cohort {
+            keys: Vec::new(),
+            branch: Vec::new(),
+            caches: empty.clone(),
+            spare: empty.clone(),
+        }
+    }
+
+    fn position(&self, key: u64) -> Option<usize> {
+        self.keys.iter().position(|&k| k == key)
+    }
+
+    /// Appends a member's caches (copied).
+    fn push(&mut self, key: u64, branch: usize, caches: &Caches) -> Result<()> {
+        for slot in self.caches.slots() {
+            let have = self.caches.slot_mut(slot);
+            let add = caches.slot(slot);
+            ensure!(
+                have.len() == add.len(),
+                "a stream with {} caches for a graph with {}",
+                add.len(),
+                have.len()
+            );
+            for (h, a) in have.iter_mut().zip(add) {
+                h.append_rows(a)?;
+            }
+        }
+        self.keys.push(key);
+        self.branch.push(branch);
+        Ok(())
+    }
+
+    /// (first row, rows) of member `i` in `slot`'s caches.
+    fn rows_of(&self, i: usize, branched: bool) -> (usize, usize) {
+        if branched {
+            (self.branch[..i].iter().sum(), self.branch[i])
+        } else {
+            (i, 1)
+        }
+    }
+
+    /// Moves member `i` to the end of `to` (its rows copied once, then removed here).
+    fn move_to(&mut self, i: usize, to: &mut Cohort, empty: &Caches) -> Result<()> {
+        for slot in self.caches.slots() {
+            let (start, count) = self.rows_of(i, slot.branched());
+            let have = to.caches.slot_mut(slot);
+            for (h, src) in have.iter_mut().zip(self.caches.slot(slot)) {
+                h.append_rows_of(src, start, count)?;
+            }
+        }
+        to.keys.push(self.keys[i]);
+        to.branch.push(self.branch[i]);
+        self.remove(i, false, empty)?;
+        Ok(())
+    }
+
+    /// Removes member `i`, returning a copy of its caches when `keep` (moving the last member into
+    /// its place when both have as many rows, else shifting the later ones).
+    fn remove(&mut self, i: usize, keep: bool, empty: &Caches) -> Result<Option<Caches>> {
+        let last = self.keys.len() - 1;
+        let swap = i != last && self.branch[last] == self.branch[i];
+        let mut out = keep.then(|| empty.clone());
+        for slot in self.caches.slots() {
+            let (start, count) = self.rows_of(i, slot.branched());
+            let ts = self.caches.slot_mut(slot);
+            if let Some(out) = out.as_mut() {
+                *out.slot_mut(slot) = ts
+                    .iter()
+                    .map(|t| t.rows(start, count))
+                    .collect::<Result<Vec<_>>>()?;
+            }
+            for t in ts.iter_mut() {
+                if swap {
+                    t.swap_remove_rows(start, count)?;
+                } else {
+                    t.remove_rows(start, count)?;
+                }
+            }
+        }
+        if swap {
+            self.keys.swap_remove(i);
+            self.branch.swap_remove(i);
+        } else {
+            self.keys.remove(i);
+            self.branch.remove(i);
+        }
+        Ok(out)
+    }
+}
+
+/// The cohorts of one model's streams (see the module docs).
+#[derive(Debug)]
+pub(super) struct Cohorts {
+    groups: Vec<Cohort>,
+    /// Every cache tensor with zero rows (the layout of a cohort).
+    empty: Caches,
+    next_key: u64,
+}
+
+/// A stream of a [`Cohorts::step`]: its key and the stream (its caches are in a cohort when `away`).
+pub(super) struct Member<'a> {
+    pub(super) key: u64,
+    pub(super) away: &'a mut bool,
+    pub(super) stream: &'a mut Stream,
+}
+
+impl Cohorts {
+    pub(super) fn new(empty: Caches) -> Self {
+        Cohorts {
+            groups: Vec::new(),
+            empty,
+            next_key: 0,
+        }
+    }
+
+    /// A key for a new stream.
+    pub(super) fn key(&mut self) -> u64 {
+        self.next_key += 1;
+        self.next_key
+    }
+
+    fn find(&self, key: u64) -> Option<(usize, usize)> {
+        self.groups
+            .iter()
+            .enumerate()
+            .find_map(|(g, c)| c.position(key).map(|i| (g, i)))
+    }
+
+    /// Takes `key`'s caches out of its cohort (a copy when `keep`); drops emptied cohorts.
+    fn take(&mut self, key: u64, keep: bool) -> Result<Option<Caches>> {
+        let (g, i) = self
+            .find(key)
+            .ok_or_else(|| anyhow!("stream {key}: its caches are in no cohort"))?;
+        let out = self.groups[g].remove(i, keep, &self.empty)?;
+        if self.groups[g].keys.is_empty() {
+            self.groups.swap_remove(g);
+        }
+        Ok(out)
+    }
+
+    /// Brings an away stream's caches home (no-op for a stream at home).
+    pub(super) fn recall(&mut self, key: u64, away: &mut bool, stream: &mut Stream) -> Result<()> {
+        if !*away {
+            return Ok(());
+        }
+        let caches = self.take(key, true)?;
+        *away = false;
+        match caches {
+            Some(c) => stream.caches = c,
+            None => stream.poisoned = true,
+        }
+        Ok(())
+    }
+
+    /// Drops a stream's caches from its cohort (the stream is dropped or reset).
+    pub(super) fn forget(&mut self, key: u64, away: &mut bool) {
+        if std::mem::take(away) {
+            let _ = self.take(key, false);
+        }
+    }
+
+    /// One token step of `members` (`mels[i]` for `members[i]`; checked by the caller, streams not
+    /// poisoned): their caches are gathered in one cohort (only those not already in it are moved),
+    /// which the graphs step in place. Returns the token steps in `members` order. On error the
+    /// members are poisoned and their cohort dropped.
+    pub(super) fn step(
+        &mut self,
+        graphs: &mut LiveGestureGraphs,
+        members: &mut [Member<'_>],
+        mels: &[Array2<f32>],
+    ) -> Result<Vec<TokenStep>> {
+        let r = self.gather(members).and_then(|g| {
+            let c = &mut self.groups[g];
+            // the members in cohort order
+            let mut order: Vec<usize> = Vec::with_capacity(c.keys.len());
+            for k in &c.keys {
+                order.push(
+                    members
+                        .iter()
+                        .position(|m| m.key == *k)
+                        .ok_or_else(|| anyhow!("stream {k} is in the cohort but not stepped"))?,
+                );
+            }
+            let block: Vec<Array2<f32>> = order.iter().map(|&i| mels[i].clone()).collect();
+            let n_members = members.len();
+            let mut slots: Vec<Option<&mut Member<'_>>> = members.iter_mut().map(Some).collect();
+            let mut states = Vec::with_capacity(order.len());
+            for &i in &order {
+                let m = slots[i]
+                    .take()
+                    .ok_or_else(|| anyhow!("a stream is twice in one step"))?;
+                states.push(&mut m.stream.state);
+            }
+            let mut store = StackedCaches {
+                cur: &mut c.caches,
+                spare: &mut c.spare,
+            };
+            let steps = graphs.step_inner(&mut states, &mut store, &block)?;
+            let mut out: Vec<Option<TokenStep>> = (0..n_members).map(|_| None).collect();
+            for (&i, s) in order.iter().zip(steps) {
+                out[i] = Some(s);
+            }
+            out.into_iter()
+                .map(|s| s.ok_or_else(|| anyhow!("a stream got no token step")))
+                .collect()
+        });
+        if r.is_err() {
+            // the cohort's caches may be partial: its members (these streams) start over after reset
+            for m in members.iter_mut() {
+                if *m.away {
+                    self.forget(m.key, m.away);
+                }
+                m.stream.poisoned = true;
+            }
+        }
+        r
+    }
+
+    /// Makes one cohort hold exactly `members`' caches; returns its index.
+    fn gather(&mut self, members: &mut [Member<'_>]) -> Result<usize> {
+        let is_member = |k: u64| members.iter().any(|m| m.key == k);
+        // the cohort that already holds the most of them
+        let best = self
+            .groups
+            .iter()
+            .enumerate()
+            .map(|(g, c)| (c.keys.iter().filter(|&&k| is_member(k)).count(), g))
+            .max();
+        // keeping that cohort moves its other streams out and the missing ones in; a new cohort
+        // moves every one of them in: the cheaper of the two
+        let keep = |n: usize, g: usize| self.groups[g].keys.len() - n + (members.len() - n);
+        let g = match best {
+            Some((n, g)) if n > 0 && keep(n, g) <= members.len() => {
+                // its other streams move to a cohort of their own
+                let others: Vec<u64> = self.groups[g]
+                    .keys
+                    .iter()
+                    .copied()
+                    .filter(|&k| !is_member(k))
+                    .collect();
+                if !others.is_empty() {
+                    let mut rest = Cohort::new(&self.empty);
+                    for k in others {
+                        let c = &mut self.groups[g];
+                        let i = c.position(k).ok_or_else(|| anyhow!("lost stream {k}"))?;
+                        c.move_to(i, &mut rest, &self.empty)?;
+                    }
+                    self.groups.push(rest);
+                }
+                g
+            }
+            _ => {
+                self.groups.push(Cohort::new(&self.empty));
+                self.groups.len() - 1
+            }
+        };
+        // the streams not in it yet join: from home (their own caches), or from another cohort
+        let mut target = std::mem::replace(&mut self.groups[g], Cohort::new(&self.empty));
+        let r = (|| -> Result<()> {
+            for m in members.iter_mut() {
+                if target.position(m.key).is_some() {
+                    continue;
+                }
+                let branch = m.stream.state.branch_rows();
+                if *m.away {
+                    let (from, i) = self
+                        .find(m.key)
+                        .ok_or_else(|| anyhow!("stream {}: its caches are in no cohort", m.key))?;
+                    self.groups[from].move_to(i, &mut target, &self.empty)?;
+                    if self.groups[from].keys.is_empty() {
+                        self.groups.swap_remove(from);
+                    }
+                } else {
+                    target.push(m.key, branch, &m.stream.caches)?;
+                    m.stream.caches = empty_slots(&self.empty);
+                    *m.away = true;
+                }
+            }
+            Ok(())
+        })();
+        // `take` may have dropped emptied cohorts: put the target back where it is found again
+        let g = match self.groups.iter().position(|c| c.keys.is_empty()) {
+            Some(i) => {
+                self.groups[i] = target;
+                i
+            }
+            None => {
+                self.groups.push(target);
+                self.groups.len() - 1
+            }
+        };
+        r.map(|()| g)
+    }
+}
+
+/// `template`'s slots without tensors: an away stream's own caches.
+fn empty_slots(template: &Caches) -> Caches {
+    Caches {
+        audio_encoder: Vec::new(),
+        experts: vec![Vec::new(); template.experts.len()],
+        fusion: Vec::new(),
+        decoders: vec![Vec::new(); template.decoders.len()],
+    }
+}
