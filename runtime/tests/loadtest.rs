@@ -107,6 +107,9 @@ fn a_short_ramp_completes_its_sessions_and_reports() {
         assert_eq!(l["units"], 11 * n, "{l}");
         assert!(l["p99_ms"].as_f64().unwrap() >= l["p50_ms"].as_f64().unwrap());
         assert!(l["server_cpu_pct"].as_f64().unwrap() >= 0.0);
+        // the server's steps, from its /metrics
+        assert!(l["mean_batch"].as_f64().unwrap() >= 1.0, "{l}");
+        assert!(l["step_pct"].as_f64().unwrap() > 0.0, "{l}");
         assert_eq!(l["held"], true);
     }
     assert_eq!(r["sessions_held"], 2);

@@ -144,6 +144,11 @@ pub fn run(a: Args) -> Result<()> {
         }
         None => None,
     };
+    let host = a.url["ws://".len()..].split('/').next().unwrap_or("");
+    let metrics_url = a
+        .metrics_url
+        .clone()
+        .unwrap_or_else(|| format!("http://{host}/metrics"));
     let cpu = match (a.server_pid, &a.metrics_url) {
         (Some(pid), _) => {
             ensure!(
@@ -153,10 +158,7 @@ pub fn run(a: Args) -> Result<()> {
             CpuSource::Pid(pid)
         }
         (None, Some(u)) => CpuSource::Metrics(u.clone()),
-        (None, None) => {
-            let host = a.url["ws://".len()..].split('/').next().unwrap_or("");
-            CpuSource::Metrics(format!("http://{host}/metrics"))
-        }
+        (None, None) => CpuSource::Metrics(metrics_url.clone()),
     };
     let cores = a
         .cores
@@ -173,6 +175,7 @@ pub fn run(a: Args) -> Result<()> {
         keep_going: a.keep_going,
         cpu,
         cores,
+        metrics_url: Some(metrics_url),
     };
     if !a.quiet {
         eprintln!(

@@ -158,6 +158,32 @@ pub fn proc_cpus(pid: u32) -> Option<usize> {
     (n > 0).then_some(n)
 }
 
+/// The server's step figures from its `/metrics`: (steps, seconds in steps, sessions stepped).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct StepFigures {
+    pub steps: f64,
+    pub seconds: f64,
+    pub sessions: f64,
+}
+
+/// [`StepFigures`] of the Prometheus page at `url` (`None`: not reachable or not a livegesture
+/// server).
+pub async fn step_figures(url: &str) -> Option<StepFigures> {
+    let body = http_get(url).await.ok()?;
+    let get = |name: &str| -> Option<f64> {
+        body.lines()
+            .find_map(|l| l.strip_prefix(name)?.strip_prefix(' '))?
+            .trim()
+            .parse()
+            .ok()
+    };
+    Some(StepFigures {
+        steps: get("livegesture_step_seconds_count")?,
+        seconds: get("livegesture_step_seconds_sum")?,
+        sessions: get("livegesture_batch_size_sum")?,
+    })
+}
+
 /// `process_cpu_seconds_total` from a Prometheus text page at `url` (plain `http://` only).
 async fn metrics_cpu_seconds(url: &str) -> Option<f64> {
     let body = http_get(url).await.ok()?;
@@ -220,6 +246,8 @@ pub struct LoadConfig {
     pub cpu: CpuSource,
     /// Cores the server runs on (for sessions per core).
     pub cores: Option<usize>,
+    /// The server's Prometheus page (its steps: mean batch, share of the time in steps).
+    pub metrics_url: Option<String>,
 }
 
 /// Runs the ramp (see the module docs); `progress` gets one line per level as it ends.
@@ -239,6 +267,10 @@ pub async fn run(cfg: &LoadConfig, clips: &[Clip], progress: impl Fn(&str)) -> R
             tokio::time::sleep(cfg.pause).await;
         }
         let cpu0 = cfg.cpu.seconds().await;
+        let steps0 = match &cfg.metrics_url {
+            Some(u) => step_figures(u).await,
+            None => None,
+        };
         let t0 = Instant::now();
         let mut hs = Vec::with_capacity(sessions);
         for i in 0..sessions {
@@ -268,7 +300,18 @@ pub async fn run(cfg: &LoadConfig, clips: &[Clip], progress: impl Fn(&str)) -> R
             (Some(a), Some(b)) if wall > 0.0 => Some((b - a) / wall * 100.0),
             _ => None,
         };
-        let l = LevelReport::new(sessions, &results, cpu_pct, wall, cfg.p99_ms);
+        let steps1 = match &cfg.metrics_url {
+            Some(u) => step_figures(u).await,
+            None => None,
+        };
+        let mut l = LevelReport::new(sessions, &results, cpu_pct, wall, cfg.p99_ms);
+        if let (Some(a), Some(b)) = (steps0, steps1) {
+            let n = b.steps - a.steps;
+            if n > 0.0 {
+                l.mean_batch = Some((b.sessions - a.sessions) / n);
+                l.step_pct = Some((b.seconds - a.seconds) / wall * 100.0);
+            }
+        }
         progress(&l.progress_line());
         let held = l.held;
         levels.push(l);

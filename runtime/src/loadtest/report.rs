@@ -23,6 +23,10 @@ pub struct LevelReport {
     pub max_ms: Option<f64>,
     /// Server CPU over the level, % of one core (`None`: not measured).
     pub server_cpu_pct: Option<f64>,
+    /// Sessions per step, on average (the server's `/metrics`; `None`: not read).
+    pub mean_batch: Option<f64>,
+    /// Time in steps (the batched model calls), % of the level's wall time (`/metrics`).
+    pub step_pct: Option<f64>,
     /// Seconds the level took.
     pub wall_s: f64,
     /// Every session completed and p99 is under the bound.
@@ -63,6 +67,8 @@ impl LevelReport {
             p99_ms: p99,
             max_ms: lat.last().copied(),
             server_cpu_pct,
+            mean_batch: None,
+            step_pct: None,
             wall_s,
             held: failed == 0 && p99.is_some_and(|p| p < bound_ms),
             first_failure: results.iter().find_map(|r| r.failed.clone()),
@@ -134,13 +140,13 @@ impl Report {
     /// The Markdown table and the summary line.
     pub fn table(&self) -> String {
         let mut s = String::from(
-            "| sessions | completed | failed | tokens | p50 ms | p99 ms | max ms | server CPU % | held |\n\
-             |---|---|---|---|---|---|---|---|---|\n",
+            "| sessions | completed | failed | tokens | p50 ms | p99 ms | max ms | server CPU % | in steps % | sessions per step | held |\n\
+             |---|---|---|---|---|---|---|---|---|---|---|\n",
         );
         for l in &self.levels {
             let _ = writeln!(
                 s,
-                "| {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
                 l.sessions,
                 l.completed,
                 l.failed,
@@ -149,6 +155,8 @@ impl Report {
                 opt(l.p99_ms, 1),
                 opt(l.max_ms, 1),
                 opt(l.server_cpu_pct, 0),
+                opt(l.step_pct, 0),
+                opt(l.mean_batch, 1),
                 if l.held { "yes" } else { "no" }
             );
         }

@@ -6,14 +6,13 @@
 //!
 //! Sessions send 16 kHz mono audio ([`Cmd::Audio`]). Audio that does not complete the stream's next
 //! unit ([`MotionStream::next_unit_samples`]) is pushed at once (it only fills the stream's buffers);
-//! audio that does is held, and from then on the session is *due*. A tick starts when the oldest due
-//! session has waited `batch_wait` or at once when every session is due (both: every due session
-//! steps), or at once when every session stepped in the oldest due one's last tick is due again
-//! (those step, with new sessions). Real-time sessions complete their tokens at steady phases, so
-//! the same sessions step together tick after tick: no wait for sessions that are not coming, and
-//! the model keeps their caches stacked between ticks (a session that misses its group's tick
-//! steps with the next). A tick pushes its sessions' held audio in one `step_many` call and queues
-//! the frames. A session's frames are
+//! audio that does is held, and from then on the session is *due*. Ticks fall on a fixed grid, a
+//! whole number of slots per token (slots of about `batch_wait`: 33.3 ms for 30 ms); a tick steps
+//! every due session in one `step_many` call and queues the frames, and when every live session is
+//! due it steps at once. A real-time session completes its tokens at a steady phase, so it falls in
+//! the same slot tick after tick, with the same company: batches of the sessions of one slot, no
+//! wait past the slot's end, and the model keeps the caches of sessions stepped together stacked
+//! between ticks (a session late by a slot steps with the next one). A session's frames are
 //! therefore those it gets on its own: a stream is chunk-size invariant, and batching changes only the
 //! backend's rounding (docs/parity.md).
 //!
@@ -46,7 +45,8 @@ use super::protocol::{CLOSE_GOING_AWAY, CLOSE_INTERNAL, CLOSE_POLICY};
 /// Scheduler settings.
 #[derive(Debug, Clone)]
 pub struct SchedConfig {
-    /// How long the oldest due session waits for others to join its step.
+    /// About the slot of the tick grid: a due session waits at most this long for the sessions of
+    /// its slot (the token divided into a whole number of slots; zero: it steps at once).
     pub batch_wait: Duration,
 }
 
@@ -72,8 +72,6 @@ struct Sess {
     frames_per_unit: u64,
     /// Finished or cut off: nothing more is pushed or sent; waits for its Leave.
     dead: bool,
-    /// The tick that last stepped it (0: none yet): the sessions stepped together then.
-    group: u64,
 }
 
 /// Steps the sessions' streams, due ones together (see the module docs).
@@ -83,9 +81,9 @@ pub struct BatchScheduler {
     frontend: FrontendConfig,
     sessions: HashMap<u64, Sess>,
     metrics: Arc<Metrics>,
-    cfg: SchedConfig,
-    /// Ticks so far.
-    ticks: u64,
+    /// The tick grid: ticks fall on `epoch + k * slot`.
+    epoch: Instant,
+    slot: Duration,
 }
 
 impl BatchScheduler {
@@ -97,34 +95,28 @@ impl BatchScheduler {
     ) -> Self {
         Self {
             model,
-            frontend,
             sessions: HashMap::new(),
             metrics,
-            cfg,
-            ticks: 0,
+            slot: tick_slot(&frontend, cfg.batch_wait),
+            frontend,
+            epoch: Instant::now(),
         }
     }
 
-    /// When to step: the arrival of the oldest due session's audio, and what to step at once:
-    /// `Some(None)` every due session (every live session is due), `Some(Some(g))` the sessions of
-    /// tick `g` (and new ones) when every live session of the oldest due one's last tick `g` is due
-    /// again; `None` nothing yet (at the deadline, every due session). `None` overall: nothing is due.
-    fn due(&self) -> Option<(Instant, Option<Option<u64>>)> {
-        let (t0, group) = self
+    /// When to step, once a session is due: at once when every live session is due, else at the
+    /// end of the slot the oldest due session's audio arrived in. `None`: nothing is due.
+    fn due(&self) -> Option<(Instant, bool)> {
+        let t0 = self
             .sessions
             .values()
             .filter(|s| !s.dead)
-            .filter_map(|s| s.due_since.map(|t| (t, s.group)))
+            .filter_map(|s| s.due_since)
             .min()?;
-        let live = || self.sessions.values().filter(|s| !s.dead);
-        if live().all(|s| s.due_since.is_some()) {
-            return Some((t0, Some(None)));
-        }
-        let group_done = group != 0
-            && live()
-                .filter(|s| s.group == group)
-                .all(|s| s.due_since.is_some());
-        Some((t0, group_done.then_some(Some(group))))
+        let all = self
+            .sessions
+            .values()
+            .all(|s| s.dead || s.due_since.is_some());
+        Some((grid_after(self.epoch, self.slot, t0), all))
     }
 
     /// Runs until every command sender is dropped.
@@ -145,15 +137,14 @@ impl BatchScheduler {
                     Some(c) => Some(c),
                     None => break,
                 },
-                Some((t0, ready)) => {
-                    let deadline = t0 + self.cfg.batch_wait;
+                Some((deadline, all_due)) => {
                     let now = Instant::now();
-                    if ready.is_some() || now >= deadline {
+                    if all_due || now >= deadline {
                         // take whatever has already arrived without waiting, then step
                         match rx.try_recv() {
                             Ok(c) => Some(c),
                             Err(_) => {
-                                self.tick(ready.flatten());
+                                self.tick();
                                 continue;
                             }
                         }
@@ -236,7 +227,6 @@ impl BatchScheduler {
                 end: None,
                 draining: false,
                 dead: false,
-                group: 0,
             },
         );
         Ok(joined)
@@ -300,16 +290,12 @@ impl BatchScheduler {
         }
     }
 
-    /// One [`MotionModel::step_many`] call for every due session (of tick `only` and new ones,
-    /// when given).
-    fn tick(&mut self, only: Option<u64>) {
+    /// One [`MotionModel::step_many`] call for every due session.
+    fn tick(&mut self) {
         let mut sids = Vec::new();
         let mut jobs = Vec::new();
         for (sid, s) in self.sessions.iter_mut() {
             if s.dead || s.due_since.is_none() {
-                continue;
-            }
-            if only.is_some_and(|g| s.group != g && s.group != 0) {
                 continue;
             }
             sids.push((
@@ -326,8 +312,6 @@ impl BatchScheduler {
         if jobs.is_empty() {
             return;
         }
-        self.ticks += 1;
-        let group = self.ticks;
         let t0 = Instant::now();
         let results = self.model.step_many(&mut jobs);
         drop(jobs);
@@ -341,7 +325,6 @@ impl BatchScheduler {
             };
             s.held.clear();
             s.due_since = None;
-            s.group = group;
             s.samples_done = s.samples_in;
             self.give_credits(sid);
             match r {
@@ -452,5 +435,52 @@ impl BatchScheduler {
             CLOSE_POLICY,
             "client too slow: its outbound frame queue is full".into(),
         );
+    }
+}
+
+/// The slot of the tick grid: the token's duration divided into a whole number of slots of about
+/// `wait` (zero: no grid, a due session steps at once).
+fn tick_slot(f: &FrontendConfig, wait: Duration) -> Duration {
+    if wait.is_zero() {
+        return Duration::ZERO;
+    }
+    let token = Duration::from_secs_f64(f.frames_per_token as f64 / f.fps.max(1) as f64);
+    let n = (token.as_secs_f64() / wait.as_secs_f64()).round().max(1.0);
+    token.div_f64(n)
+}
+
+/// The first instant of the grid `epoch + k * slot` at or after `t`.
+fn grid_after(epoch: Instant, slot: Duration, t: Instant) -> Instant {
+    if slot.is_zero() {
+        return t;
+    }
+    let since = t.saturating_duration_since(epoch).as_nanos();
+    let s = slot.as_nanos().max(1);
+    let k = since.div_ceil(s);
+    epoch + Duration::from_nanos((k * s).min(u64::MAX as u128) as u64)
+}
+
+#[cfg(test)]
+mod grid_tests {
+    use super::*;
+
+    #[test]
+    fn the_grid_divides_a_token_into_whole_slots() {
+        let f = FrontendConfig::default(); // 4 frames at 30 fps: 133.3 ms
+        let ms = |d: Duration| d.as_secs_f64() * 1e3;
+        assert!((ms(tick_slot(&f, Duration::from_millis(30))) - 133.333 / 4.0).abs() < 1e-3);
+        assert!((ms(tick_slot(&f, Duration::from_millis(60))) - 133.333 / 2.0).abs() < 1e-3);
+        assert!((ms(tick_slot(&f, Duration::from_millis(500))) - 133.333).abs() < 1e-3);
+        assert_eq!(tick_slot(&f, Duration::ZERO), Duration::ZERO);
+        let e = Instant::now();
+        let slot = Duration::from_millis(10);
+        assert_eq!(grid_after(e, slot, e), e);
+        assert_eq!(grid_after(e, slot, e + Duration::from_millis(1)), e + slot);
+        assert_eq!(grid_after(e, slot, e + slot), e + slot);
+        assert_eq!(
+            grid_after(e, slot, e + Duration::from_millis(25)),
+            e + 3 * slot
+        );
+        assert_eq!(grid_after(e, Duration::ZERO, e + slot), e + slot);
     }
 }
