@@ -42,7 +42,8 @@ pub struct Args {
     /// Seconds without a client message before the session is closed (1008).
     #[arg(long, default_value_t = 30.0)]
     pub idle_timeout: f64,
-    /// Milliseconds the oldest complete token waits for other sessions to join its batched step.
+    /// About the slot of the tick grid in milliseconds (a token divided into whole slots): the longest
+    /// a complete token waits for the other sessions of its slot to join its batched step.
     #[arg(long, default_value_t = 30.0)]
     pub batch_wait_ms: f64,
     /// Seconds to wait for sessions to drain on SIGINT/SIGTERM.

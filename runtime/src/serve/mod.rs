@@ -63,7 +63,8 @@ pub struct ServeConfig {
     pub max_pending_tokens: usize,
     /// A session without any message for this long is closed with 1008.
     pub idle_timeout: Duration,
-    /// How long the oldest due session (audio completing a unit) waits for others to join its step.
+    /// About the slot of the tick grid (a token divided into whole slots): the longest a due
+    /// session (audio completing a unit) waits for the others of its slot to join its step.
     pub batch_wait: Duration,
     /// On shutdown, how long to wait for sessions to finish before exiting anyway.
     pub drain_timeout: Duration,

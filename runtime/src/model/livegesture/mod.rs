@@ -28,8 +28,9 @@
 //!
 //! Two ways to step many streams at once, every graph running once for all of them:
 //!
-//! - [`LiveGestureGraphs::step_batch`] on separately owned [`Stream`]s: their caches are stacked on the batch
-//!   axis before each graph run and split back after it (a copy of every cache, twice, per step);
+//! - [`LiveGestureGraphs::step_batch`] on separately owned [`Stream`]s: their caches are copied into stacked
+//!   buffers before each graph run and back after it (every cache copied twice per step; the buffers are
+//!   reused, nothing is allocated; a single stream's caches are moved);
 //! - a [`StreamBatch`] ([`LiveGestureGraphs::new_batch`], [`LiveGestureGraphs::step_stream_batch`]) keeps the caches of
 //!   its streams stacked between steps: each graph gets them as they are and its new caches simply
 //!   replace them. Streams join and leave between steps ([`StreamBatch::add`], [`StreamBatch::remove`]).
@@ -53,6 +54,8 @@
 //! - `stream`: [`Stream`], its options in use and counters, [`TokenStep`];
 //! - `batch`: [`StreamBatch`], streams whose caches stay stacked between steps;
 //! - `caches`: where each graph's caches live (separate per stream, or stacked in a batch);
+//! - `cohorts`: the caches of a [`LiveGestureModel`]'s streams kept stacked between
+//!   [`MotionModel::step_many`](crate::model::MotionModel::step_many) calls;
 //! - `chain`: the per-token chain, one function per stage (audio encoder, experts, fusion, sampling,
 //!   decoders);
 //! - `layout`: frames from the decoders' outputs (through [`crate::model::regions`]), the state
