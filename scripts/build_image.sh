@@ -5,15 +5,18 @@
 #
 # --registry: `podman build -f Containerfile .` as it stands: the binary built in the image
 #   (docker.io/library/rust:1.92-bookworm) and the runtime on docker.io/library/debian:bookworm-slim.
-# --local: for a machine that cannot reach docker.io (as this project's): the same Containerfile with
-#   BASE   = a Debian bookworm root filesystem made here from Debian's packages (mmdebstrap
-#            --variant=essential: dpkg's essential set and libgcc-s1, no documentation or locales),
-#            imported with `podman import` as localhost/livegesture-base:bookworm (kept for the next
-#            build; LIVEGESTURE_REFRESH_BASE=1 makes it again);
-#   BINARY = an image holding the binary built on this host (`cargo build --release --locked -p
-#            livegesture`, stripped), because the builder image (rust:1.92) comes from docker.io and
-#            a RUN step needs a container runtime. Allowed only when the host's binary fits the base:
-#            the newest GLIBC_x.y symbol version it needs must be at most the base's glibc (checked).
+# --local: for a machine that cannot reach docker.io (as this project's), the same Containerfile with
+#   - the build argument BASE: a Debian bookworm root filesystem made here from Debian's packages
+#     (mmdebstrap --variant=essential: dpkg's essential set and libgcc-s1; /usr merged by mmdebstrap's
+#     hook rather than the usrmerge package, which brings perl; no documentation or locales),
+#     imported with `podman import` as localhost/livegesture-base:bookworm (kept for the next build;
+#     LIVEGESTURE_REFRESH_BASE=1 makes it again);
+#   - the `build` stage replaced (--build-context build=docker-image://...) by an image holding the
+#     binary built on this host (`cargo build --release --locked -p livegesture`, or $LIVEGESTURE_BIN;
+#     stripped): the builder image (rust:1.92) comes from docker.io, Debian's rustc (1.63) is older
+#     than the crate's 1.92, and a RUN step needs a container runtime. Allowed only when the binary
+#     fits the base: the newest GLIBC_x.y symbol version it needs must be at most the base's glibc
+#     (checked).
 # Default: --registry when both docker.io images can be pulled (60 s each), else --local.
 # Then (unless --no-check) a smoke check of the image's files: the image is mounted and its binary
 # started with chroot as the image's user (not a container: no namespaces or limits): /healthz 200,
@@ -68,7 +71,7 @@ else
     echo "+ mmdebstrap --variant=essential bookworm | podman import - $base"
     # dates in the tarball from SOURCE_DATE_EPOCH: the same packages give the same base
     SOURCE_DATE_EPOCH="${SOURCE_DATE_EPOCH:-$(git log -1 --format=%ct)}" mmdebstrap --quiet --variant=essential \
-      --include=libgcc-s1 \
+      --hook-dir=/usr/share/mmdebstrap/hooks/merged-usr --include=libgcc-s1 \
       --dpkgopt='path-exclude=/usr/share/doc/*' --dpkgopt='path-exclude=/usr/share/man/*' \
       --dpkgopt='path-exclude=/usr/share/info/*' --dpkgopt='path-exclude=/usr/share/locale/*' \
       --customize-hook='rm -rf "$1"/var/cache/apt/* "$1"/var/lib/apt/lists/* "$1"/var/log/*' \
@@ -98,9 +101,9 @@ else
   strip -o "$work/bin/src/target/release/livegesture" "$bin"
   tar -C "$work/bin" -cf "$work/bin.tar" src
   podman import -q "$work/bin.tar" localhost/livegesture-binary:build >/dev/null
-  echo "+ podman build -t $tag -f Containerfile --build-arg BASE=$base --build-arg BINARY=localhost/livegesture-binary:build ."
+  echo "+ podman build -t $tag -f Containerfile --build-arg BASE=$base --build-context build=docker-image://localhost/livegesture-binary:build ."
   podman build -t "$tag" -f Containerfile --build-arg BASE="$base" \
-    --build-arg BINARY=localhost/livegesture-binary:build .
+    --build-context build=docker-image://localhost/livegesture-binary:build .
   podman rmi -f localhost/livegesture-binary:build >/dev/null
 fi
 echo "built $tag in $(( SECONDS - t0 )) s ($mode): $(podman image inspect --format '{{.Size}}' "$tag" | awk '{printf "%.1f MB", $1/1e6}')"
