@@ -24,8 +24,10 @@ const [bin, bundle, wav, outDir] = process.argv.slice(2);
 if (!outDir) { console.error('usage: tls.mjs BIN BUNDLE WAV OUT_DIR'); process.exit(2); }
 mkdirSync(outDir, { recursive: true });
 
+const t0 = Date.now();
 const fail = (msg) => { console.error(`tls browser test FAILED: ${msg}`); process.exitCode = 1; throw new Error(msg); };
-const withTimeout = (p, ms, what) => Promise.race([p, new Promise((_, rej) => setTimeout(() => rej(new Error(`timeout: ${what}`)), ms))]);
+// (the timer does not keep node alive once everything else is done)
+const withTimeout = (p, ms, what) => Promise.race([p, new Promise((_, rej) => setTimeout(() => rej(new Error(`timeout: ${what}`)), ms).unref())]);
 
 // the test certificate and the token
 const dir = mkdtempSync(join(tmpdir(), 'livegesture-tls-'));
@@ -98,7 +100,7 @@ async function session(page, what, frames) {
   await page.waitForFunction((n) => window.lgState.frames >= n || window.lgState.error, frames, { timeout: 90000 })
     .catch(async () => fail(`${what}: neither ${frames} frames nor a refusal within 90 s: ${JSON.stringify(await stateOf(page))}\n${lines.join('\n')}`));
   const s = await stateOf(page);
-  console.log(`${what}:`, JSON.stringify({ status: s.shown, frames: s.frames, error: s.error, secure: s.secure }));
+  console.log(`${what} (${((Date.now() - t0) / 1000).toFixed(1)} s):`, JSON.stringify({ status: s.shown, frames: s.frames, error: s.error, secure: s.secure }));
   return s;
 }
 const stop = async (page) => {
@@ -154,7 +156,7 @@ try {
   if (opened) fail('a page of another origin opened a session');
   const f = await refusals('forbidden_origin');
   if (f !== 1) fail(`livegesture_refusals_total{reason="forbidden_origin"} is ${f}, expected 1`);
-  console.log('another origin: refused (403)');
+  console.log(`another origin: refused (403) (${((Date.now() - t0) / 1000).toFixed(1)} s)`);
   writeFileSync(join(outDir, 'console.log'), lines.join('\n'));
   ok = true;
 } finally {
@@ -165,4 +167,4 @@ try {
   rmSync(dir, { recursive: true, force: true });
   if (ok && code !== 0) { console.error(`serve exited with ${code}\n${log}`); process.exitCode = 1; }
 }
-console.log(ok ? 'tls browser test passed' : 'tls browser test failed');
+console.log(ok ? `tls browser test passed (${((Date.now() - t0) / 1000).toFixed(1)} s)` : 'tls browser test failed');
