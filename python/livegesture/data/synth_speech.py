@@ -141,6 +141,25 @@ class ClipPlan:
 
 # ----------------------------------------------------------------------------- speech
 
+def _read_engine_wav(out: Path, amp: int | None = None) -> np.ndarray:
+    """A speech engine's 16-bit WAV as float64 mono at SAMPLE_RATE; ``amp`` (percent) scales it when given."""
+    from math import gcd
+
+    from scipy.io import wavfile
+    from scipy.signal import resample_poly
+
+    sr, x = wavfile.read(out)
+    x = x.astype(np.float64) / 32768.0
+    if amp is not None:
+        x = x * amp / 100.0
+    if x.ndim == 2:
+        x = x.mean(1)
+    if sr != SAMPLE_RATE:
+        g = gcd(int(sr), SAMPLE_RATE)
+        x = resample_poly(x, SAMPLE_RATE // g, int(sr) // g)
+    return x
+
+
 def _espeak(text: str, voice: str, rate: int, pitch: int, amp: int, gap: int, tmp: Path) -> np.ndarray:
     out = tmp / "phrase.wav"
     cmd = [ESPEAK, "-v", voice, "-s", str(rate), "-p", str(pitch), "-a", str(amp), "-g", str(gap),
@@ -151,18 +170,7 @@ def _espeak(text: str, voice: str, rate: int, pitch: int, amp: int, gap: int, tm
         raise RuntimeError("espeak-ng not found: install it (apt-get install -y espeak-ng)") from None
     except subprocess.CalledProcessError as e:
         raise RuntimeError(f"espeak-ng failed ({' '.join(cmd)}): {e.stderr.decode(errors='replace')}") from None
-    from scipy.io import wavfile
-    from scipy.signal import resample_poly
-
-    sr, x = wavfile.read(out)
-    x = x.astype(np.float64) / 32768.0
-    if x.ndim == 2:
-        x = x.mean(1)
-    if sr != SAMPLE_RATE:
-        from math import gcd
-        g = gcd(int(sr), SAMPLE_RATE)
-        x = resample_poly(x, SAMPLE_RATE // g, int(sr) // g)
-    return x
+    return _read_engine_wav(out)
 
 
 def _flite(text: str, voice: str, rate: int, pitch: int, amp: int, tmp: Path) -> np.ndarray:
@@ -180,18 +188,7 @@ def _flite(text: str, voice: str, rate: int, pitch: int, amp: int, tmp: Path) ->
                            "--engines") from None
     except subprocess.CalledProcessError as e:
         raise RuntimeError(f"flite failed ({' '.join(cmd)}): {e.stderr.decode(errors='replace')}") from None
-    from scipy.io import wavfile
-    from scipy.signal import resample_poly
-
-    sr, x = wavfile.read(out)
-    x = x.astype(np.float64) / 32768.0 * amp / 100.0
-    if x.ndim == 2:
-        x = x.mean(1)
-    if sr != SAMPLE_RATE:
-        from math import gcd
-        g = gcd(int(sr), SAMPLE_RATE)
-        x = resample_poly(x, SAMPLE_RATE // g, int(sr) // g)
-    return x
+    return _read_engine_wav(out, amp)
 
 
 def _speak(text: str, voice: str, rate: int, pitch: int, amp: int, gap: int, tmp: Path) -> np.ndarray:
