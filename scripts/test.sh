@@ -8,7 +8,7 @@
 #   4. the Rust tests (runtime numerics, bundles, pipeline, CLI, serve, parity suite incl. its must-fail cases);
 #   5. the bindings: the C example and C# declarations (mono) against the CLI;
 #   6. the serve protocol with independent Python/JS clients, BVH read back with a PyPI reader, and
-#      a rolling restart of serve replicas behind HAProxy;
+#      a rolling restart of serve replicas behind HAProxy, the deployment files checked statically;
 #   7. avatars: glTF and BVH of a real recording through the Khronos glTF validator and Blender's
 #      importers (Debian's blender), the VRM retargeting's node tests;
 #   8. the browser page in Debian's chromium with a fake microphone, the skinned figure, a .glb in
