@@ -317,13 +317,13 @@ impl Report {
     }
 }
 
-/// The smallest of 1, 2, 2.5, 5 x 10^k at or above `v`.
+/// The smallest of 1, 1.5, 2, 2.5, 3, 4, 5, 6, 8 x 10^k at or above `v`.
 fn nice_ceil(v: f64) -> f64 {
     if v <= 0.0 || !v.is_finite() {
         return 1.0;
     }
     let p = 10f64.powf(v.log10().floor());
-    for m in [1.0, 2.0, 2.5, 5.0, 10.0] {
+    for m in [1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0] {
         if m * p >= v {
             return m * p;
         }
@@ -376,9 +376,10 @@ mod tests {
     #[test]
     fn nice_ceilings() {
         assert_eq!(nice_ceil(0.0), 1.0);
-        assert_eq!(nice_ceil(7.0), 10.0);
-        assert_eq!(nice_ceil(150.0), 200.0);
+        assert_eq!(nice_ceil(7.0), 8.0);
+        assert_eq!(nice_ceil(150.0), 150.0);
         assert_eq!(nice_ceil(220.0), 250.0);
+        assert_eq!(nice_ceil(527.0), 600.0);
         assert_eq!(nice_ceil(100.0), 100.0);
     }
 }

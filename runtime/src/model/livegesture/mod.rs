@@ -134,13 +134,6 @@ impl std::str::FromStr for FormChoice {
     }
 }
 
-/// Batch sizes (rows) up to which [`LiveGestureGraphs::prepare_batches`] optimises tract plans
-/// ahead; every larger size runs on one plan with the batch left symbolic. A concrete plan runs
-/// 10-20% faster than the symbolic one at 8-64 rows, but each holds its own packed weights (the
-/// default bundle: about 34 MiB per size) and takes about 0.2 s to optimise: one per size up to 64
-/// sessions would be 2 GiB; one stream alone (1 row, 2 with guidance) keeps its concrete plans.
-pub const PREPARED_ROWS: usize = 2;
-
 /// The loaded graphs of a bundle, shared by any number of [`Stream`]s.
 pub struct LiveGestureGraphs {
     frontend: FrontendConfig,
@@ -328,13 +321,15 @@ impl LiveGestureGraphs {
     }
 
     /// Prepares every graph's backend for steps of up to `max_streams` streams before the first
-    /// of them ([`crate::backend::GraphRunner::prepare_batches`]): tract optimises the plans of
-    /// sizes up to [`PREPARED_ROWS`] (rows: the expert and fusion graphs carry two rows per guided
-    /// stream) and one with the batch left symbolic for all others, so that no later step optimises
-    /// a plan. Other backends prepare nothing.
+    /// of them ([`crate::backend::GraphRunner::prepare_batches`] with every batch size, in rows: the
+    /// expert and fusion graphs carry two rows per guided stream): tract optimises the plans of the
+    /// smallest sizes and one with the batch left symbolic for all others, so that no later step
+    /// optimises a plan; ort prepares nothing.
     pub fn prepare_batches(&mut self, max_streams: usize) -> Result<()> {
-        let rows = |most: usize| -> Vec<usize> { (1..=most.min(PREPARED_ROWS)).collect() };
-        let (one, two) = (rows(max_streams.max(1)), rows(2 * max_streams.max(1)));
+        let (one, two): (Vec<usize>, Vec<usize>) = (
+            (1..=max_streams.max(1)).collect(),
+            (1..=2 * max_streams.max(1)).collect(),
+        );
         self.audio_encoder.runner_mut().prepare_batches(&one)?;
         for e in &mut self.experts {
             e.runner_mut().prepare_batches(&two)?;
