@@ -155,9 +155,24 @@ fn options(
     }
 }
 
-/// A loaded model bundle on one backend. Thread-safe: any number of streams, on any threads.
+/// The bundle of `Model()` without a path (docs/python.md#the-default-bundle): `$LIVEGESTURE_BUNDLE`,
+/// else the `models/default` of the checkout the module was built from. Unlike the CLI's
+/// [`livegesture::bundle::default_bundle_dir`], no bundle beside the executable: that is the Python
+/// interpreter here.
+fn default_bundle() -> PathBuf {
+    match std::env::var_os(livegesture::bundle::BUNDLE_ENV).filter(|v| !v.is_empty()) {
+        Some(v) => PathBuf::from(v),
+        None => livegesture::bundle::repo_default_bundle(),
+    }
+}
+
+/// A loaded and verified model bundle on one backend; thread-safe, makes any number of streams.
 ///
-/// Model(path=None, backend="tract", *, ep="cpu", threads=1, ort_lib=None, form="auto")
+/// path: the bundle folder (None: $LIVEGESTURE_BUNDLE, else the models/default of the checkout the
+/// module was built from). backend: "tract" (pure Rust, CPU) or "ort" (ONNX Runtime from ort_lib,
+/// $ORT_DYLIB_PATH or an installed onnxruntime package; ep its execution provider, threads its
+/// intra-op threads). form: a LiveGesture bundle's graph form (auto, canonical, fused, attention).
+/// Raises FileNotFoundError / ValueError with the CLI's message for a missing or broken bundle.
 #[pyclass(module = "livegesture_runtime", frozen)]
 struct Model {
     inner: Arc<dyn MotionModel>,
@@ -190,7 +205,7 @@ impl Model {
             intra_threads: threads.max(1),
             ort_library: ort_lib,
         };
-        let dir = livegesture::bundle::default_bundle_dir(path.as_deref());
+        let dir = path.unwrap_or_else(default_bundle);
         let model = compute(py, "loading the model", || {
             generate::open_model(Some(&dir), &opts, form)
         })?;
@@ -229,6 +244,7 @@ impl Model {
     #[allow(clippy::too_many_arguments)]
     fn stream(
         &self,
+        py: Python<'_>,
         seed: u64,
         guidance: Option<f64>,
         temperature: Option<f64>,
@@ -252,7 +268,8 @@ impl Model {
             blend_steps,
             speaker,
         );
-        let inner = generate::new_stream(self.inner.as_ref(), &opts).map_err(to_py)?;
+        let model = self.inner.as_ref();
+        let inner = compute(py, "stream", || generate::new_stream(model, &opts))?;
         Ok(Stream {
             inner: Mutex::new(PcmStream::new(inner, "stream")),
         })
@@ -359,6 +376,7 @@ impl Stream {
 impl Stream {
     /// Pushes mono samples (1-D float32 in [-1, 1] or int16) at sample_rate Hz; returns the frames
     /// they complete. The first push fixes the stream's rate.
+    #[pyo3(signature = (pcm, sample_rate=16000))]
     fn push<'py>(
         &self,
         py: Python<'py>,
@@ -453,12 +471,28 @@ fn _bench_push_audio(
     })
 }
 
+/// Test hook (bindings/tests/test_python.py): panics inside a computation, as a bug in the runtime
+/// would; with a stream, while that stream's call holds its state. Shows that a panic becomes a
+/// `RuntimeError` and that the stream refuses work until `reset()`.
+#[pyfunction]
+#[pyo3(signature = (stream=None))]
+fn _panic_for_test(py: Python<'_>, stream: Option<&Stream>) -> PyResult<()> {
+    compute(py, "_panic_for_test", || match stream {
+        Some(s) => {
+            let _guard = s.lock()?;
+            panic!("a deliberate panic inside a stream call")
+        }
+        None => panic!("a deliberate panic"),
+    })
+}
+
 /// The LiveGesture runtime: speech audio in, SMPL-X motion frames out (docs/python.md).
 #[pymodule]
 fn livegesture_runtime(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Model>()?;
     m.add_class::<Stream>()?;
     m.add_function(wrap_pyfunction!(_bench_push_audio, m)?)?;
+    m.add_function(wrap_pyfunction!(_panic_for_test, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("FPS", livegesture::output::FPS)?;
     m.add("POSE_DIM", POSE_DIM)?;
