@@ -39,6 +39,11 @@ stage "export the DiffSHEG tiny config (random weights) -> target/test-bundles/d
 "$LIVEGESTURE_PY" export/export.py --family diffsheg --config tiny --random-seed 0 --out target/test-bundles/diffsheg-tiny
 export LIVEGESTURE_DIFFSHEG_TINY_BUNDLE="$PWD/target/test-bundles/diffsheg-tiny"
 
+# The Python module (bindings/python, a workspace member) is compiled by the workspace build below and packed by
+# maturin in the stage "bindings": both read this PyO3 configuration (abi3, CPython >= 3.10; what maturin writes
+# itself on Linux), so maturin finds pyo3 and the module already built instead of compiling them again
+export PYO3_CONFIG_FILE="$PWD/bindings/python/pyo3-config.txt"
+
 stage "rust formatting (cargo fmt --check)"
 cargo fmt --all -- --check
 
@@ -86,8 +91,8 @@ fi
 
 stage "bindings: the Python module (wheel), the C example and the C# P/Invoke declarations vs the CLI"
 # The wheel (docs/python.md): maturin into the project venv (not in python/requirements.txt, whose hash names
-# the cached venv). bindings/python is a workspace member: maturin builds in this target/, where the build above
-# compiled the runtime and its dependencies, so only the module itself is compiled and linked here.
+# the cached venv). It builds in this target/, where the workspace build above compiled the module with the same
+# features and PyO3 configuration (PYO3_CONFIG_FILE), so it only packs the wheel (~3 s).
 "$LIVEGESTURE_VENV/bin/maturin" --version 2>/dev/null | grep -qx "maturin 1.16.0" || \
   "$LIVEGESTURE_VENV/bin/pip" install -q maturin==1.16.0
 rm -rf target/wheels
