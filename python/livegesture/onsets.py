@@ -6,7 +6,7 @@ Two callers use it with different settings, each a named :class:`OnsetParams`:
   centred periodic-Hann STFT over the whole FFT length, 64 mels, ``log1p`` compression, min-max
   normalisation, a symmetric +-30 ms max window, a 100 ms refractory wait, no speech gating;
 - :data:`SYNTH_ONSETS`, the onsets the synthetic corpus gestures on
-  (``livegesture.data.synth.analyse_audio``, 16 kHz, 10 ms hop): a 25 ms symmetric Hann window
+  (``livegesture.data.synth_motion.analyse_audio``, 16 kHz, 10 ms hop): a 25 ms symmetric Hann window
   zero-padded to 512 points, 40 mels, dB compression, a percentile normalisation clipped to [0, 1],
   librosa's default (asymmetric) windows at 100 Hz, onsets only where the caller's speech gate is open.
 

@@ -139,7 +139,7 @@ def test_synthetic_motion_follows_its_audio(tiny_corpus):
 
 from pathlib import Path  # noqa: E402
 
-from livegesture.data import beat2, synth  # noqa: E402
+from livegesture.data import beat2, synth, synth_motion, synth_speech  # noqa: E402
 from livegesture.data.features import NormStats, region_parts  # noqa: E402
 from livegesture.frontend import logmel, logmel_frames  # noqa: E402
 from livegesture.regions import FOOT_JOINTS, UPPER_JOINTS, frame_start_sample  # noqa: E402
@@ -370,7 +370,7 @@ def test_upper_body_speed_follows_onsets(corpus_dir):
         J = forward_kinematics(m["poses"], m["trans"])[:, list(UPPER_JOINTS)]
         v = np.zeros(T)
         v[1:] = np.linalg.norm(np.diff(J, axis=0), axis=-1).mean(1) * 30
-        on = synth.onset_times(c.audio(cid))
+        on = synth_motion.onset_times(c.audio(cid))
         assert len(on) > 0
         dur = T / 30
         for name, o in (("real", on), ("+0.5s", on + 0.5), ("-0.5s", on - 0.5), ("circular", (on + dur / 2) % dur)):
@@ -410,18 +410,19 @@ def test_loudness_drive_couples_strokes_to_loudness():
     upper-body speed follow the loud phrases far more than the ``flux`` drive (the original corpus), whose spectral-flux
     onset strength barely sees an 18 dB level change."""
     from scipy.ndimage import gaussian_filter1d
-    from livegesture.data import synth
+    from livegesture.data import synth_motion, synth_speech
     from livegesture.regions import UPPER_JOINTS
     from livegesture.skeleton import forward_kinematics
 
     x, loud = _loud_quiet_speech()
-    an = synth.analyse_audio(x)
+    an = synth_motion.analyse_audio(x)
     T = len(loud)
     r = {}
-    for drive in synth.STROKE_DRIVES:
+    for drive in synth_motion.STROKE_DRIVES:
         cs = []
         for seed in range(4):
-            p, tr, _ = synth.generate_motion(an, T, synth.STYLE_BY_SPEAKER[2], np.random.default_rng(seed), drive)
+            p, tr, _ = synth_motion.generate_motion(an, T, synth_speech.STYLE_BY_SPEAKER[2],
+                                                    np.random.default_rng(seed), drive)
             J = forward_kinematics(p, tr)[:, list(UPPER_JOINTS)]
             v = np.zeros(T)
             v[1:] = np.linalg.norm(np.diff(J, axis=0), axis=-1).mean(1) * 30
@@ -431,33 +432,33 @@ def test_loudness_drive_couples_strokes_to_loudness():
         assert r[drive] > 0.6, r
         assert r[drive] > r["flux"] + 0.15, r
     with pytest.raises(ValueError, match="stroke drive 'pitch'"):
-        synth.generate_motion(an, T, synth.STYLE_BY_SPEAKER[2], np.random.default_rng(0), "pitch")
+        synth_motion.generate_motion(an, T, synth_speech.STYLE_BY_SPEAKER[2], np.random.default_rng(0), "pitch")
 
 
 def test_syllable_loudness_is_the_window_mean():
     """``syllable_loudness``: the mean envelope over the 60 ms (6 analysis frames) from each onset's frame,
     shortened at the clip's end."""
-    from livegesture.data import synth
+    from livegesture.data import synth_motion
 
     n = 50
     env = np.linspace(0.0, 0.98, n)
-    a = synth.AudioAnalysis(times=np.arange(n) * 0.01, env=env, active=np.ones(n, bool), onset_env=env,
-                            f0=np.zeros(n), onsets=np.array([0.10, 0.47]), onset_strength=np.array([0.5, 0.5]),
-                            phrase_start=np.zeros(2, bool))
-    got = synth.syllable_loudness(a)
+    a = synth_motion.AudioAnalysis(times=np.arange(n) * 0.01, env=env, active=np.ones(n, bool), onset_env=env,
+                                   f0=np.zeros(n), onsets=np.array([0.10, 0.47]),
+                                   onset_strength=np.array([0.5, 0.5]), phrase_start=np.zeros(2, bool))
+    got = synth_motion.syllable_loudness(a)
     np.testing.assert_allclose(got, [env[10:16].mean(), env[47:50].mean()], rtol=1e-12)
-    np.testing.assert_allclose(synth.onset_loudness(a), [env[10], env[47]], rtol=1e-12)
+    np.testing.assert_allclose(synth_motion.onset_loudness(a), [env[10], env[47]], rtol=1e-12)
 
 
 def test_one_audio_many_motions(corpus_dir):
     c = Beat2Corpus(corpus_dir)
     cid = c.ids("train", 2)[0]
     audio = c.audio(cid)
-    an = synth.analyse_audio(audio)
+    an = synth_motion.analyse_audio(audio)
     T = len(audio) * 30 // 16000
-    style = synth.STYLE_BY_SPEAKER[2]
-    p1, _, e1 = synth.generate_motion(an, T, style, np.random.default_rng(1))
-    p2, _, e2 = synth.generate_motion(an, T, style, np.random.default_rng(2))
+    style = synth_speech.STYLE_BY_SPEAKER[2]
+    p1, _, e1 = synth_motion.generate_motion(an, T, style, np.random.default_rng(1))
+    p2, _, e2 = synth_motion.generate_motion(an, T, style, np.random.default_rng(2))
     assert np.abs(p1 - p2).mean() > 1e-3
     # the jaw follows the same audio in both
     assert np.corrcoef(p1[:, 66], p2[:, 66])[0, 1] > 0.9

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from livegesture.data import real_speech, synth
+from livegesture.data import real_speech, synth, synth_speech
 from livegesture.eval import generalise as G
 from livegesture.regions import FPS, SAMPLE_RATE
 
@@ -159,7 +159,8 @@ def test_corpus_real_train_clips_and_extra_voices(tmp_path):
     assert {Path(p.source).stem for p in plans} == set(real_speech.TRAIN)
     assert len(plans) == 2 * (len(real_speech.TRAIN) + 1)          # the stereo file gives two clips
     assert len({p.id for p in plans}) == len(plans) and all(p.split == "train" for p in plans)
-    engines = (synth.ESPEAK, synth.FLITE) if shutil.which(synth.FLITE) else (synth.ESPEAK,)
+    engines = ((synth_speech.ESPEAK, synth_speech.FLITE) if shutil.which(synth_speech.FLITE)
+               else (synth_speech.ESPEAK,))
     out = tmp_path / "corpus"
     plans = synth.generate_corpus(out, minutes=0.15, seed=5, clip_seconds=(4.0, 5.0), progress=False,
                                   engines=engines, real_train=rs, real_variants=2)

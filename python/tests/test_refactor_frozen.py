@@ -22,7 +22,7 @@ import pytest
 
 from frozen_inputs import fixed_audio, fixed_poses
 from livegesture import onsets, skeleton
-from livegesture.data import synth
+from livegesture.data import synth_motion, synth_speech
 from livegesture.eval import metrics as M
 
 FROZEN = Path(__file__).parent / "data" / "frozen_onsets_skeleton.npz"
@@ -56,21 +56,22 @@ def test_eval_onsets_are_the_old_ones(frozen, audio16):
 
 
 def test_synth_analysis_is_the_old_one(frozen, audio16):
-    an = synth.analyse_audio(audio16)
+    an = synth_motion.analyse_audio(audio16)
     for k in ("times", "env", "active", "f0", "onsets", "phrase_start"):
         _exact(getattr(an, k), frozen["synth_" + k], k)
     for k in ("onset_env", "onset_strength"):   # float reductions: CPU-dependent rounding (module docstring)
         got, want = np.asarray(getattr(an, k)), frozen["synth_" + k]
         assert got.shape == want.shape and got.dtype == want.dtype, k
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-12, err_msg=k)
-    _exact(synth.onset_times(audio16), frozen["synth_onset_times"], "onset_times")
+    _exact(synth_motion.onset_times(audio16), frozen["synth_onset_times"], "onset_times")
     # the fixture exercises the phrase logic and the speech gate
     assert frozen["synth_phrase_start"].any() and not frozen["synth_active"].all()
 
 
 def test_synth_motion_is_the_old_one(frozen, audio16):
-    an = synth.analyse_audio(audio16)
-    poses, trans, _ = synth.generate_motion(an, 150, synth.STYLE_BY_SPEAKER[2], np.random.default_rng(7))
+    an = synth_motion.analyse_audio(audio16)
+    poses, trans, _ = synth_motion.generate_motion(an, 150, synth_speech.STYLE_BY_SPEAKER[2],
+                                                   np.random.default_rng(7))
     np.testing.assert_allclose(poses, frozen["synth_poses"], rtol=0, atol=1e-6)
     np.testing.assert_allclose(trans, frozen["synth_trans"], rtol=0, atol=1e-6)
 
@@ -92,10 +93,10 @@ def test_rotation_conventions():
     rx = np.zeros((3, 3, 3))
     rx[:, 0, 0] = 1
     rx[:, 1, 1], rx[:, 1, 2], rx[:, 2, 1], rx[:, 2, 2] = c, -s, s, c
-    np.testing.assert_allclose(synth._rx(a), rx, atol=1e-12)
+    np.testing.assert_allclose(synth_motion._rx(a), rx, atol=1e-12)
     x, y, z = np.array([0.1, 2.0]), np.array([-0.7, 0.4]), 1.3  # scalars broadcast
-    np.testing.assert_allclose(synth._euler(x, y, z), synth._rx(x) @ synth._ry(y) @ synth._rz(np.full(2, z)),
-                               atol=1e-12)
+    np.testing.assert_allclose(synth_motion._euler(x, y, z),
+                               synth_motion._rx(x) @ synth_motion._ry(y) @ synth_motion._rz(np.full(2, z)), atol=1e-12)
     # Rodrigues: a quarter turn about z, and the series branch near 0
     R = skeleton.axis_angle_to_matrix_np(np.array([[0.0, 0.0, np.pi / 2], [1e-9, 0.0, 0.0]]))
     np.testing.assert_allclose(R[0], [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-12)

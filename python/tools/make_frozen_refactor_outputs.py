@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from livegesture.data import synth
+from livegesture.data import synth_motion, synth_speech
 from livegesture.eval import metrics as M
 from livegesture import skeleton
 from frozen_inputs import fixed_audio, fixed_poses
@@ -25,12 +25,12 @@ out["metrics_onsets_22k"] = M.detect_onsets(x22, 22050)
 out["metrics_onsets_16k_db"] = M.detect_onsets(x16, 16000, log_gain=None)
 env, t = M.onset_strength(x16, 16000)
 out["metrics_env_16k"], out["metrics_env_times_16k"] = env, t
-an = synth.analyse_audio(x16)
+an = synth_motion.analyse_audio(x16)
 for k in ("times", "env", "active", "onset_env", "f0", "onsets", "onset_strength", "phrase_start"):
     out["synth_" + k] = getattr(an, k)
-out["synth_onset_times"] = synth.onset_times(x16)
+out["synth_onset_times"] = synth_motion.onset_times(x16)
 T = 150
-poses, trans, expr = synth.generate_motion(an, T, synth.STYLE_BY_SPEAKER[2], np.random.default_rng(7))
+poses, trans, expr = synth_motion.generate_motion(an, T, synth_speech.STYLE_BY_SPEAKER[2], np.random.default_rng(7))
 out["synth_poses"], out["synth_trans"] = poses, trans
 p, tr = fixed_poses()
 J, G = skeleton.forward_kinematics(p, tr, return_rotations=True)

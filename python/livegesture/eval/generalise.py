@@ -58,7 +58,7 @@ Motion sources (one of):
 
 Every report also holds a ``reference`` block per set: for ``synth``, the corpus's own motion of the split;
 for ``real``, the motion the synthetic corpus generator's motion model
-(:func:`livegesture.data.synth.generate_motion`, speaker 2's style, seed 0) computes from the recording —
+(:func:`livegesture.data.synth_motion.generate_motion`, speaker 2's style, seed 0) computes from the recording —
 what a model trained on that corpus is asked to learn, i.e. what the check can show at most.
 
 ``--require-targets`` exits with status 1 unless the model's real-speech gaps reach the targets of issue 16
@@ -80,7 +80,7 @@ from . import corpus as C
 from . import metrics as M
 from .report import jsonable
 from ..regions import FPS, JAW_JOINT, SAMPLE_RATE, UPPER_JOINTS, frame_start_sample
-from ..data.synth import STROKE_DRIVES
+from ..data.synth_motion import STROKE_DRIVES
 
 SPEED_SMOOTH_S = 0.2
 BC_TRIM_S = 0.5          # the recordings are 4-30 s: livegesture.eval's 2 s trim would leave nothing of some
@@ -429,12 +429,12 @@ def synth_set(data, split: str, max_clips: int | None = None):
 def reference_real_motion(audio: np.ndarray, seed: int = 0, drive: str = "flux") -> dict:
     """The synthetic corpus generator's motion for a real recording (speaker 2's style), with the stroke
     ``drive`` of the corpus the model was trained on (``synth --stroke-drive``)."""
-    from ..data import synth
+    from ..data import synth_motion, synth_speech
     pcm = np.clip(np.round(np.asarray(audio, np.float64) * 32767.0), -32768, 32767) / 32768.0
-    an = synth.analyse_audio(pcm)
+    an = synth_motion.analyse_audio(pcm)
     T = len(audio) * FPS // SAMPLE_RATE
-    poses, trans, expr = synth.generate_motion(an, T, synth.STYLE_BY_SPEAKER[2], np.random.default_rng(seed),
-                                               drive)
+    poses, trans, expr = synth_motion.generate_motion(an, T, synth_speech.STYLE_BY_SPEAKER[2],
+                                                      np.random.default_rng(seed), drive)
     return {"poses": poses, "trans": trans, "expressions": expr}
 
 

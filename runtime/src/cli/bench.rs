@@ -19,7 +19,7 @@ use super::common::{DiffshegArgs, InputError, ModelArgs};
 pub struct Args {
     #[command(flatten)]
     pub model: ModelArgs,
-    /// Audio fed to the streams, repeated as needed (default: the bundle's reference/clip.wav).
+    /// Audio fed to the streams, repeated as needed (default: the bundle's reference clip).
     #[arg(long, value_name = "WAV")]
     pub audio: Option<PathBuf>,
     /// Guidance scale gamma (default: the bundle's; benchmarks are quoted with guidance on).
@@ -110,7 +110,7 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
     super::common::check_form(&bundle, form)?;
     let audio = match a.audio {
         Some(p) => p,
-        None => bundle.path("reference/clip.wav"),
+        None => bundle.path(&bundle.reference_clip()),
     };
     let cfg = BenchConfig {
         audio,
