@@ -362,6 +362,23 @@ impl Stream {
         compute(py, "stream", || Ok(f(&*self.lock()?)))
     }
 
+    /// `push`, with the seconds `PcmStream::push` took.
+    fn push_timed<'py>(
+        &self,
+        py: Python<'py>,
+        pcm: &Bound<'py, PyAny>,
+        sample_rate: u32,
+    ) -> PyResult<(Bound<'py, PyDict>, f64)> {
+        let samples = samples_of(pcm)?;
+        let (frames, core) = compute(py, "stream.push", || {
+            let mut stream = self.lock()?;
+            let t0 = std::time::Instant::now();
+            let frames = stream.push(&samples, sample_rate)?;
+            Ok((frames, t0.elapsed().as_secs_f64()))
+        })?;
+        Ok((frames_dict(py, &frames)?, core))
+    }
+
     /// The stream, or an error if an earlier call panicked (then only reset() recovers it).
     fn lock(&self) -> anyhow::Result<MutexGuard<'_, PcmStream>> {
         self.inner.lock().map_err(|_| {
@@ -383,11 +400,20 @@ impl Stream {
         pcm: &Bound<'py, PyAny>,
         sample_rate: u32,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let samples = samples_of(pcm)?;
-        let frames = compute(py, "stream.push", || {
-            self.lock()?.push(&samples, sample_rate)
-        })?;
-        frames_dict(py, &frames)
+        Ok(self.push_timed(py, pcm, sample_rate)?.0)
+    }
+
+    /// Benchmark hook (bindings/python/bench_overhead.py): `push`, and the seconds its Rust core
+    /// (`PcmStream::push`) took inside it, so that the binding's own cost per call is measured on the
+    /// same call.
+    #[pyo3(signature = (pcm, sample_rate=16000))]
+    fn _push_timed<'py>(
+        &self,
+        py: Python<'py>,
+        pcm: &Bound<'py, PyAny>,
+        sample_rate: u32,
+    ) -> PyResult<(Bound<'py, PyDict>, f64)> {
+        self.push_timed(py, pcm, sample_rate)
     }
 
     /// Ends the input: the remaining frames, so that the stream's frames cover everything pushed
