@@ -45,16 +45,10 @@ fn compute<T: Send>(
 ) -> PyResult<T> {
     py.detach(|| match catch_unwind(AssertUnwindSafe(f)) {
         Ok(r) => r.map_err(to_py),
-        Err(p) => {
-            let detail = p
-                .downcast_ref::<&str>()
-                .map(|s| s.to_string())
-                .or_else(|| p.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "unknown panic".into());
-            Err(PyRuntimeError::new_err(format!(
-                "{what}: internal error (a panic in the runtime: {detail}); please report it"
-            )))
-        }
+        Err(p) => Err(PyRuntimeError::new_err(generate::panic_message(
+            what,
+            p.as_ref(),
+        ))),
     })
 }
 
