@@ -8,11 +8,12 @@
 #   4. the Rust tests (runtime numerics, bundles, pipeline, CLI, serve, parity suite incl. its must-fail cases);
 #   5. the bindings: the Python module's wheel, the C example and C# declarations (mono) against the CLI;
 #   6. the serve protocol with independent Python/JS clients, BVH read back with a PyPI reader, and
-#      a rolling restart of serve replicas behind HAProxy;
+#      a rolling restart of serve replicas behind HAProxy, the deployment files checked statically;
 #   7. avatars: glTF and BVH of a real recording through the Khronos glTF validator and Blender's
 #      importers (Debian's blender), the VRM retargeting's node tests;
 #   8. the browser page in Debian's chromium with a fake microphone, the skinned figure, a .glb in
-#      GLTFLoader and a VRM avatar following a WAV (screenshots in target/browser/);
+#      GLTFLoader and a VRM avatar following a WAV (screenshots in target/browser/); the page over
+#      https with a token (target/browser-tls/);
 #   9. the runtime compiled to WebAssembly: the static page in chromium (parity of both shipped bundles,
 #      a perturbed weight, the microphone, a WAV vs native tract; report in target/browser-wasm/);
 # and first, the docs check (scripts/check_docs.py: relative links in the Markdown resolve).
@@ -110,7 +111,8 @@ LIVEGESTURE_BIN="$PWD/target/release/livegesture" "$LIVEGESTURE_PY" -m pytest -q
   bindings/tests/test_python.py bindings/tests/test_c_example.py bindings/tests/test_csharp.py
 
 stage "serve and BVH: independent Python/JS clients vs generate, BVH read back by the bvh package"
-"$LIVEGESTURE_VENV/bin/pip" install -q websockets==15.0.1 bvh==0.3
+# (pyyaml: the Kubernetes manifests' check, runtime/tests/py/test_deploy_files.py)
+"$LIVEGESTURE_VENV/bin/pip" install -q websockets==15.0.1 bvh==0.3 pyyaml==6.0.3
 # replicas behind a load balancer (runtime/tests/py/test_haproxy.py, docs/deploy.md): Debian's haproxy
 if ! command -v haproxy >/dev/null 2>&1 || ! command -v openssl >/dev/null 2>&1; then
   if [ "$(id -u)" = 0 ]; then _sudo=""; else _sudo="sudo"; fi
@@ -154,6 +156,10 @@ fi
 (cd runtime/web && npm install --no-save --no-audit --no-fund --loglevel=error)
 timeout 600 node runtime/web/tests/browser.mjs target/release/livegesture models/default \
   models/default/reference/clip.wav target/browser
+# the page over https (a certificate the test makes) with a token: a session over wss receives frames;
+# without the token, or with a wrong one, or from another origin, the session is refused (docs/deploy.md)
+timeout 300 node runtime/web/tests/tls.mjs target/release/livegesture models/default \
+  models/default/reference/clip.wav target/browser-tls
 
 stage "wasm: the runtime in WebAssembly as a static page, parity and the microphone in chromium (docs/wasm.md)"
 # installs the wasm32 target and the wasm-bindgen CLI if missing; builds target/wasm-pkg and target/web-static

@@ -282,6 +282,8 @@ fn draining_turns_healthz_503_at_once_and_lets_live_sessions_finish() {
         assert_eq!(g.close, Some(1001), "{g:?}");
         server
     });
+    // the session refused while draining is counted
+    assert_eq!(server.metrics().refusals("shutting_down"), 1);
     server.join().unwrap();
 }
 

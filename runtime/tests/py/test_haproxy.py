@@ -48,7 +48,7 @@ def healthz(port):
 
 
 def metric(port, name):
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=2) as r:
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=10) as r:
         text = r.read().decode()
     m = re.search(rf"^{re.escape(name)} (\S+)$", text, re.M)
     assert m, f"{name} not in /metrics of :{port}"
@@ -150,10 +150,10 @@ async def attempt(url, audio, ssl_ctx):
                         done = True
 
         task = asyncio.create_task(reader())
-        step = 3200  # 100 ms
+        chunk = 1600 * 2  # 100 ms of 16 kHz s16le, sent every 100 ms: real time
         try:
-            for i in range(0, len(audio), step * 2):
-                await ws.send(audio[i:i + step * 2])
+            for i in range(0, len(audio), chunk):
+                await ws.send(audio[i:i + chunk])
                 await asyncio.sleep(0.1)
             await ws.send('{"type":"end"}')
         except websockets.ConnectionClosed:
@@ -242,15 +242,21 @@ def test_rolling_restart_behind_haproxy_loses_no_session(binary, bundle, tmp_pat
 
         async def main():
             restarted = asyncio.Event()
-
-            async def restart_all():
-                await rolling_restart()
+            clients = [asyncio.create_task(user(k, urls, audio, ssl_ctx, log, restarted)) for k in range(USERS)]
+            try:
+                await asyncio.wait_for(rolling_restart(), 90)
+            finally:
+                # also when the restart failed: the clients stop once they have completed their
+                # sessions (each attempt is bounded), so the failure is reported instead of hanging
                 restarted.set()
+                _, pending = await asyncio.wait(clients, timeout=60)
+                for t in pending:
+                    t.cancel()
+            assert not pending, f"{len(pending)} clients still running 60 s after the rolling restart"
+            for t in clients:
+                t.result()  # a client's failed assertion
 
-            users = [user(k, urls, audio, ssl_ctx, log, restarted) for k in range(USERS)]
-            await asyncio.gather(restart_all(), *users)
-
-        asyncio.run(asyncio.wait_for(main(), 120))
+        asyncio.run(main())
         cut = sum(1 for e in log if e[1] == 1001)
         ok = sum(1 for e in log if e[1] == 1000)
         print(f"haproxy rolling restart: {ok} sessions completed, {cut} cut with 1001 and reconnected; {restarts}")

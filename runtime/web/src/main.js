@@ -150,10 +150,15 @@ function openSession(inputRate) {
     return;
   }
   const proto = location.protocol === 'https:' ? 'wss' : 'ws';
-  ws = new WebSocket(`${proto}://${location.host}/v1/stream?rate=${Math.round(rate)}&channels=1&format=f32le&output=binary`);
+  // a server with --auth-token-file wants the token; browsers cannot set Authorization on a
+  // WebSocket, so it goes in the `token` query parameter (docs/deploy.md#who-may-connect)
+  const token = $('token').value.trim();
+  const auth = token ? `&token=${encodeURIComponent(token)}` : '';
+  ws = new WebSocket(`${proto}://${location.host}/v1/stream?rate=${Math.round(rate)}&channels=1&format=f32le&output=binary${auth}`);
   ws.binaryType = 'arraybuffer';
+  let opened = false;
   setStatus('connecting');
-  ws.onopen = () => setStatus('connected');
+  ws.onopen = () => { opened = true; setStatus('connected'); };
   ws.onmessage = (ev) => {
     if (typeof ev.data === 'string') {
       const m = JSON.parse(ev.data);
@@ -165,11 +170,16 @@ function openSession(inputRate) {
     onFrame(decodeRecord(ev.data));
   };
   ws.onclose = (ev) => {
-    if (state.status === 'live' || state.status === 'connected' || state.status === 'connecting')
+    // refused before the upgrade (401 token, 403 origin, 429, 503): browsers only report 1006
+    if (!opened) {
+      state.error = 'session refused';
+      setStatus(token ? 'no session: refused or unreachable (wrong token? at capacity?)'
+        : 'no session: refused or unreachable (does the server need a token? add ?token=... to the address)', 'error');
+    } else if (state.status === 'live' || state.status === 'connected' || state.status === 'connecting')
       setStatus(`closed ${ev.code}${ev.reason ? ': ' + ev.reason : ''}`, ev.code === 1000 ? 'idle' : 'error');
     stopInput();
   };
-  ws.onerror = () => { state.error = 'websocket error'; setStatus('connection error', 'error'); };
+  ws.onerror = () => { if (opened) { state.error = 'websocket error'; setStatus('connection error', 'error'); } };
 }
 
 // latency: from sending the audio that completes token t to receiving its last frame
@@ -402,6 +412,8 @@ async function main() {
   showFrame({ index: 0, time_s: 0, poses: new Float32Array(165), trans: new Float32Array(3), expressions: new Float32Array(100) });
   first = null;
   render();
+  // `?token=...` in the page's address fills the token field (docs/deploy.md#who-may-connect)
+  $('token').value = new URL(location.href).searchParams.get('token') || '';
   $('mic').onclick = startMic;
   $('stop').onclick = endSession;
   $('wav').onchange = (e) => e.target.files[0] && playWav(e.target.files[0]);

@@ -27,8 +27,8 @@ export async function serveStatic(dir) {
   return { origin: `http://127.0.0.1:${server.address().port}`, served, close: () => server.close() };
 }
 
-/** Headless chromium with a fake microphone playing `wav`. */
-export function launchChromium(wav) {
+/** Headless chromium with a fake microphone playing `wav`; `extra`: more command-line flags. */
+export function launchChromium(wav, extra = []) {
   return chromium.launch({
     executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
     headless: true,
@@ -38,6 +38,7 @@ export function launchChromium(wav) {
       '--use-fake-ui-for-media-stream', '--use-fake-device-for-media-stream',
       `--use-file-for-fake-audio-capture=${resolve(wav)}`,
       '--enable-unsafe-swiftshader', '--autoplay-policy=no-user-gesture-required',
+      ...extra,
     ],
   });
 }
