@@ -6,7 +6,7 @@
 #   3. the Rust build and the parity checks (torch vs ort vs tract) on those exports and on the shipped bundles
 #      with the oldest supported and the newest ONNX Runtime (JUnit reports in target/parity/);
 #   4. the Rust tests (runtime numerics, bundles, pipeline, CLI, serve, parity suite incl. its must-fail cases);
-#   5. the bindings: the C example and C# declarations (mono) against the CLI;
+#   5. the bindings: the Python module's wheel, the C example and C# declarations (mono) against the CLI;
 #   6. the serve protocol with independent Python/JS clients, BVH read back with a PyPI reader, and
 #      a rolling restart of serve replicas behind HAProxy, the deployment files checked statically;
 #   7. avatars: glTF and BVH of a real recording through the Khronos glTF validator and Blender's
@@ -39,6 +39,11 @@ export LIVEGESTURE_TEST_BUNDLE="$PWD/target/test-bundles/tiny"
 stage "export the DiffSHEG tiny config (random weights) -> target/test-bundles/diffsheg-tiny"
 "$LIVEGESTURE_PY" export/export.py --family diffsheg --config tiny --random-seed 0 --out target/test-bundles/diffsheg-tiny
 export LIVEGESTURE_DIFFSHEG_TINY_BUNDLE="$PWD/target/test-bundles/diffsheg-tiny"
+
+# The Python module (bindings/python, a workspace member) is compiled by the workspace build below and packed by
+# maturin in the stage "bindings": both read this PyO3 configuration (abi3, CPython >= 3.10; what maturin writes
+# itself on Linux), so maturin finds pyo3 and the module already built instead of compiling them again
+export PYO3_CONFIG_FILE="$PWD/bindings/python/pyo3-config.txt"
 
 stage "rust formatting (cargo fmt --check)"
 cargo fmt --all -- --check
@@ -85,7 +90,16 @@ else
   cargo test --workspace --release --no-fail-fast
 fi
 
-stage "bindings: the C example and the C# P/Invoke declarations vs the CLI"
+stage "bindings: the Python module (wheel), the C example and the C# P/Invoke declarations vs the CLI"
+# The wheel (docs/python.md): maturin into the project venv (not in python/requirements.txt, whose hash names
+# the cached venv). It builds in this target/, where the workspace build above compiled the module with the same
+# features and PyO3 configuration (PYO3_CONFIG_FILE), so it only packs the wheel (~3 s).
+"$LIVEGESTURE_VENV/bin/maturin" --version 2>/dev/null | grep -qx "maturin 1.16.0" || \
+  "$LIVEGESTURE_VENV/bin/pip" install -q maturin==1.16.0
+rm -rf target/wheels
+"$LIVEGESTURE_VENV/bin/maturin" build --release --manifest-path bindings/python/Cargo.toml \
+  --interpreter "$LIVEGESTURE_PY" --out target/wheels
+"$LIVEGESTURE_VENV/bin/pip" install -q --no-deps --force-reinstall target/wheels/livegesture_runtime-*.whl
 # the C library was built by the workspace build above (target/release/liblivegesture_c.{a,so})
 scripts/build_c_example.sh --prebuilt
 # Debian's mono compiles and runs the C# P/Invoke declarations of docs/c.md (bindings/tests/test_csharp.py)
@@ -93,9 +107,8 @@ if ! command -v mcs >/dev/null 2>&1 || ! command -v mono >/dev/null 2>&1; then
   if [ "$(id -u)" = 0 ]; then _sudo=""; else _sudo="sudo"; fi
   $_sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $_sudo apt-get install -y -qq mono-mcs >/dev/null
 fi
-# (bindings/tests/test_python.py needs the Python module, not yet built here: docs/python.md)
 LIVEGESTURE_BIN="$PWD/target/release/livegesture" "$LIVEGESTURE_PY" -m pytest -q \
-  bindings/tests/test_c_example.py bindings/tests/test_csharp.py
+  bindings/tests/test_python.py bindings/tests/test_c_example.py bindings/tests/test_csharp.py
 
 stage "serve and BVH: independent Python/JS clients vs generate, BVH read back by the bvh package"
 # (pyyaml: the Kubernetes manifests' check, runtime/tests/py/test_deploy_files.py)

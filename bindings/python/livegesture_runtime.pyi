@@ -36,7 +36,7 @@ class Model:
     """A loaded model bundle on one backend; thread-safe, makes any number of streams.
 
     ``path=None`` takes the default bundle: ``$LIVEGESTURE_BUNDLE``, else the ``models/default`` of
-    the checkout the module was built from. ``backend`` is ``"tract"`` (pure Rust, CPU) or ``"ort"``
+    the checkout the module was built from (docs/python.md#the-default-bundle). ``backend`` is ``"tract"`` (pure Rust, CPU) or ``"ort"``
     (ONNX Runtime, from ``ORT_DYLIB_PATH``, ``ort_lib`` or an installed ``onnxruntime`` package;
     ``ep`` its execution provider, ``threads`` its intra-op threads). ``form`` picks a LiveGesture
     bundle's graph form (``auto``, ``canonical``, ``fused``, ``attention``).
@@ -105,7 +105,7 @@ class Stream:
     """One stream's state. Push audio in chunks of any size, then finish(); usable from any thread
     (calls on one stream are serialised)."""
 
-    def push(self, pcm: Pcm, sample_rate: int) -> Frames:
+    def push(self, pcm: Pcm, sample_rate: int = 16000) -> Frames:
         """Pushes 1-D mono samples (float32 in [-1, 1], int16 as x / 32768, float64 cast to float32)
         at ``sample_rate`` Hz; returns the frames they complete. The first push fixes the rate; other
         rates are resampled to 16 kHz by the stream's own resampler. NaN or infinite samples are
@@ -116,12 +116,17 @@ class Stream:
     def reset(self) -> None:
         """Back to a cold start with the same options and seed (also after an error or finish())."""
     @property
-    def frames_emitted(self) -> int: ...
+    def frames_emitted(self) -> int:
+        """Frames emitted so far."""
     @property
-    def sample_rate(self) -> int | None: ...
+    def sample_rate(self) -> int | None:
+        """The sample rate fixed by the first push (None before it)."""
     @property
-    def guidance(self) -> float: ...
+    def guidance(self) -> float:
+        """The classifier-free guidance scale in use."""
     @property
-    def frames_per_unit(self) -> int: ...
+    def frames_per_unit(self) -> int:
+        """Frames emitted together (4 for LiveGesture's tokens; a window step for DiffSHEG)."""
     @property
-    def lookahead_frames(self) -> int: ...
+    def lookahead_frames(self) -> int:
+        """How far past a unit, in frames, the audio must reach before it is emitted (0 for LiveGesture)."""

@@ -17,6 +17,13 @@ FAMILIES = {
     "diffsheg": (ROOT / "models/diffsheg", ["--ddim-steps", "5"]),
 }
 BACKENDS = ["tract", "ort"]
+# the Python module's checks run the fresh tiny exports of both families (scripts/test.sh makes them and
+# exports these variables; fast), and models/default once
+TINY = {
+    "livegesture": (pathlib.Path(os.environ.get("LIVEGESTURE_TEST_BUNDLE", ROOT / "target/test-bundles/tiny")), []),
+    "diffsheg": (pathlib.Path(os.environ.get("LIVEGESTURE_DIFFSHEG_TINY_BUNDLE",
+                                             ROOT / "target/test-bundles/diffsheg-tiny")), ["--ddim-steps", "5"]),
+}
 
 
 def cli_options(extra):
@@ -103,14 +110,16 @@ def lgr():
 
 @pytest.fixture(scope="session")
 def models(lgr):
-    """Loaded models, cached per (family, backend)."""
+    """Models of the tiny bundles (TINY), loaded once per (family, backend)."""
     cache = {}
 
     def get(family, backend):
         if (family, backend) not in cache:
             if backend == "ort":
                 assert os.environ.get("ORT_DYLIB_PATH"), "ORT_DYLIB_PATH: source scripts/env.sh first"
-            cache[family, backend] = lgr.Model(FAMILIES[family][0], backend=backend)
+            bundle = TINY[family][0]
+            assert (bundle / "manifest.json").is_file(), f"{bundle}: export it first (scripts/test.sh does)"
+            cache[family, backend] = lgr.Model(bundle, backend=backend)
         return cache[family, backend]
 
     return get

@@ -1,18 +1,21 @@
 """livegesture_runtime against `livegesture generate`: whole inputs and chunked streams give the CLI's
-frames bit for bit (both families, both backends); bad input raises with the CLI's message."""
+frames bit for bit (both families on their tiny test bundles, both backends; models/default once); the GIL
+is released while the runtime computes; bad input raises with the CLI's message; a panic becomes an
+exception (docs/python.md)."""
 import ast
 import math
 import os
 import pathlib
 import shutil
+import sys
 import threading
 
 import numpy as np
 import pytest
 
-from conftest import BACKENDS, FAMILIES, ROOT, assert_same, cli_options, concat, write_wav
+from conftest import BACKENDS, ROOT, TINY, assert_same, cli_options, concat
 
-CASES = [(f, b) for f in FAMILIES for b in BACKENDS]
+CASES = [(f, b) for f in TINY for b in BACKENDS]
 # irregular chunk sizes, cycled (a push may complete no frame, or several)
 CHUNKS = [1000, 37, 4801, 1, 2999, 160]
 
@@ -27,20 +30,38 @@ def chunked_push(stream, pcm, rate):
     return concat(parts)
 
 
+def test_assert_same_can_fail(clips, models):
+    """The comparison the checks below use fails on one changed bit, a missing frame or a wrong dtype."""
+    wav, _ = clips[16000]
+    ref = models("livegesture", "tract").generate(str(wav), seed=7)
+    assert_same(ref, ref)
+    for change in ("bit", "frame", "dtype"):
+        bad = {k: v.copy() for k, v in ref.items()}
+        if change == "bit":
+            bad["expressions"].view(np.uint32)[3, 7] ^= 1
+        elif change == "frame":
+            bad = {k: v[:-1] for k, v in bad.items()}
+        else:
+            bad["poses"] = bad["poses"].astype(np.float64)
+        with pytest.raises(AssertionError):
+            assert_same(bad, ref)
+
+
 @pytest.mark.parametrize("family,backend", CASES)
 def test_generate_equals_cli(family, backend, models, cli, clips):
-    bundle, extra = FAMILIES[family]
+    bundle, extra = TINY[family]
     model = models(family, backend)
-    assert model.family == family and model.backend == backend
+    assert model.family == family and model.backend == backend and model.fps == 30
     opts = cli_options(extra)
-    wav, pcm = clips[16000]
-    ref = cli.generate(wav, bundle, backend, 7, extra)
-    assert len(ref["poses"]) == math.ceil(len(pcm) * 30 / 16000)
-    assert_same(model.generate(str(wav), seed=7, **opts), ref)
+    for rate in (16000, 22050):
+        wav, pcm = clips[rate]
+        ref = cli.generate(wav, bundle, backend, 7, extra)
+        assert len(ref["poses"]) == math.ceil(len(pcm) * 30 / rate)
+        assert_same(model.generate(str(wav), seed=7, **opts), ref)
+        # the same samples as an array: int16, and float32 (x / 32768, as the WAV reader converts)
+        assert_same(model.generate(pcm, sample_rate=rate, seed=7, **opts), ref)
+        assert_same(model.generate(pcm.astype(np.float32) / 32768, sample_rate=rate, seed=7, **opts), ref)
     assert_same(model.generate(pathlib.Path(wav), seed=7, **opts), ref)
-    # the same samples as an array: int16, and float32 (x / 32768, as the WAV reader converts)
-    assert_same(model.generate(pcm, sample_rate=16000, seed=7, **opts), ref)
-    assert_same(model.generate(pcm.astype(np.float32) / 32768, sample_rate=16000, seed=7, **opts), ref)
     # the comparison can fail: another seed gives other motion
     other = model.generate(str(wav), seed=8, **opts)
     assert not np.array_equal(other["poses"], ref["poses"])
@@ -48,82 +69,123 @@ def test_generate_equals_cli(family, backend, models, cli, clips):
 
 @pytest.mark.parametrize("family,backend", CASES)
 def test_chunked_push_equals_cli(family, backend, models, cli, clips):
-    bundle, extra = FAMILIES[family]
+    bundle, extra = TINY[family]
     model = models(family, backend)
     opts = cli_options(extra)
     for rate in (16000, 22050):
         wav, pcm = clips[rate]
         ref = cli.generate(wav, bundle, backend, 3, extra)
         stream = model.stream(seed=3, **opts)
-        assert_same(chunked_push(stream, pcm, rate), ref)
-        # reset: a cold start with the same seed gives the same frames
+        assert_same(chunked_push(stream, pcm, rate), ref)  # int16 chunks
+        assert stream.frames_emitted == len(ref["poses"]) and stream.sample_rate == rate
+        # reset: a cold start with the same seed; float32 chunks give the same frames
         stream.reset()
         assert stream.frames_emitted == 0 and stream.sample_rate is None
-        assert_same(chunked_push(stream, pcm, rate), ref)
-        # the whole input as one array at its own rate, through generate
-        assert_same(model.generate(pcm, sample_rate=rate, seed=3, **opts), ref)
+        assert_same(chunked_push(stream, pcm.astype(np.float32) / 32768, rate), ref)
+    # the comparison can fail: another seed
+    other = chunked_push(model.stream(seed=4, **opts), pcm, rate)
+    assert not np.array_equal(other["poses"], ref["poses"])
 
 
-def test_streams_on_threads_equal_sequential(models, clips):
-    model = models("livegesture", "tract")
-    _, pcm = clips[16000]
-    want = {s: chunked_push(model.stream(seed=s), pcm, 16000) for s in (1, 2, 3)}
-    got = {}
-
-    def run(seed):
-        got[seed] = chunked_push(model.stream(seed=seed), pcm, 16000)
-
-    threads = [threading.Thread(target=run, args=(s,)) for s in want]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
-    for s in want:
-        for k in want[s]:
-            assert np.array_equal(got[s][k], want[s][k])
+def test_default_bundle_equals_cli(lgr, cli, clips, monkeypatch):
+    """Model() with no path is models/default (docs/python.md#the-default-bundle); once on tract,
+    generate and a push loop equal the CLI's output for that bundle."""
+    monkeypatch.delenv("LIVEGESTURE_BUNDLE", raising=False)
+    model = lgr.Model()
+    assert pathlib.Path(model.path).resolve() == (ROOT / "models/default").resolve()
+    assert model.family == "livegesture" and model.backend == "tract"
+    wav, pcm = clips[22050]
+    ref = cli.generate(wav, ROOT / "models/default", "tract", 7)
+    assert_same(model.generate(str(wav), seed=7), ref)
+    assert_same(chunked_push(model.stream(seed=7), pcm, 22050), ref)
+    # $LIVEGESTURE_BUNDLE names another default
+    monkeypatch.setenv("LIVEGESTURE_BUNDLE", str(TINY["diffsheg"][0]))
+    assert lgr.Model().family == "diffsheg"
 
 
-def test_compute_releases_the_gil(models, speech):
-    """Python code on another thread runs while generate computes (it would not if the GIL were
-    held: the counting loop could not run at all until generate returned)."""
-    model = models("livegesture", "tract")
-    pcm = speech[: 16000 * 4]
+def runs_python_beside(call):
+    """Whether the main thread ran Python code while `call()` was running on another thread.
+
+    With a switch interval far longer than the test, a thread that holds the GIL keeps it until it blocks
+    or releases it: the main thread (waiting for the GIL) runs before `call` returns only if `call`
+    releases the GIL. The answer does not depend on timing."""
+    state = {"done": False}
     started = threading.Event()
 
     def work():
         started.set()
-        model.generate(pcm, sample_rate=16000, seed=0)
+        call()
+        state["done"] = True
 
-    t = threading.Thread(target=work)
-    t.start()
-    started.wait()
-    spins = 0
-    while t.is_alive():
-        spins += 1
-    t.join()
-    assert spins > 100_000, f"only {spins} iterations ran beside generate: the GIL was held"
+    old = sys.getswitchinterval()
+    sys.setswitchinterval(1000.0)
+    try:
+        t = threading.Thread(target=work)
+        t.start()
+        started.wait()  # blocks (GIL released) until work() runs; then waits for the GIL
+        ran_beside = not state["done"]
+        t.join()
+    finally:
+        sys.setswitchinterval(old)
+    assert state["done"]
+    return ran_beside
 
 
-def test_default_bundle_and_env(lgr, monkeypatch):
-    monkeypatch.delenv("LIVEGESTURE_BUNDLE", raising=False)
-    m = lgr.Model()
-    assert pathlib.Path(m.path).resolve() == (ROOT / "models/default").resolve()
-    assert m.family == "livegesture" and m.backend == "tract" and m.fps == 30
-    monkeypatch.setenv("LIVEGESTURE_BUNDLE", str(ROOT / "models/diffsheg"))
-    assert lgr.Model().family == "diffsheg"
+def test_compute_releases_the_gil(models, lgr, clips):
+    model = models("livegesture", "tract")
+    _, pcm = clips[16000]
+    stream = model.stream(seed=1)
+    assert runs_python_beside(lambda: model.generate(pcm, sample_rate=16000, seed=0))
+    assert runs_python_beside(lambda: stream.push(pcm, 16000))
+    assert runs_python_beside(lambda: stream.finish())
+    assert runs_python_beside(lambda: lgr.Model(TINY["diffsheg"][0]))
+    # the check can fail: Python code holds the GIL while it runs
+    assert not runs_python_beside(lambda: sum(i * i for i in range(200_000)))
+
+
+def test_streams_on_threads_equal_sequential(models, clips):
+    """Streams on several threads at once (each push releases the GIL), and one stream moved between
+    threads, give the frames of sequential runs."""
+    _, pcm = clips[22050]
+    for family in TINY:
+        model = models(family, "tract")
+        opts = cli_options(TINY[family][1])
+        want = {s: chunked_push(model.stream(seed=s, **opts), pcm, 22050) for s in (1, 2, 3)}
+        got = {}
+
+        def run(seed):
+            got[seed] = chunked_push(model.stream(seed=seed, **opts), pcm, 22050)
+
+        threads = [threading.Thread(target=run, args=(s,)) for s in want]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        for s in want:
+            assert_same(got[s], want[s])
+        assert not np.array_equal(want[1]["poses"], want[2]["poses"])
+        # one stream, its pushes alternating between two threads
+        stream, parts = model.stream(seed=2, **opts), []
+        for i in range(0, len(pcm), 3001):
+            t = threading.Thread(target=lambda c=pcm[i : i + 3001]: parts.append(stream.push(c, 22050)))
+            t.start()
+            t.join()
+        parts.append(stream.finish())
+        assert_same(concat(parts), want[2])
 
 
 def test_missing_and_non_wav_files_raise_the_cli_message(models, cli, tmp_path):
     model = models("livegesture", "tract")
+    bundle = TINY["livegesture"][0]
     missing = tmp_path / "missing.wav"
-    want = cli.error("generate", missing, "-o", tmp_path / "x.npz", "--bundle", FAMILIES["livegesture"][0])
+    want = cli.error("generate", missing, "-o", tmp_path / "x.npz", "--bundle", bundle)
     with pytest.raises(FileNotFoundError) as e:
         model.generate(str(missing))
-    assert str(e.value) == want
+    assert str(e.value) == want and str(missing) in want
     assert isinstance(e.value, OSError)
     text = tmp_path / "notes.wav"
     text.write_text("this is not audio\n")
-    want = cli.error("generate", text, "-o", tmp_path / "x.npz", "--bundle", FAMILIES["livegesture"][0])
+    want = cli.error("generate", text, "-o", tmp_path / "x.npz", "--bundle", bundle)
     with pytest.raises(ValueError) as e:
         model.generate(str(text))
     assert str(e.value) == want and "not a WAV file" in want
@@ -147,12 +209,10 @@ def test_nan_samples_are_refused_and_the_stream_goes_on(models, clips):
     # the refused chunk changed nothing: the rest gives the frames of the clean audio
     rest = s.push(x[5000:], 16000)
     got = concat([first, rest, s.finish()])
-    want = chunked_push(model.stream(seed=3), x, 16000)
-    for k in want:
-        assert np.array_equal(got[k], want[k])
+    assert_same(got, chunked_push(model.stream(seed=3), x, 16000))
 
 
-def test_wrong_bundles_raise(lgr, cli, tmp_path, clips):
+def test_wrong_bundles_raise_the_cli_message(lgr, cli, tmp_path, clips):
     wav, _ = clips[16000]
     # a folder that is not a bundle
     empty = tmp_path / "empty"
@@ -163,7 +223,7 @@ def test_wrong_bundles_raise(lgr, cli, tmp_path, clips):
     assert str(e.value) == want and "manifest.json not found" in want
     # a bundle whose graph was changed after export
     broken = tmp_path / "broken"
-    shutil.copytree(ROOT / "models/diffsheg", broken)
+    shutil.copytree(TINY["diffsheg"][0], broken)
     with open(broken / "denoiser.onnx", "r+b") as f:
         f.seek(100)
         b = f.read(1)
@@ -173,14 +233,22 @@ def test_wrong_bundles_raise(lgr, cli, tmp_path, clips):
     with pytest.raises(ValueError) as e:
         lgr.Model(broken)
     assert str(e.value) == want and "sha256 mismatch" in want
+    # a manifest that is not JSON
+    (broken / "manifest.json").write_text("{ not json")
+    want = cli.error("generate", wav, "-o", tmp_path / "x.npz", "--bundle", broken)
+    with pytest.raises(ValueError) as e:
+        lgr.Model(broken)
+    assert str(e.value) == want and "manifest.json" in want
     # a WAV file given as the bundle
-    with pytest.raises(OSError):
+    with pytest.raises(OSError, match="manifest.json"):
         lgr.Model(wav)
     with pytest.raises(ValueError, match="unknown backend 'onnx'"):
-        lgr.Model(ROOT / "models/default", backend="onnx")
+        lgr.Model(TINY["livegesture"][0], backend="onnx")
+    with pytest.raises(ValueError, match="needs backend=\"ort\""):
+        lgr.Model(TINY["livegesture"][0], ep="cuda")
 
 
-def test_bad_options_and_arguments_raise(models, clips, tmp_path):
+def test_bad_options_and_arguments_raise(models, clips):
     lg, ds = models("livegesture", "tract"), models("diffsheg", "tract")
     wav, pcm = clips[16000]
     with pytest.raises(ValueError, match="guidance must be a finite number"):
@@ -189,8 +257,8 @@ def test_bad_options_and_arguments_raise(models, clips, tmp_path):
         lg.stream(temperature=0.0)
     with pytest.raises(ValueError, match="--ddim-steps"):
         lg.stream(ddim_steps=5)
-    with pytest.raises(ValueError):
-        ds.stream(ddim_steps=7)  # must divide the training steps
+    with pytest.raises(ValueError, match="DDIM steps must divide 1000"):
+        ds.stream(ddim_steps=7)
     with pytest.raises(ValueError, match="sample_rate is required"):
         lg.generate(pcm)
     with pytest.raises(ValueError, match="whose header gives the rate"):
@@ -199,10 +267,16 @@ def test_bad_options_and_arguments_raise(models, clips, tmp_path):
         lg.generate(np.zeros(0, np.float32), sample_rate=16000)
     with pytest.raises(TypeError, match="1-D numpy array"):
         lg.stream().push([0.0, 0.1], 16000)
+    with pytest.raises(TypeError, match="WAV file path"):
+        lg.generate(12345)
     with pytest.raises(ValueError, match="1-D"):
         lg.stream().push(np.zeros((100, 2), np.float32), 16000)
     with pytest.raises(ValueError, match="dtype int32 is not supported"):
         lg.stream().push(np.zeros(100, np.int32), 16000)
+    with pytest.raises(ValueError, match="dtype >f4 is not supported"):
+        lg.stream().push(np.zeros(100, ">f4"), 16000)
+    with pytest.raises(OverflowError):
+        lg.stream(seed=-1)
     s = lg.stream()
     s.push(pcm[:1000], 16000)
     with pytest.raises(ValueError, match="differs from the 16000 Hz"):
@@ -217,24 +291,51 @@ def test_bad_options_and_arguments_raise(models, clips, tmp_path):
     s.reset()
     s.push(pcm[:100], 44100)  # after reset, another rate
     assert s.sample_rate == 44100
+    # a strided view is read as its elements
+    every_other = np.repeat(pcm[:4000], 2)[::2]
+    assert not every_other.flags.c_contiguous
+    assert_same(lg.generate(every_other, sample_rate=16000, seed=5),
+                lg.generate(np.ascontiguousarray(every_other), sample_rate=16000, seed=5))
+
+
+def test_a_panic_becomes_a_runtime_error(lgr, models, clips):
+    with pytest.raises(RuntimeError, match="internal error .*a deliberate panic"):
+        lgr._panic_for_test()
+    _, pcm = clips[16000]
+    s = models("livegesture", "tract").stream(seed=1)
+    s.push(pcm[:1000], 16000)
+    with pytest.raises(RuntimeError, match="deliberate panic inside a stream call"):
+        lgr._panic_for_test(s)
+    # the stream refuses work until reset() (its state may be half-updated)
+    with pytest.raises(RuntimeError, match=r"reset\(\) the stream"):
+        s.push(pcm[1000:2000], 16000)
+    s.reset()
+    assert_same(chunked_push(s, pcm, 16000), chunked_push(models("livegesture", "tract").stream(seed=1), pcm, 16000))
 
 
 def test_an_empty_stream_finishes_with_no_frames(models):
     out = models("livegesture", "tract").stream().finish()
     assert out["poses"].shape == (0, 165) and out["index"].shape == (0,)
+    assert out["poses"].dtype == np.float32 and out["index"].dtype == np.int64
 
 
 def test_stubs_match_the_module(lgr):
     """The installed .pyi names every public class, method and property of the module, and the wheel
-    carries py.typed."""
+    carries py.typed; every public item has a docstring."""
     pkg = pathlib.Path(lgr.__file__).parent
-    stub = next(p for p in [pkg / "livegesture_runtime.pyi", pkg / "__init__.pyi",
-                            pathlib.Path(lgr.__file__).with_suffix(".pyi")] if p.exists())
+    stubs = [p for p in (pkg / "__init__.pyi", pkg / "livegesture_runtime.pyi") if p.exists()]
+    assert stubs, f"no type stubs beside {lgr.__file__}"
     assert (pkg / "py.typed").exists()
-    tree = ast.parse(stub.read_text())
+    tree = ast.parse(stubs[0].read_text())
     classes = {n.name: {f.name for f in n.body if isinstance(f, ast.FunctionDef)}
                for n in tree.body if isinstance(n, ast.ClassDef)}
+    names = {t.id for n in tree.body if isinstance(n, ast.AnnAssign) for t in [n.target]}
     for cls in ("Model", "Stream"):
         public = {a for a in dir(getattr(lgr, cls)) if not a.startswith("_")}
         assert public == classes[cls] - {"__init__"}, cls
-    assert os.path.basename(stub) in ("livegesture_runtime.pyi", "__init__.pyi")
+        assert getattr(lgr, cls).__doc__
+        for a in public:
+            assert getattr(getattr(lgr, cls), a).__doc__, f"{cls}.{a} has no docstring"
+    module_public = {a for a in dir(lgr) if not a.startswith("_")} - {"livegesture_runtime"}
+    assert module_public == (set(classes) - {"Frames"}) | (names - {"__version__"}), module_public
+    assert lgr.__doc__ and lgr.__version__ and lgr.FPS == 30 and lgr.POSE_DIM == 165

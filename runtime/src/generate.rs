@@ -201,6 +201,17 @@ pub fn generate_pcm(
     })
 }
 
+/// The message a binding reports for a panic it caught ([`std::panic::catch_unwind`]) in `what`: the
+/// panic's text, so that no panic crosses into C or Python as a crash.
+pub fn panic_message(what: &str, payload: &(dyn std::any::Any + Send)) -> String {
+    let detail = payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".into());
+    format!("{what}: internal error (a panic in the runtime: {detail}); please report it")
+}
+
 /// Converts 16-bit PCM to `f32` as the WAV reader does: `x / 32768`, in `[-1, 1)`.
 pub fn i16_to_f32(samples: &[i16]) -> Vec<f32> {
     samples.iter().map(|&x| f32::from(x) / 32768.0).collect()
@@ -366,6 +377,19 @@ mod tests {
             "clip: sample 11 is NaN; expected finite samples (no NaN or infinity)"
         );
         assert!(check_finite(&[f32::INFINITY], "x", 0).is_err());
+    }
+
+    #[test]
+    fn a_panic_message_names_the_call_and_the_panic() {
+        let p = std::panic::catch_unwind(|| panic!("boom {}", 1)).unwrap_err();
+        assert_eq!(
+            panic_message("lg_x", p.as_ref()),
+            "lg_x: internal error (a panic in the runtime: boom 1); please report it"
+        );
+        let p = std::panic::catch_unwind(|| panic!("static")).unwrap_err();
+        assert!(panic_message("f", p.as_ref()).contains("runtime: static)"));
+        let p = std::panic::catch_unwind(|| std::panic::panic_any(7u8)).unwrap_err();
+        assert!(panic_message("f", p.as_ref()).contains("unknown panic"));
     }
 
     #[test]

@@ -141,14 +141,7 @@ fn ffi(what: &str, f: impl FnOnce() -> Result<()>) -> LgStatus {
             }
         }
         Err(p) => {
-            let detail = p
-                .downcast_ref::<&str>()
-                .map(|s| s.to_string())
-                .or_else(|| p.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "unknown panic".into());
-            set_error(&format!(
-                "{what}: internal error (a panic in the runtime: {detail}); please report it"
-            ));
+            set_error(&generate::panic_message(what, p.as_ref()));
             LgStatus::Panic
         }
     }

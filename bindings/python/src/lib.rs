@@ -45,16 +45,10 @@ fn compute<T: Send>(
 ) -> PyResult<T> {
     py.detach(|| match catch_unwind(AssertUnwindSafe(f)) {
         Ok(r) => r.map_err(to_py),
-        Err(p) => {
-            let detail = p
-                .downcast_ref::<&str>()
-                .map(|s| s.to_string())
-                .or_else(|| p.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "unknown panic".into());
-            Err(PyRuntimeError::new_err(format!(
-                "{what}: internal error (a panic in the runtime: {detail}); please report it"
-            )))
-        }
+        Err(p) => Err(PyRuntimeError::new_err(generate::panic_message(
+            what,
+            p.as_ref(),
+        ))),
     })
 }
 
@@ -155,9 +149,24 @@ fn options(
     }
 }
 
-/// A loaded model bundle on one backend. Thread-safe: any number of streams, on any threads.
+/// The bundle of `Model()` without a path (docs/python.md#the-default-bundle): `$LIVEGESTURE_BUNDLE`,
+/// else the `models/default` of the checkout the module was built from. Unlike the CLI's
+/// [`livegesture::bundle::default_bundle_dir`], no bundle beside the executable: that is the Python
+/// interpreter here.
+fn default_bundle() -> PathBuf {
+    match std::env::var_os(livegesture::bundle::BUNDLE_ENV).filter(|v| !v.is_empty()) {
+        Some(v) => PathBuf::from(v),
+        None => livegesture::bundle::repo_default_bundle(),
+    }
+}
+
+/// A loaded and verified model bundle on one backend; thread-safe, makes any number of streams.
 ///
-/// Model(path=None, backend="tract", *, ep="cpu", threads=1, ort_lib=None, form="auto")
+/// path: the bundle folder (None: $LIVEGESTURE_BUNDLE, else the models/default of the checkout the
+/// module was built from). backend: "tract" (pure Rust, CPU) or "ort" (ONNX Runtime from ort_lib,
+/// $ORT_DYLIB_PATH or an installed onnxruntime package; ep its execution provider, threads its
+/// intra-op threads). form: a LiveGesture bundle's graph form (auto, canonical, fused, attention).
+/// Raises FileNotFoundError / ValueError with the CLI's message for a missing or broken bundle.
 #[pyclass(module = "livegesture_runtime", frozen)]
 struct Model {
     inner: Arc<dyn MotionModel>,
@@ -190,7 +199,7 @@ impl Model {
             intra_threads: threads.max(1),
             ort_library: ort_lib,
         };
-        let dir = livegesture::bundle::default_bundle_dir(path.as_deref());
+        let dir = path.unwrap_or_else(default_bundle);
         let model = compute(py, "loading the model", || {
             generate::open_model(Some(&dir), &opts, form)
         })?;
@@ -229,6 +238,7 @@ impl Model {
     #[allow(clippy::too_many_arguments)]
     fn stream(
         &self,
+        py: Python<'_>,
         seed: u64,
         guidance: Option<f64>,
         temperature: Option<f64>,
@@ -252,7 +262,8 @@ impl Model {
             blend_steps,
             speaker,
         );
-        let inner = generate::new_stream(self.inner.as_ref(), &opts).map_err(to_py)?;
+        let model = self.inner.as_ref();
+        let inner = compute(py, "stream", || generate::new_stream(model, &opts))?;
         Ok(Stream {
             inner: Mutex::new(PcmStream::new(inner, "stream")),
         })
@@ -345,6 +356,23 @@ impl Stream {
         compute(py, "stream", || Ok(f(&*self.lock()?)))
     }
 
+    /// `push`, with the seconds `PcmStream::push` took.
+    fn push_timed<'py>(
+        &self,
+        py: Python<'py>,
+        pcm: &Bound<'py, PyAny>,
+        sample_rate: u32,
+    ) -> PyResult<(Bound<'py, PyDict>, f64)> {
+        let samples = samples_of(pcm)?;
+        let (frames, core) = compute(py, "stream.push", || {
+            let mut stream = self.lock()?;
+            let t0 = std::time::Instant::now();
+            let frames = stream.push(&samples, sample_rate)?;
+            Ok((frames, t0.elapsed().as_secs_f64()))
+        })?;
+        Ok((frames_dict(py, &frames)?, core))
+    }
+
     /// The stream, or an error if an earlier call panicked (then only reset() recovers it).
     fn lock(&self) -> anyhow::Result<MutexGuard<'_, PcmStream>> {
         self.inner.lock().map_err(|_| {
@@ -359,17 +387,27 @@ impl Stream {
 impl Stream {
     /// Pushes mono samples (1-D float32 in [-1, 1] or int16) at sample_rate Hz; returns the frames
     /// they complete. The first push fixes the stream's rate.
+    #[pyo3(signature = (pcm, sample_rate=16000))]
     fn push<'py>(
         &self,
         py: Python<'py>,
         pcm: &Bound<'py, PyAny>,
         sample_rate: u32,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let samples = samples_of(pcm)?;
-        let frames = compute(py, "stream.push", || {
-            self.lock()?.push(&samples, sample_rate)
-        })?;
-        frames_dict(py, &frames)
+        Ok(self.push_timed(py, pcm, sample_rate)?.0)
+    }
+
+    /// Benchmark hook (bindings/python/bench_overhead.py): `push`, and the seconds its Rust core
+    /// (`PcmStream::push`) took inside it, so that the binding's own cost per call is measured on the
+    /// same call.
+    #[pyo3(signature = (pcm, sample_rate=16000))]
+    fn _push_timed<'py>(
+        &self,
+        py: Python<'py>,
+        pcm: &Bound<'py, PyAny>,
+        sample_rate: u32,
+    ) -> PyResult<(Bound<'py, PyDict>, f64)> {
+        self.push_timed(py, pcm, sample_rate)
     }
 
     /// Ends the input: the remaining frames, so that the stream's frames cover everything pushed
@@ -453,12 +491,28 @@ fn _bench_push_audio(
     })
 }
 
+/// Test hook (bindings/tests/test_python.py): panics inside a computation, as a bug in the runtime
+/// would; with a stream, while that stream's call holds its state. Shows that a panic becomes a
+/// `RuntimeError` and that the stream refuses work until `reset()`.
+#[pyfunction]
+#[pyo3(signature = (stream=None))]
+fn _panic_for_test(py: Python<'_>, stream: Option<&Stream>) -> PyResult<()> {
+    compute(py, "_panic_for_test", || match stream {
+        Some(s) => {
+            let _guard = s.lock()?;
+            panic!("a deliberate panic inside a stream call")
+        }
+        None => panic!("a deliberate panic"),
+    })
+}
+
 /// The LiveGesture runtime: speech audio in, SMPL-X motion frames out (docs/python.md).
 #[pymodule]
 fn livegesture_runtime(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Model>()?;
     m.add_class::<Stream>()?;
     m.add_function(wrap_pyfunction!(_bench_push_audio, m)?)?;
+    m.add_function(wrap_pyfunction!(_panic_for_test, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("FPS", livegesture::output::FPS)?;
     m.add("POSE_DIM", POSE_DIM)?;
