@@ -254,20 +254,28 @@ impl Tensor {
         Ok(Tensor { shape, data })
     }
 
-    /// Appends the rows of `other` (same dtype and row shape) on the batch axis, in place: the buffer
-    /// grows only when its capacity is exceeded.
-    pub fn append_rows(&mut self, other: &Tensor) -> Result<()> {
+    /// Fails unless `other` has this tensor's dtype and row shape (every axis but the batch axis),
+    /// naming both shapes: "cannot {verb} a tensor of shape .. ({dtype}) {preposition} a tensor of
+    /// shape .. ({dtype})".
+    fn ensure_same_rows(&self, other: &Tensor, verb: &str, preposition: &str) -> Result<()> {
         ensure!(
             !self.shape.is_empty()
                 && self.shape.len() == other.shape.len()
                 && self.shape[1..] == other.shape[1..]
                 && self.dtype() == other.dtype(),
-            "cannot append rows of shape {:?} ({}) to a tensor of shape {:?} ({})",
-            other.shape,
-            other.dtype(),
+            "cannot {verb} a tensor of shape {:?} ({}) {preposition} a tensor of shape {:?} ({})",
             self.shape,
-            self.dtype()
+            self.dtype(),
+            other.shape,
+            other.dtype()
         );
+        Ok(())
+    }
+
+    /// Appends the rows of `other` (same dtype and row shape) on the batch axis, in place: the buffer
+    /// grows only when its capacity is exceeded.
+    pub fn append_rows(&mut self, other: &Tensor) -> Result<()> {
+        other.ensure_same_rows(self, "append rows of", "to")?;
         match (&mut self.data, &other.data) {
             (TensorData::F32(a), TensorData::F32(b)) => a.extend_from_slice(b),
             (TensorData::I64(a), TensorData::I64(b)) => a.extend_from_slice(b),
@@ -281,17 +289,7 @@ impl Tensor {
     /// in place (no intermediate copy).
     pub fn append_rows_of(&mut self, src: &Tensor, start: usize, count: usize) -> Result<()> {
         src.check_rows(start, count)?;
-        ensure!(
-            !self.shape.is_empty()
-                && self.shape.len() == src.shape.len()
-                && self.shape[1..] == src.shape[1..]
-                && self.dtype() == src.dtype(),
-            "cannot append rows of shape {:?} ({}) to a tensor of shape {:?} ({})",
-            src.shape,
-            src.dtype(),
-            self.shape,
-            self.dtype()
-        );
+        src.ensure_same_rows(self, "append rows of", "to")?;
         let rl = src.row_len();
         let range = start * rl..(start + count) * rl;
         match (&mut self.data, &src.data) {
@@ -354,16 +352,7 @@ impl Tensor {
             .ok_or_else(|| anyhow::anyhow!("stack of no tensors"))?;
         let mut batch = 0;
         for p in parts {
-            ensure!(
-                p.shape.len() == first.shape.len()
-                    && p.shape[1..] == first.shape[1..]
-                    && p.dtype() == first.dtype(),
-                "cannot stack tensors of shapes {:?} ({}) and {:?} ({})",
-                first.shape,
-                first.dtype(),
-                p.shape,
-                p.dtype()
-            );
+            first.ensure_same_rows(p, "stack", "with")?;
             batch += p.batch();
         }
         let mut shape = first.shape.clone();
@@ -404,16 +393,7 @@ impl Tensor {
     pub fn copy_rows_to(&self, start: usize, dst: &mut Tensor) -> Result<()> {
         let count = dst.batch();
         self.check_rows(start, count)?;
-        ensure!(
-            dst.shape.len() == self.shape.len()
-                && dst.shape[1..] == self.shape[1..]
-                && dst.dtype() == self.dtype(),
-            "cannot copy rows of shape {:?} ({}) into a tensor of shape {:?} ({})",
-            self.shape,
-            self.dtype(),
-            dst.shape,
-            dst.dtype()
-        );
+        self.ensure_same_rows(dst, "copy rows of", "into")?;
         let rl = self.row_len();
         let range = start * rl..(start + count) * rl;
         match (&self.data, &mut dst.data) {
@@ -476,6 +456,15 @@ mod tests {
         t.append_rows_of(&a, 0, 1).unwrap();
         assert_eq!(t.as_f32("t").unwrap(), &[5.0, 6.0, 1.0, 2.0]);
         assert!(t.append_rows_of(&b, 1, 2).is_err());
+        // the refusal names both shapes and dtypes
+        let e = t
+            .append_rows_of(&Tensor::zeros(DType::I64, vec![1, 3]), 0, 1)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("[1, 3] (int64)") && e.contains("[2, 2] (float32)"),
+            "{e}"
+        );
         // another dtype than the buffer's: a fresh one
         let i = Tensor::i64(vec![2], vec![4, 7]).unwrap();
         s.stack_from(&[&i, &i]).unwrap();
