@@ -1,6 +1,6 @@
 //! [`StreamBatch`]: streams stepped together with their caches kept stacked between steps.
 
-use anyhow::{ensure, Context, Result};
+use anyhow::{anyhow, ensure, Context, Result};
 use ndarray::Array2;
 
 use super::caches::Caches;
@@ -258,28 +258,10 @@ impl StreamBatch {
             .iter()
             .map(|m| m.state.branch_rows())
             .sum();
-        let mut out = self.empty.clone();
-        for slot in self.empty.slots() {
-            let (start, count) = if slot.branched() {
-                (start_b, branch)
-            } else {
-                (i, 1)
-            };
-            let ts = self.caches.slot_mut(slot);
-            let mine = ts
-                .iter()
-                .map(|t| t.rows(start, count))
-                .collect::<Result<Vec<_>>>()?;
-            for t in ts.iter_mut() {
-                if swap {
-                    t.swap_remove_rows(start, count)?;
-                } else {
-                    t.remove_rows(start, count)?;
-                }
-            }
-            *out.slot_mut(slot) = mine;
-        }
-        Ok(out)
+        let out = self
+            .caches
+            .remove_stream_rows((start_b, branch, i), swap, Some(&self.empty))?;
+        out.ok_or_else(|| anyhow!("the removed rows were not kept"))
     }
 
     /// Drops the (possibly incomplete) caches and refuses further steps until the batch is emptied.

@@ -65,6 +65,41 @@ impl Caches {
         }
     }
 
+    /// Removes one stream's rows from every slot of these stacked caches: `branch` rows from
+    /// `branch_start` in the branched graphs, row `row` in the others. `swap` moves the tail block
+    /// (as many rows) into their place instead of shifting the later rows. With `keep` (the empty
+    /// layout), returns a copy of the removed rows.
+    pub(super) fn remove_stream_rows(
+        &mut self,
+        (branch_start, branch, row): (usize, usize, usize),
+        swap: bool,
+        keep: Option<&Caches>,
+    ) -> Result<Option<Caches>> {
+        let mut out = keep.cloned();
+        for slot in self.slots() {
+            let (start, count) = if slot.branched() {
+                (branch_start, branch)
+            } else {
+                (row, 1)
+            };
+            let ts = self.slot_mut(slot);
+            if let Some(out) = out.as_mut() {
+                *out.slot_mut(slot) = ts
+                    .iter()
+                    .map(|t| t.rows(start, count))
+                    .collect::<Result<Vec<_>>>()?;
+            }
+            for t in ts.iter_mut() {
+                if swap {
+                    t.swap_remove_rows(start, count)?;
+                } else {
+                    t.remove_rows(start, count)?;
+                }
+            }
+        }
+        Ok(out)
+    }
+
     /// Zero caches like `template`'s (same tensors and row shapes) with `rows` rows in the branched
     /// graphs and one row in the others.
     pub(super) fn zeros_like(template: &Caches, branch_rows: usize) -> Caches {

@@ -94,24 +94,12 @@ impl Cohort {
     fn remove(&mut self, i: usize, keep: bool, empty: &Caches) -> Result<Option<Caches>> {
         let last = self.keys.len() - 1;
         let swap = i != last && self.branch[last] == self.branch[i];
-        let mut out = keep.then(|| empty.clone());
-        for slot in self.caches.slots() {
-            let (start, count) = self.rows_of(i, slot.branched());
-            let ts = self.caches.slot_mut(slot);
-            if let Some(out) = out.as_mut() {
-                *out.slot_mut(slot) = ts
-                    .iter()
-                    .map(|t| t.rows(start, count))
-                    .collect::<Result<Vec<_>>>()?;
-            }
-            for t in ts.iter_mut() {
-                if swap {
-                    t.swap_remove_rows(start, count)?;
-                } else {
-                    t.remove_rows(start, count)?;
-                }
-            }
-        }
+        let (branch_start, branch) = self.rows_of(i, true);
+        let out = self.caches.remove_stream_rows(
+            (branch_start, branch, i),
+            swap,
+            keep.then_some(empty),
+        )?;
         if swap {
             self.keys.swap_remove(i);
             self.branch.swap_remove(i);
