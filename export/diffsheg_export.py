@@ -28,9 +28,9 @@ from livegesture.diffsheg.foppas import SamplerOptions, TorchBackend, generate_c
 from livegesture.diffsheg.model import DiffSHEG, motion_layout
 from livegesture.frontend import logmel
 
-from bundle_writer import (OPSET, export_provenance, file_table, manifest_head, reference_audio, save_stamped,
+from .bundle_writer import (OPSET, export_provenance, file_table, manifest_head, reference_audio, save_stamped,
                            write_manifest, write_wav)
-from verify import ExportCheckError
+from .verify import ExportCheckError
 
 ORT_VS_TORCH = 1e-5
 # normalised motion, whole rollout, onnxruntime vs torch: the project's rollout frame bound (docs/parity.md), not the

@@ -24,11 +24,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent / "python"))
+if __name__ == "__main__" and not __package__:
+    # run as a file (python export/export.py): run the package module, as `python -m export.export` from the
+    # repository root does (the repository root instead of export/ first on the module path)
+    import runpy
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+    runpy.run_module("export.export", run_name="__main__", alter_sys=True)
+    raise SystemExit(0)
 
 from livegesture import checkpoint as ckpt  # noqa: E402
+from livegesture import families  # noqa: E402
 from livegesture.compare import diff  # noqa: E402
 from livegesture.frontend import logmel  # noqa: E402
 from livegesture.regions import REGION_NAMES  # noqa: E402
@@ -40,12 +45,12 @@ from livegesture.forms.experts_fused import FUSED_EXPERTS, check_fused_experts  
 from livegesture.forms.fusion_attention import ATTENTION_FORM, FUSION_ATTENTION, check_fusion_attention  # noqa: E402
 from livegesture.models.layers import ATTENTION_DOMAIN  # noqa: E402
 
-from graphs import (ATTENTION_OPSET, StepGraph, attention_components, call_step, component, data_io,  # noqa: E402
+from .graphs import (ATTENTION_OPSET, StepGraph, attention_components, call_step, component, data_io,  # noqa: E402
                     fused_components, random_inputs, to_attention_opset)
-from bundle_writer import (OPSET, SCHEMA_VERSION, absolute_paths, checkpoint_record, export_provenance,  # noqa: E402
+from .bundle_writer import (OPSET, SCHEMA_VERSION, absolute_paths, checkpoint_record, export_provenance,  # noqa: E402
                            file_table, manifest_head, reference_audio, relative_paths, save_stamped, sha256,
                            staged_folder, write_manifest, write_wav)
-from verify import (ExportCheckError, check_onnx_structure, check_ort_vs_torch, check_step_vs_offline,  # noqa: E402
+from .verify import (ExportCheckError, check_onnx_structure, check_ort_vs_torch, check_step_vs_offline,  # noqa: E402
                     fail)
 
 REFERENCE_STEPS = 10
@@ -314,8 +319,8 @@ def main(argv=None):
     src.add_argument("--checkpoint", help="trained checkpoint (.pt) written by livegesture.train")
     src.add_argument("--config", help="export random weights of this config (tiny, default, paper)")
     ap.add_argument("--random-seed", type=int, default=0, help="seed of the random weights (with --config)")
-    ap.add_argument("--family", choices=("livegesture", "diffsheg"), default=None,
-                    help="model family of --config (default livegesture); a checkpoint names its own family")
+    ap.add_argument("--family", choices=families.NAMES, default=None,
+                    help=f"model family of --config (default {families.DEFAULT.name}); a checkpoint names its own family")
     ap.add_argument("--out", required=True, help="bundle folder to write (replaced atomically)")
     ap.add_argument("--reference-wav", help="reference speech clip (default: a synthetic speech-like signal)")
     ap.add_argument("--reference-seconds", type=float, default=30.0)
@@ -345,9 +350,9 @@ def main(argv=None):
         except (OSError, ValueError) as e:
             print(f"export failed: {e}", file=sys.stderr)
             return 2
-        if args.family and args.family != getattr(model, "family", "livegesture"):
+        if args.family and families.get(args.family) is not families.of_model(model):
             print(f"export failed: --family {args.family} but {args.checkpoint} is a "
-                  f"{getattr(model, 'family', 'livegesture')} checkpoint", file=sys.stderr)
+                  f"{families.of_model(model).name} checkpoint", file=sys.stderr)
             return 2
         provenance = dict(getattr(model, "provenance", {}))
         trained_as = provenance.pop("checkpoint", None)
@@ -355,7 +360,7 @@ def main(argv=None):
             provenance["checkpoint_when_trained"] = trained_as
     else:
         try:
-            model = ckpt.random_model(args.config, args.random_seed, family=args.family or "livegesture")
+            model = ckpt.random_model(args.config, args.random_seed, family=families.get(args.family).name)
         except ValueError as e:
             print(f"export failed: {e}", file=sys.stderr)
             return 2
@@ -374,10 +379,11 @@ def main(argv=None):
     # a bundle names files, never where they were on the machine that trained or exported it
     provenance = relative_paths(provenance)
     out = Path(args.out).resolve()
-    family = getattr(model, "family", "livegesture")
+    fam = families.of_model(model)
+    family = fam.name
     sampler = {k: v for k, v in (("guidance", args.guidance), ("jumps", args.jumps)) if v is not None}
     if sampler:
-        if family != "diffsheg":
+        if not set(sampler) <= set(fam.export_options):
             print(f"export failed: --{' / --'.join(sampler)} set a DiffSHEG bundle's sampler defaults; "
                   f"this is a {family} model", file=sys.stderr)
             return 2
@@ -410,10 +416,8 @@ def main(argv=None):
         print(f"export failed: --backend-forms {args.backend_forms}: expected BACKEND=FORM pairs "
               f"(backends ort, tract; forms {', '.join(FORMS)})", file=sys.stderr)
         return 2
-    kw = {"forms": tuple(forms), "backend_forms": backend_forms}
-    if family == "diffsheg":
-        import diffsheg_export
-        kw = {"builder": diffsheg_export.build, "rollout_windows": args.rollout_windows}
+    given = {"forms": tuple(forms), "backend_forms": backend_forms, "rollout_windows": args.rollout_windows}
+    kw = {"builder": fam.resolve(fam.exporter), **{k: given[k] for k in fam.export_options if k in given}}
     try:
         build_bundle(model, out, provenance=provenance, reference_wav=args.reference_wav,
                      ref_seconds=args.reference_seconds, rollout_tokens=args.rollout_tokens, **kw)

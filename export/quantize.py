@@ -62,14 +62,17 @@ from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-ROOT = HERE.parent
-sys.path.insert(0, str(ROOT / "python"))
-sys.path.insert(0, str(ROOT / "bench"))
+if __name__ == "__main__" and not __package__:
+    # run as a file (python export/quantize.py): run the package module, as `python -m export.quantize` from the
+    # repository root does (the repository root instead of export/ first on the module path)
+    import runpy
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+    runpy.run_module("export.quantize", run_name="__main__", alter_sys=True)
+    raise SystemExit(0)
 
 from livegesture.compare import diff  # noqa: E402
+from livegesture.ort_chain import Chain, Streams, reference, token_mels  # noqa: E402
 from livegesture.sampling import guide  # noqa: E402
-from ort_python_peer import Chain, Streams, reference, token_mels  # noqa: E402
 
 PRECISIONS = ("int8", "f16", "bf16", "float16", "bfloat16")
 # The stated bound of a reduced graph against the f32 torch reference vectors: the measured scaled error times
@@ -332,7 +335,7 @@ class LoggingChain(Chain):
 
 def build(src: Path, out: Path, precision: str, per_channel: bool, log=print, activations: str = "dynamic") -> dict:
     import onnxruntime as ort
-    from bundle_writer import export_provenance, file_table, sha256, staged_folder
+    from .bundle_writer import export_provenance, file_table, sha256, staged_folder
     if precision not in WEIGHTS:
         raise ValueError(f"--precision {precision}: supported are {', '.join(PRECISIONS)}")
     weights = WEIGHTS[precision]

@@ -19,7 +19,7 @@ from livegesture.compare import diff
 from livegesture.models.model import LiveGesture
 from livegesture.regions import REGION_NAMES
 
-from graphs import call_step, component, random_inputs
+from .graphs import call_step, component, random_inputs
 
 STEP_VS_OFFLINE = 1e-5
 ORT_VS_TORCH = 1e-5

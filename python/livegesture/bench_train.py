@@ -35,6 +35,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from . import families
+
 VARIANTS = {"before": dict(amp="off", prefetch=0), "after": dict(), "compile": dict(compile=True)}
 
 
@@ -164,7 +166,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", required=True, help="BEAT2-layout corpus (e.g. python -m livegesture.data.synth output)")
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
-    ap.add_argument("--families", default="livegesture,diffsheg")
+    ap.add_argument("--families", default=",".join(families.NAMES))
     ap.add_argument("--configs", default="default,paper")
     ap.add_argument("--variants", default="before,after", help="before, after, compile (comma-separated)")
     ap.add_argument("--warmup", type=int, default=5, help="untimed steps per stage")
@@ -182,7 +184,6 @@ def main(argv=None) -> int:
         raise SystemExit(f"--variants: unknown {bad}; choose from {sorted(VARIANTS)}")
     if not Path(args.data).is_dir():
         raise SystemExit(f"--data {args.data}: no such corpus folder")
-    runners = {"livegesture": bench_livegesture, "diffsheg": bench_diffsheg}
     gpu = GpuSampler()
     rows = []
     tmp = tempfile.mkdtemp(prefix="bench_train_")
@@ -191,12 +192,14 @@ def main(argv=None) -> int:
     print(json.dumps(meta), flush=True)
     try:
         for fam in [f for f in args.families.split(",") if f]:
-            if fam not in runners:
-                raise SystemExit(f"--families: unknown {fam!r}")
+            try:
+                runner = families.get(fam).resolve(families.get(fam).train_bench)
+            except ValueError as e:
+                raise SystemExit(f"--families: {e}") from None
             for config in [c for c in args.configs.split(",") if c]:
                 for v in variants:
                     t0 = time.time()
-                    rows += runners[fam](config, args.data, args.device, v, args.warmup, args.steps, gpu, tmp)
+                    rows += runner(config, args.data, args.device, v, args.warmup, args.steps, gpu, tmp)
                     print(f"# {fam} {config} {v}: {time.time() - t0:.0f} s", file=sys.stderr, flush=True)
     finally:
         gpu.close()

@@ -7,21 +7,21 @@ from pathlib import Path
 
 import torch
 
-from .config import LiveGestureConfig, get_config
-from .models.model import LiveGesture
+from . import families
 
 FORMAT = "livegesture-checkpoint"
 VERSION = 1
 
 
-def save(model: LiveGesture, path: str | os.PathLike, provenance: dict | None = None, extra: dict | None = None):
+def save(model, path: str | os.PathLike, provenance: dict | None = None, extra: dict | None = None):
     """Write atomically (temp file + rename): an interrupted save never leaves a half-written checkpoint."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {"format": FORMAT, "version": VERSION, "config": model.cfg.to_dict(),
                "state_dict": model.state_dict(), "provenance": provenance or {}, "extra": extra or {}}
-    if getattr(model, "family", "livegesture") != "livegesture":
-        payload["family"] = model.family          # absent = livegesture (checkpoints before DiffSHEG)
+    fam = families.of_model(model)
+    if fam is not families.DEFAULT:
+        payload["family"] = fam.name              # absent = the default family (checkpoints before DiffSHEG)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
     os.close(fd)
     try:
@@ -46,22 +46,19 @@ def load_payload(path: str | os.PathLike) -> dict:
 
 
 def family_of(payload: dict) -> str:
-    return payload.get("family", "livegesture")
+    """The name of a checkpoint payload's family (``livegesture.families``)."""
+    return families.of_payload(payload).name
 
 
 def load(path: str | os.PathLike):
-    """Load a model (eval mode) from a checkpoint file: a LiveGesture, or a DiffSHEG model for a checkpoint
-    whose ``family`` is ``diffsheg``."""
+    """Load a model (eval mode) from a checkpoint file: the model of the checkpoint's ``family``
+    (``livegesture.families``; absent: LiveGesture)."""
     payload = load_payload(path)
-    fam = family_of(payload)
-    if fam == "diffsheg":
-        from .diffsheg.config import DiffSHEGConfig
-        from .diffsheg.model import DiffSHEG
-        model = DiffSHEG(DiffSHEGConfig.from_dict(payload["config"]))
-    elif fam == "livegesture":
-        model = LiveGesture(LiveGestureConfig.from_dict(payload["config"]))
-    else:
-        raise ValueError(f"checkpoint {path}: unknown model family {fam!r} (expected livegesture or diffsheg)")
+    try:
+        fam = families.of_payload(payload)
+    except ValueError as e:
+        raise ValueError(f"checkpoint {path}: {e}") from None
+    model = fam.build_model(fam.config_from_dict(payload["config"]))
     missing, unexpected = model.load_state_dict(payload["state_dict"], strict=False)
     missing = [k for k in missing if not k.endswith(("win_cos", "win_sin", "slot"))]
     if missing or unexpected:
@@ -75,9 +72,9 @@ def load_to_fine_tune(path: str | os.PathLike, family: str, cfg, config_name: st
     """The trained model that ``train --init-from PATH`` continues from: refused (SystemExit, naming the file)
     unless it is of ``family`` and its model config equals ``cfg`` (the run's ``--config config_name``)."""
     model = load(path)
-    if getattr(model, "family", "livegesture") != family:
-        name = {"livegesture": "LiveGesture", "diffsheg": "DiffSHEG"}.get(family, family)
-        raise SystemExit(f"--init-from {path}: not a {name} checkpoint")
+    want = families.get(family)
+    if families.of_model(model) is not want:
+        raise SystemExit(f"--init-from {path}: not a {want.title} checkpoint")
     theirs, ours = model.cfg.to_dict(), cfg.to_dict()
     if theirs != ours:
         diff = sorted(k for k in ours.keys() | theirs.keys() if theirs.get(k) != ours.get(k))
@@ -86,23 +83,16 @@ def load_to_fine_tune(path: str | os.PathLike, family: str, cfg, config_name: st
 
 
 def random_model(config, seed: int = 0, family: str = "livegesture"):
-    """A model with random weights (tests, benchmarks of the paper config)."""
-    if family == "diffsheg":
-        from .diffsheg.config import DiffSHEGConfig, get_config as get_diffsheg_config
-        from .diffsheg.model import DiffSHEG
-        cfg = get_diffsheg_config(config) if isinstance(config, str) else config
-        torch.manual_seed(seed)
-        model = DiffSHEG(cfg).eval()
+    """A model with random weights (tests, benchmarks of the paper config). ``config``: a config name of the
+    family or a config object."""
+    fam = families.get(family)
+    cfg = fam.get_config(config)
+    torch.manual_seed(seed)
+    model = fam.build_model(cfg).eval()
+    if fam.perturb_zero_init:
         with torch.no_grad():   # zero-initialised layers (outputs, AdaIN, null audio) would make eps == 0
             for p in model.parameters():
                 if bool((p == 0).all()):
                     p.normal_(0.0, 0.05)
-        model.provenance = {"training": "none: random weights", "seed": seed}
-        return model
-    if family != "livegesture":
-        raise ValueError(f"unknown model family {family!r} (expected livegesture or diffsheg)")
-    cfg = get_config(config) if isinstance(config, str) else config
-    torch.manual_seed(seed)
-    model = LiveGesture(cfg).eval()
     model.provenance = {"training": "none: random weights", "seed": seed}
     return model

@@ -21,6 +21,7 @@ from pathlib import Path
 import torch
 
 from . import checkpoint as ckpt
+from . import families
 
 
 def interpolate(base_path, tuned_path, alpha: float):
@@ -32,7 +33,7 @@ def interpolate(base_path, tuned_path, alpha: float):
     if not paths:
         raise ValueError("no fine-tuned checkpoint given")
     base = ckpt.load_payload(base_path)
-    if ckpt.family_of(base) != "livegesture":
+    if families.of_payload(base) is not families.LIVEGESTURE:
         raise ValueError(f"checkpoint {base_path}: not a LiveGesture checkpoint")
     tuned, data = None, []
     for i, path in enumerate(paths):
@@ -61,7 +62,7 @@ def interpolate(base_path, tuned_path, alpha: float):
 
 def _checked_pair(base, base_path, tuned, tuned_path):
     """``tuned`` unchanged, after checking that it was fine-tuned from ``base`` (ValueError naming the file)."""
-    if ckpt.family_of(tuned) != "livegesture":
+    if families.of_payload(tuned) is not families.LIVEGESTURE:
         raise ValueError(f"checkpoint {tuned_path}: not a LiveGesture checkpoint")
     if base["config"] != tuned["config"]:
         diff = sorted(k for k in base["config"].keys() | tuned["config"].keys()

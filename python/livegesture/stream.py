@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from . import families
 from .frames import Frame, frames_to_arrays
 from .frontend import StreamingLogMel
 from .models.model import LiveGesture
@@ -184,11 +185,19 @@ def generate_clip(model: LiveGesture, audio_16k: np.ndarray, seed: int = 0, guid
 
     ``finish=True`` covers the whole audio as the runtime's ``generate`` does (docs/output.md, ``LiveGestureStream.finish``);
     the default stops at the last complete token, as the exported reference rollout does."""
-    if getattr(model, "family", "livegesture") == "diffsheg":   # the other model family: FOPPAS over the clip
-        from .diffsheg.foppas import generate_clip as diffsheg_generate_clip
-        if temperature is not None or top_k is not None:
-            raise ValueError("diffsheg: temperature and top_k do not apply (diffusion sampling)")
-        return diffsheg_generate_clip(model, audio_16k, seed=seed, guidance=guidance, chunk=chunk)
+    fam = families.of_model(model)      # the family's sampler (DiffSHEG: FOPPAS over the clip)
+    options = {"temperature": temperature, "top_k": top_k, "finish": finish, "form": form}
+    refused = [k for k in fam.sampler_options_refused if options[k] is not None]
+    if refused:
+        raise ValueError(f"{fam.name}: {' and '.join(refused)} do not apply to this family's sampler")
+    return fam.resolve(fam.sampler)(model, audio_16k, seed=seed, guidance=guidance, chunk=chunk,
+                                    **{k: options[k] for k in fam.sampler_options})
+
+
+def generate_livegesture_clip(model: LiveGesture, audio_16k: np.ndarray, seed: int = 0, guidance: float | None = None,
+                              chunk: int | None = None, temperature: float | None = None, top_k: int | None = None,
+                              finish: bool = False, form: str = "canonical") -> dict:
+    """:func:`generate_clip` for a LiveGesture model (the family registry's sampler of ``livegesture``)."""
     s = LiveGestureStream(model, seed=seed, guidance=guidance, temperature=temperature, top_k=top_k, form=form)
     audio = np.asarray(audio_16k, dtype=np.float32)
     chunk = chunk or len(audio) or 1

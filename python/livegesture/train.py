@@ -48,6 +48,7 @@ import torch.nn.functional as F
 from tqdm import tqdm
 
 from . import checkpoint as ckpt
+from . import families
 from .config import get_config
 from .data.features import NormStats
 from .models.model import LiveGesture
@@ -488,6 +489,17 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
     return out / "final.pt"
 
 
+def train_from_args(args, device, opts, speakers):
+    """``python -m livegesture.train`` for a LiveGesture model (the family registry's trainer)."""
+    ov = {k: getattr(args, k) for k in ("steps_svq1", "steps_svq2", "steps_experts", "steps_fuse", "batch_svq",
+                                          "batch_ar", "seed", "lr_svq", "lr_ar", "augment")
+          if getattr(args, k) is not None}
+    ov["speakers"] = speakers
+    stages = STAGES if args.stage == "all" else STAGES[:STAGES.index(args.stage) + 1]
+    return train(args.config, args.data, args.out, stages=stages, device=device, overrides=ov, svq_from=args.svq_from,
+                 init_from=args.init_from, extra_data=args.extra_data, opts=opts)
+
+
 def add_run_arguments(ap):
     """The options of how a training runs (both families)."""
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu",
@@ -504,7 +516,7 @@ def add_run_arguments(ap):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--family", default="livegesture", choices=("livegesture", "diffsheg"),
+    ap.add_argument("--family", default=families.DEFAULT.name, choices=families.NAMES,
                     help="model family (diffsheg: livegesture.diffsheg.train, one stage)")
     ap.add_argument("--config", default="default", help="model config: tiny, default or paper")
     ap.add_argument("--data", required=True, help="BEAT2-layout corpus (real BEAT2 or livegesture.data.synth output)")
@@ -536,21 +548,8 @@ def main(argv=None):
     opts = RunOptions.for_device(device, amp=args.amp, prefetch=args.prefetch, compile=args.compile)
     speakers = None if args.speakers == "all" else tuple(int(s) for s in args.speakers.split(","))
     try:
-        if args.family == "diffsheg":
-            from .diffsheg.train import train as train_diffsheg
-            ov = {"steps": args.steps, "batch": args.batch, "lr": args.lr, "seed": args.seed,
-                  "max_minutes": args.max_minutes, "augment": args.augment, "speakers": speakers}
-            train_diffsheg(args.config, args.data, args.out, device=device,
-                           overrides={k: v for k, v in ov.items() if v is not None or k == "speakers"},
-                           init_from=args.init_from, opts=opts)
-            return 0
-        ov = {k: getattr(args, k) for k in ("steps_svq1", "steps_svq2", "steps_experts", "steps_fuse", "batch_svq",
-                                              "batch_ar", "seed", "lr_svq", "lr_ar", "augment")
-              if getattr(args, k) is not None}
-        ov["speakers"] = speakers
-        stages = STAGES if args.stage == "all" else STAGES[:STAGES.index(args.stage) + 1]
-        train(args.config, args.data, args.out, stages=stages, device=device, overrides=ov, svq_from=args.svq_from,
-              init_from=args.init_from, extra_data=args.extra_data, opts=opts)
+        fam = families.get(args.family)
+        fam.resolve(fam.trainer)(args, device, opts, speakers)
     finally:
         finish_distributed()
     return 0

@@ -1,7 +1,6 @@
 """DiffSHEG: portable noise, schedule, DDIM, guidance, FOPPAS windows and overlap, the stream, training, export."""
 import json
 import math
-import sys
 from pathlib import Path
 
 import jsonschema
@@ -10,7 +9,6 @@ import pytest
 import torch
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "export"))
 
 from livegesture import checkpoint as ckpt  # noqa: E402
 from livegesture.compare import assert_within, diff as compare_diff  # noqa: E402
@@ -272,8 +270,8 @@ def test_fine_tuning_with_augmented_audio(tiny_corpus, tmp_path):
 
 @pytest.fixture(scope="module")
 def bundle(tmp_path_factory, tiny):
-    import export as exporter
-    import diffsheg_export
+    from export import export as exporter
+    from export import diffsheg_export
     out = tmp_path_factory.mktemp("dsb") / "diffsheg-tiny"
     man = exporter.build_bundle(tiny, out, provenance={"training": "none (test)"}, reference_wav=None,
                                 ref_seconds=2.0, rollout_tokens=0, log=lambda *a: None,
@@ -282,7 +280,7 @@ def bundle(tmp_path_factory, tiny):
 
 
 def test_manifest_validates_and_files_match(bundle):
-    import export as exporter
+    from export import export as exporter
     out, _ = bundle
     schema = json.loads((ROOT / "export" / "manifest.schema.json").read_text())
     man = json.loads((out / "manifest.json").read_text())
@@ -311,7 +309,7 @@ def test_reference_vectors_replay_on_onnxruntime(bundle):
 
 
 def test_rollout_replays_on_onnxruntime(bundle, tiny):
-    import diffsheg_export
+    from export import diffsheg_export
     out, man = bundle
     ro = np.load(out / "reference" / "rollout.npz")
     be = diffsheg_export.OrtBackend(out / "speech_encoder.onnx", out / "denoiser.onnx")
@@ -331,8 +329,8 @@ def test_rollout_replays_on_onnxruntime(bundle, tiny):
 def test_export_catches_a_broken_graph(bundle, tiny):
     """Must fail: the exported denoiser no longer matches a perturbed torch model; the error names it."""
     import copy
-    import diffsheg_export
-    from verify import ExportCheckError
+    from export import diffsheg_export
+    from export.verify import ExportCheckError
     out, _ = bundle
     broken = copy.deepcopy(tiny)
     with torch.no_grad():
@@ -344,7 +342,7 @@ def test_export_catches_a_broken_graph(bundle, tiny):
 
 
 def test_export_cli_refuses_bad_input(tmp_path):
-    import export as exporter
+    from export import export as exporter
     assert exporter.main(["--family", "diffsheg", "--config", "nope", "--out", str(tmp_path / "x")]) == 2
     assert not (tmp_path / "x").exists()
     bad = tmp_path / "bad.pt"
@@ -356,7 +354,7 @@ def test_export_cli_refuses_bad_input(tmp_path):
 def test_export_sampler_defaults(tmp_path):
     """export --guidance / --jumps write the bundle's default sampler settings (manifest sections, reference
     rollout, provenance); they are DiffSHEG options and are checked before anything is written."""
-    import export as exporter
+    from export import export as exporter
     out = tmp_path / "b"
     assert exporter.main(["--family", "diffsheg", "--config", "tiny", "--random-seed", "0", "--guidance", "2",
                           "--jumps", "1", "--rollout-windows", "4", "--out", str(out)]) == 0

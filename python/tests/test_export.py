@@ -1,6 +1,5 @@
 """ONNX export: tiny bundles round-trip, the manifest validates, broken steps are caught by the exporter."""
 import json
-import sys
 from pathlib import Path
 
 import jsonschema
@@ -10,10 +9,9 @@ import pytest
 import torch
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "export"))
 
-import export as exporter  # noqa: E402
-from verify import ExportCheckError  # noqa: E402
+from export import export as exporter  # noqa: E402
+from export.verify import ExportCheckError  # noqa: E402
 
 from helpers import scrambled_model  # noqa: E402
 from livegesture.compare import assert_within  # noqa: E402
@@ -286,7 +284,7 @@ def test_a_wrong_attention_form_fails_the_export_naming_the_graph(tmp_path, monk
 def test_the_opset23_rewrite_refuses_an_op_whose_meaning_changed():
     """to_attention_opset moves the Attention nodes to the default domain at opset 23 and refuses a graph with an
     op whose definition changed between opset 17 and 23 that it does not know (here Pad, changed at 18)."""
-    from graphs import to_attention_opset
+    from export.graphs import to_attention_opset
     from onnx import TensorProto, helper
     x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 2, 3, 4])
     y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 2, 3, 4])
@@ -312,7 +310,7 @@ def test_export_checks_scale_with_the_magnitude():
     """docs/parity.md: a bound scales with the reference's magnitude. A step-vs-offline comparison whose values
     are near 40 and 3 float32 ulps apart passes 1e-5 (absolute error above 1e-5); a real error at the same
     magnitude fails, naming the step, the error and the scale."""
-    import verify
+    from export import verify
     off = torch.linspace(38.0, 41.0, 2 * 5 * 3, dtype=torch.float32).reshape(2, 5, 3)
     st = off.clone()
     st[1, 3, 2] = torch.nextafter(torch.nextafter(torch.nextafter(st[1, 3, 2], torch.tensor(1e9)),
@@ -345,7 +343,7 @@ def test_manifest_records_the_scale_of_every_recorded_check(bundle):
 def test_provenance_names_the_checkpoint_by_file_and_sha256_and_no_machine_path(tmp_path):
     """A bundle exported from a checkpoint records it by file name and sha256; absolute paths of the machine
     (in the checkpoint's own provenance, the --provenance file or the command) become their last component."""
-    import bundle_writer
+    from export import bundle_writer
     from livegesture import checkpoint as ckpt
     model = ckpt.random_model("tiny", 0)
     cp = tmp_path / "runs" / "final.pt"
@@ -368,14 +366,22 @@ def test_provenance_names_the_checkpoint_by_file_and_sha256_and_no_machine_path(
 
 
 def test_export_modules_import_no_circle():
-    """export.py imports diffsheg_export's builder and both use bundle_writer; diffsheg_export and quantize
-    never import export.py (DESIGN: nothing imports in a circle)."""
+    """export.py runs diffsheg_export's builder (through the family registry) and both use bundle_writer;
+    diffsheg_export and quantize never import export.py (DESIGN: nothing imports in a circle). The package's
+    modules import each other relatively (``from .graphs import``), none through a patched ``sys.path``."""
     import ast
     for name in ("diffsheg_export.py", "quantize.py", "bundle_writer.py", "verify.py", "graphs.py"):
         tree = ast.parse((ROOT / "export" / name).read_text())
         imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
-        imported |= {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
-        assert "export" not in imported, f"export/{name} imports export.py"
+        for n in ast.walk(tree):
+            if isinstance(n, ast.ImportFrom):
+                mod = ("." * n.level) + (n.module or "")
+                imported |= {mod} | ({mod + a.name for a in n.names} if not n.module else set())
+        assert not imported & {"export", "export.export", ".export"}, f"export/{name} imports export.py"
+        assert not imported & {"graphs", "verify", "bundle_writer", "ort_python_peer"}, \
+            f"export/{name} imports a module by a patched sys.path ({sorted(imported)})"
+    for name in ("export.py", "quantize.py"):
+        assert "sys.path.insert" not in (ROOT / "export" / name).read_text(), f"export/{name} patches sys.path"
 
 
 def test_graph_forms_live_apart_from_the_fuse_component():

@@ -12,12 +12,11 @@ import onnx
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "export"))
 sys.path.insert(0, str(ROOT / "bench"))
 
-import export as exporter  # noqa: E402
+from export import export as exporter  # noqa: E402
 import ort_python_peer as peer  # noqa: E402
-import quantize  # noqa: E402
+from export import quantize  # noqa: E402
 
 from helpers import scrambled_model  # noqa: E402
 

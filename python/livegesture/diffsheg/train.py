@@ -262,3 +262,12 @@ def train(config: str, data_dir: str, out: str, device: str = "cpu", overrides: 
     (out / "train_summary.json").write_text(json.dumps(prov, indent=1, default=str))
     print(f"[diffsheg] final loss {avg:.4f} in {seconds:.0f}s -> {final}")
     return final
+
+
+def train_from_args(args, device, opts, speakers):
+    """``python -m livegesture.train --family diffsheg`` (the family registry's trainer)."""
+    ov = {"steps": args.steps, "batch": args.batch, "lr": args.lr, "seed": args.seed,
+          "max_minutes": args.max_minutes, "augment": args.augment, "speakers": speakers}
+    return train(args.config, args.data, args.out, device=device,
+                 overrides={k: v for k, v in ov.items() if v is not None or k == "speakers"},
+                 init_from=args.init_from, opts=opts)

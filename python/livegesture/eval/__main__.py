@@ -49,6 +49,7 @@ import numpy as np
 from . import corpus
 from . import metrics as M
 from .report import jsonable
+from .. import families
 from ..regions import FPS, SAMPLE_RATE
 
 
@@ -80,8 +81,9 @@ def _generate(ckpt: str, ids: list[str], audio: dict, n: int, seed: int, guidanc
         raise SystemExit(f"--checkpoint needs livegesture.checkpoint.load and livegesture.stream.generate_clip, "
                          f"which cannot be imported here ({e}); generate the clips and pass --generated DIR") from e
     model = load_checkpoint(ckpt).to(device)     # the streaming loops run where the model is
-    if getattr(model, "family", "livegesture") == "diffsheg":
-        return _generate_diffsheg(model, ids, audio, n, seed, guidance, save_dir)
+    fam = families.of_model(model)
+    if fam.batch_sampler:     # the family samples many clips at once (DiffSHEG: windows of all clips batched)
+        return _generate_batched(fam, model, ids, audio, n, seed, guidance, save_dir)
     out = []
     for k, cid in enumerate(ids):
         x = audio[cid]
@@ -104,11 +106,12 @@ def _generate(ckpt: str, ids: list[str], audio: dict, n: int, seed: int, guidanc
     return out
 
 
-def _generate_diffsheg(model, ids, audio, n, seed, guidance, save_dir) -> list[list[dict]]:
-    """DiffSHEG: every clip and seed sampled together (``livegesture.diffsheg.foppas.generate_clips``: the
-    windows of all clips batched; each clip's frames are those of its own stream)."""
-    from ..diffsheg.foppas import generate_clips
+def _generate_batched(fam, model, ids, audio, n, seed, guidance, save_dir) -> list[list[dict]]:
+    """Every clip and seed sampled together by the family's batch sampler (DiffSHEG:
+    ``livegesture.diffsheg.foppas.generate_clips``: the windows of all clips batched; each clip's frames are
+    those of its own stream)."""
     from ..motion import beat2_npz_dict
+    generate_clips = fam.resolve(fam.batch_sampler)
     t0 = time.time()
     jobs = [(cid, r) for cid in ids for r in range(n)]
     gens = generate_clips(model, [audio[cid].astype(np.float32) for cid, _ in jobs], [seed + r for _, r in jobs],
@@ -123,7 +126,7 @@ def _generate_diffsheg(model, ids, audio, n, seed, guidance, save_dir) -> list[l
             d = Path(save_dir) / (f"seed{seed + r}" if n > 1 else "")
             d.mkdir(parents=True, exist_ok=True)
             np.savez(d / f"{cid}.npz", **beat2_npz_dict(m))
-    _log(f"generated {len(jobs)} clips (diffsheg, batched) in {time.time() - t0:.1f} s")
+    _log(f"generated {len(jobs)} clips ({fam.name}, batched) in {time.time() - t0:.1f} s")
     return [out[cid] for cid in ids]
 
 

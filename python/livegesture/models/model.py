@@ -13,6 +13,8 @@ from .svq import SVQ
 
 
 class LiveGesture(nn.Module):
+    family = "livegesture"        # the family registry's name (livegesture.families)
+
     def __init__(self, cfg: LiveGestureConfig):
         super().__init__()
         self.cfg = cfg
