@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 import livegesture
+from livegesture import variants
 from livegesture.regions import region_layout
 
 HERE = Path(__file__).resolve().parent
@@ -50,6 +51,15 @@ def staged_folder(out: Path):
             shutil.rmtree(tmp, ignore_errors=True)
 
 
+def variant_record(family: str, cfg) -> dict:
+    """The manifest's ``model.variant``: the variant's name, its paper reference, and the model and training
+    options it set (``livegesture.variants``); the graphs it has are the manifest's ``graphs``."""
+    v = variants.get(family, getattr(cfg, "variant", "full"))
+    return {"name": v.name, "paper": v.paper, "summary": v.summary,
+            "model_options": {k: getattr(cfg, k) for k in v.model_fields(cfg)},
+            "train_options": dict(v.train)}
+
+
 def manifest_head(family: str, name: str, cfg, model, rates: dict) -> dict:
     """The manifest's first keys, the same for every family: schema, format, family, model (config and
     parameter counts per graph component), rates (the frontend's sample rate, fps and token sizes, then the
@@ -60,7 +70,8 @@ def manifest_head(family: str, name: str, cfg, model, rates: dict) -> dict:
         "format": "livegesture-bundle",
         "family": family,
         "model": {"name": name, "config_name": cfg.name, "config": cfg.to_dict(),
-                  "parameters": {g: int(sum(p.numel() for p in c.parameters())) for g, c in model.components().items()}},
+                  "parameters": {g: int(sum(p.numel() for p in c.parameters())) for g, c in model.components().items()},
+                  "variant": variant_record(family, cfg)},
         "rates": {"sample_rate": f.sample_rate, "fps": f.fps, "frames_per_token": f.frames_per_token,
                   "mel_frames_per_token": f.mel_frames_per_token, **rates},
         "frontend": f.to_dict(),

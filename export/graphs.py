@@ -109,9 +109,11 @@ def data_io(model: LiveGesture, graph: str) -> tuple[list[dict], list[dict]]:
                  {"name": "cond", "dtype": f32, "shape": ["batch"]}],
                 [{"name": "hidden", "dtype": f32, "shape": ["batch", R, d]}])
     if graph in ("fusion", FUSION_ATTENTION):
-        return ([{"name": f"hidden_{r}", "dtype": f32, "shape": ["batch", d]} for r in REGION_NAMES]
-                + [{"name": "audio", "dtype": f32, "shape": ["batch", Da]},
-                   {"name": "cond", "dtype": f32, "shape": ["batch"]}],
+        # a fusion without audio cross-attention (variants no-fuse-audio, experts-only) reads no audio or cond:
+        # the graph has no such inputs, and the runtime feeds the inputs the manifest lists
+        audio = ([{"name": "audio", "dtype": f32, "shape": ["batch", Da]}, {"name": "cond", "dtype": f32, "shape": ["batch"]}]
+                 if model.fuse.uses_audio else [])
+        return ([{"name": f"hidden_{r}", "dtype": f32, "shape": ["batch", d]} for r in REGION_NAMES] + audio,
                 [{"name": "logits", "dtype": f32, "shape": ["batch", len(REGION_NAMES), K]}])
     if graph == FUSED_DECODERS:
         return ([{"name": "token", "dtype": i64, "shape": ["batch", len(REGION_NAMES)]}],
@@ -132,7 +134,11 @@ def call_step(model: LiveGesture, graph: str, inputs: dict, cache: dict) -> tupl
     if graph.startswith("expert_") or graph == FUSED_EXPERTS:
         return comp.step(inputs["prev_token"], inputs["audio"], inputs["cond"], cache)
     if graph in ("fusion", FUSION_ATTENTION):
-        return comp.step({r: inputs[f"hidden_{r}"] for r in REGION_NAMES}, inputs["audio"], inputs["cond"], cache)
+        hidden = {r: inputs[f"hidden_{r}"] for r in REGION_NAMES}
+        if "audio" not in inputs:    # a fusion that reads no audio (data_io): any audio gives the same step
+            B = hidden[REGION_NAMES[0]].shape[0]
+            inputs = {**inputs, "audio": torch.zeros(B, model.cfg.audio_dim), "cond": torch.ones(B)}
+        return comp.step(hidden, inputs["audio"], inputs["cond"], cache)
     return comp.step(inputs["token"], cache)
 
 

@@ -75,7 +75,10 @@ def check_step_vs_offline(model: LiveGesture, graph: str, seed: int = 0) -> tupl
         name, st = "hidden", torch.stack([o["hidden"] for o in outs], 1)
     elif graph == "fusion":
         hid = torch.stack([stack(f"hidden_{r}") for r in REGION_NAMES], 2)
-        off = comp(hid, stack("audio"), seq[0]["cond"])
+        if "audio" in seq[0]:
+            off = comp(hid, stack("audio"), seq[0]["cond"])
+        else:   # a fusion that reads no audio (graphs.data_io): any audio gives the same forward
+            off = comp(hid, torch.zeros(B, T, cfg.audio_dim), torch.ones(B))
         name, st = "logits", torch.stack([o["logits"] for o in outs], 1)
     else:
         off = comp.decode(stack("token")).reshape(B, T, cfg.frontend.frames_per_token, -1)

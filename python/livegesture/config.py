@@ -48,6 +48,14 @@ class LiveGestureConfig:
     fuse_blocks: int = 2
     fuse_window: int = 32             # causal temporal attention window (tokens)
 
+    # variant switches (livegesture.variants; the paper's full model by default, docs/model.md "Variants")
+    variant: str = "full"             # the name of the variant this config is (recorded in checkpoints, manifests)
+    pilor: bool = True                # PILOR residual adapters before xAR-Fuse (Table 2a)
+    fuse_spatial: bool = True         # inter-region spatial attention in the fuse blocks (Table 2a)
+    fuse_temporal: bool = True        # causal global temporal attention in the fuse blocks (Table 2a)
+    fuse_audio: bool = True           # causal audio-motion cross-attention in the fuse blocks
+    fusion: str = "xar"               # "xar": xAR-Fuse; "none": eXperts only (the eXperts' own classifiers)
+
     # inference defaults
     guidance: float = 1.25
     temperature: float = 1.0

@@ -48,7 +48,7 @@ import torch.nn.functional as F
 from tqdm import tqdm
 
 from . import checkpoint as ckpt
-from . import families
+from . import families, variants
 from .config import get_config
 from .data.features import NormStats
 from .models.model import LiveGesture
@@ -87,6 +87,12 @@ class TrainConfig:
     seed: int = 0
     speakers: tuple[int, ...] | None = (2,)
     augment: int = 0                  # augmented copies of every clip's audio (livegesture.data.augment)
+    # variants and fidelity options (docs/model.md "Variants and fidelity choices"; defaults: what models/default
+    # was trained with)
+    svq_stages: int = 2               # 2: svq1 then svq2 (section 3.1); 1: encoder, decoder, quantizer together
+    noise_p_uniform: bool = False     # False: p_noise = noise_p (supp. B); True: p_noise ~ U(0, noise_p) per batch (Table 8)
+    region_drop_ramp: bool = True     # True: p_drop's top ramps to region_drop_max (supp. B); False: U(0, max) (Table 7)
+    fuse_loss_masked: bool = False    # True: the fuse loss only on the tokens whose history input was masked
 
     @staticmethod
     def for_model(name: str) -> "TrainConfig":
@@ -237,10 +243,12 @@ def init_codebooks(model, data, tcfg, device, rng):
 
 
 def stage_svq2(model, data, tcfg, device):
+    one_stage = tcfg.svq_stages == 1     # Table 2c "1-stage": the autoencoder is trained with the quantizer
     for r in REGION_NAMES:
         for p in list(model.svq[r].encoder.parameters()) + list(model.svq[r].decoder.parameters()):
-            p.requires_grad_(False)
-    params = [p for r in REGION_NAMES for m in (model.svq[r].quantizer.pre, model.svq[r].head) for p in m.parameters()]
+            p.requires_grad_(one_stage)
+    parts = ("quantizer.pre", "head") + (("encoder", "decoder") if one_stage else ())
+    params = [p for r in REGION_NAMES for name in parts for p in model.svq[r].get_submodule(name).parameters()]
     recent = {}
 
     def sample(step, rng):
@@ -297,16 +305,19 @@ def stage_experts(model, data, tcfg, device):
     params = list(model.audio_encoder.parameters()) + [p for r in REGION_NAMES for p in model.experts[r].parameters()]
 
     def sample(step, rng):
-        return data.ar_window(rng, tcfg.ar_window_tokens, tcfg.batch_ar)
+        mel, tok = data.ar_window(rng, tcfg.ar_window_tokens, tcfg.batch_ar)
+        # Table 8: p_noise ~ U(0, noise_p) per batch (an extra draw only with the option: default streams unchanged)
+        p = float(rng.uniform(0, tcfg.noise_p)) if tcfg.noise_p_uniform else tcfg.noise_p
+        return mel, tok, p
 
     def compute(step, batch):
-        mel, tok = batch
+        mel, tok, noise_p = batch
         audio = model.audio_encoder(mel).float()   # (bf16 under autocast) the eXperts take float32 inputs
         cond = cfg_cond(len(tok), tcfg.cfg_dropout, tok.device)
         losses = {}
         for i, r in enumerate(REGION_NAMES):
             _, logits = model.experts[r](teacher_inputs(model, tok[..., i]), audio, cond,
-                                         noise_sigma=tcfg.noise_sigma, noise_p=tcfg.noise_p)
+                                         noise_sigma=tcfg.noise_sigma, noise_p=noise_p)
             losses[f"ce_{r}"] = F.cross_entropy(logits.reshape(-1, logits.shape[-1]).float(), tok[..., i].reshape(-1))
         return sum(losses.values()) / len(REGION_NAMES), losses
     return params, StageStep(sample, compute, device), None
@@ -332,7 +343,7 @@ def stage_fuse(model, data, tcfg, device):
         B = len(tok)
         ratio_top = cosine_ramp(step, total_steps, tcfg.ugm_max_ratio)
         ratio = float(rng.uniform(0, ratio_top)) if ratio_top > 0 else 0.0
-        p_top = cosine_ramp(step, total_steps, tcfg.region_drop_max)
+        p_top = cosine_ramp(step, total_steps, tcfg.region_drop_max) if tcfg.region_drop_ramp else tcfg.region_drop_max
         p_drop = float(rng.uniform(0, p_top)) if p_top > 0 else 0.0
         drop = rng.random(B) < p_drop
         which = rng.integers(0, R, B)
@@ -356,21 +367,29 @@ def stage_fuse(model, data, tcfg, device):
             conf = torch.stack(conf, -1)                     # confidence of x_t, t = 0..T-1
             corrupted = clean_in.clone()
             n_mask = int(ratio * T * R_)
+            masked = torch.zeros(B, T, R_, dtype=torch.bool, device=dev)    # the history inputs masked (at t)
             if n_mask > 0:
                 # x_t is the history input at t+1
                 c = conf[:, :-1].reshape(B, -1)
                 idx = c.argsort(dim=1)[:, :n_mask]
                 m = torch.zeros_like(c, dtype=torch.bool).scatter_(1, idx, True).reshape(B, T - 1, R_)
                 corrupted[:, 1:] = torch.where(m, model.cfg.mask_token, corrupted[:, 1:])
+                masked[:, 1:] |= m
             # random region masking: p_drop ramps up to region_drop_max (drawn with the batch)
             corrupted[:, 1:] = torch.where(batch["region_mask"][:, None, :], model.cfg.mask_token, corrupted[:, 1:])
+            masked[:, 1:] |= batch["region_mask"][:, None, :]
             cond = cfg_cond(B, tcfg.cfg_dropout, dev)
             hidden = torch.stack([model.experts[r](corrupted[..., i], audio, cond)[0].float()
                                   for i, r in enumerate(REGION_NAMES)], 2)   # (B, T, R, d)
         local = sum(F.cross_entropy(classifiers[i](hidden[:, :, i]).reshape(-1, model.cfg.codebook_size).float(),
                                     tok[..., i].reshape(-1)) for i in range(R_)) / R_
         logits = model.fuse(hidden, audio, cond)
-        fuse = F.cross_entropy(logits.reshape(-1, model.cfg.codebook_size).float(), tok.reshape(-1))
+        if tcfg.fuse_loss_masked:     # only where the history was corrupted (none masked: no fuse loss this step)
+            ce = F.cross_entropy(logits.reshape(-1, model.cfg.codebook_size).float(), tok.reshape(-1), reduction="none")
+            w = masked.reshape(-1).float()
+            fuse = (ce * w).sum() / w.sum().clamp(min=1.0)
+        else:
+            fuse = F.cross_entropy(logits.reshape(-1, model.cfg.codebook_size).float(), tok.reshape(-1))
         loss = tcfg.local_weight * local + tcfg.fuse_weight * fuse
         return loss, {"local": local, "fuse": fuse, "mask_ratio": torch.tensor(ratio), "p_drop": torch.tensor(p_drop)}
     return params, StageStep(sample, compute, device), None
@@ -383,19 +402,20 @@ BUILDERS = {"svq1": stage_svq1, "svq2": stage_svq2, "experts": stage_experts, "f
 
 def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cpu", tcfg: TrainConfig | None = None,
           overrides: dict | None = None, svq_from: str | None = None, init_from: str | None = None,
-          extra_data: tuple | list = (), opts: RunOptions | None = None) -> Path:
+          extra_data: tuple | list = (), opts: RunOptions | None = None, variant: str | None = None) -> Path:
     """Run the stages; returns ``OUT/final.pt``. ``svq_from``: reuse another checkpoint's motion tokenizer and
     train the audio-side stages from scratch. ``init_from``: FINE-TUNE another checkpoint: every weight and
     every normalisation statistic (motion and mel) is taken from it; svq1/svq2 are kept as they are and the
     experts and fuse stages continue from its weights (usually with a lower ``lr_ar``). ``extra_data``: more
     corpus folders whose train split is mixed with ``data_dir``'s. ``opts``: how to run (autocast, prefetching,
-    compilation; :class:`livegesture.trainkit.RunOptions`, default: those of ``device``)."""
+    compilation; :class:`livegesture.trainkit.RunOptions`, default: those of ``device``). ``variant``: one of
+    ``livegesture.variants`` (its model fields change the config, its training fields win over ``overrides``)."""
     if svq_from and init_from:
         raise SystemExit("--svq-from and --init-from exclude each other (--init-from keeps the tokenizer too)")
-    cfg = get_config(config)
-    tcfg = tcfg or TrainConfig.for_model(cfg.name)
-    if overrides:
-        tcfg = replace(tcfg, **overrides)
+    base = get_config(config)
+    cfg = variants.apply(base, families.LIVEGESTURE.name, variant)
+    tcfg = tcfg or TrainConfig.for_model(base.name)
+    tcfg = replace(tcfg, **{**(overrides or {}), **variants.train_overrides(families.LIVEGESTURE.name, variant)})
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rank, world = dist_info()
@@ -432,7 +452,7 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
             if not (out / f"{name}.pt").exists():
                 ckpt.save(model, out / f"{name}.pt", provenance={"svq_from": str(svq_from)},
                           extra={"final_loss": None, "reused_from": str(svq_from)})
-    info = {"config": cfg.name, "train_config": asdict(tcfg), "data": str(Path(data_dir).resolve()),
+    info = {"config": cfg.name, "variant": cfg.variant, "train_config": asdict(tcfg), "data": str(Path(data_dir).resolve()),
             "train_clips": len(data.clips), "train_tokens": int(data.n_tok.sum()),
             "train_minutes": round(float(data.n_tok.sum()) * 4 / 30 / 60, 2), "world_size": world,
             "augment": tcfg.augment,
@@ -440,7 +460,11 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
             **({"init_from": str(init_from)} if init_from else {"svq_from": str(svq_from)} if svq_from else {})}
     prev = None
     builders = BUILDERS
-    steps = {"svq1": tcfg.steps_svq1, "svq2": tcfg.steps_svq2, "experts": tcfg.steps_experts, "fuse": tcfg.steps_fuse}
+    # a variant without a stage trains it for 0 steps (one-stage SVQ: svq1; eXperts only: fuse)
+    steps = {"svq1": tcfg.steps_svq1 if tcfg.svq_stages == 2 else 0, "svq2": tcfg.steps_svq2,
+             "experts": tcfg.steps_experts, "fuse": tcfg.steps_fuse}
+    if tcfg.svq_stages not in (1, 2):
+        raise SystemExit(f"svq_stages {tcfg.svq_stages}: expected 1 or 2")
     summary = {}
     stage_log = {}   # per stage, from its own checkpoint: a run may train its stages in different sittings
     for name in STAGES:
@@ -463,7 +487,8 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
         model.train()
         params, step_fn, state_fn = builders[name](model, data, tcfg, device)
         t0 = time.time()
-        final = run_stage(name, model, params, steps[name], step_fn, tcfg, out, logger, device, state_fn, opts=opts)
+        final = (run_stage(name, model, params, steps[name], step_fn, tcfg, out, logger, device, state_fn, opts=opts)
+                 if steps[name] > 0 else None)
         summary[name] = final
         model.eval()
         for p in model.parameters():
@@ -474,7 +499,8 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
             stage_log[name] = {k: extra[k] for k in ("lr", "steps", "seconds", "final_loss")}
             ckpt.save(model, path, provenance={**info, "stages_done": STAGES[:STAGES.index(name) + 1]},
                       extra=extra)
-            print(f"[{name}] final loss {final:.4f} in {time.time() - t0:.0f}s -> {path}")
+            print(f"[{name}] " + (f"final loss {final:.4f}" if final is not None else "not trained (0 steps)")
+                  + f" in {time.time() - t0:.0f}s -> {path}")
         prev = name
     if all((out / f"{s}.pt").exists() for s in STAGES) and rank == 0:
         if data.tokens is None:
@@ -497,7 +523,7 @@ def train_from_args(args, device, opts, speakers):
     ov["speakers"] = speakers
     stages = STAGES if args.stage == "all" else STAGES[:STAGES.index(args.stage) + 1]
     return train(args.config, args.data, args.out, stages=stages, device=device, overrides=ov, svq_from=args.svq_from,
-                 init_from=args.init_from, extra_data=args.extra_data, opts=opts)
+                 init_from=args.init_from, extra_data=args.extra_data, opts=opts, variant=args.variant)
 
 
 def add_run_arguments(ap):
@@ -519,8 +545,13 @@ def main(argv=None):
     ap.add_argument("--family", default=families.DEFAULT.name, choices=families.NAMES,
                     help="model family (diffsheg: livegesture.diffsheg.train, one stage)")
     ap.add_argument("--config", default="default", help="model config: tiny, default or paper")
-    ap.add_argument("--data", required=True, help="BEAT2-layout corpus (real BEAT2 or livegesture.data.synth output)")
-    ap.add_argument("--out", required=True, help="run folder (checkpoints, train_log.jsonl)")
+    ap.add_argument("--variant", default=None,
+                    help="a variant of the family's model (livegesture.variants; --list-variants names them)")
+    ap.add_argument("--list-variants", action="store_true",
+                    help="print the family's variant names, one a line, and exit")
+    ap.add_argument("--data", required=("--list-variants" not in (argv if argv is not None else sys.argv)), help="BEAT2-layout corpus (real BEAT2 or livegesture.data.synth output)")
+    ap.add_argument("--out", required=("--list-variants" not in (argv if argv is not None else sys.argv)),
+                    help="run folder (checkpoints, train_log.jsonl)")
     ap.add_argument("--stage", default="all", choices=("all",) + STAGES,
                     help="run the stages up to and including this one (earlier finished stages are reused)")
     add_run_arguments(ap)
@@ -542,13 +573,18 @@ def main(argv=None):
     ap.add_argument("--lr", type=float, default=None, help="diffsheg: learning rate")
     ap.add_argument("--max-minutes", type=float, default=None, help="diffsheg: stop after this training time")
     args = ap.parse_args(argv)
+    fam = families.get(args.family)
+    if args.list_variants:
+        print("\n".join(fam.variants()))
+        return 0
+    if args.variant is not None and args.variant not in fam.variants():
+        ap.error(f"--variant {args.variant}: not a {fam.title} variant; choose one of {', '.join(fam.variants())}")
     if args.threads:
         torch.set_num_threads(args.threads)
     device = init_distributed(args.device)       # torchrun: one process per GPU (or gloo on CPU)
     opts = RunOptions.for_device(device, amp=args.amp, prefetch=args.prefetch, compile=args.compile)
     speakers = None if args.speakers == "all" else tuple(int(s) for s in args.speakers.split(","))
     try:
-        fam = families.get(args.family)
         fam.resolve(fam.trainer)(args, device, opts, speakers)
     finally:
         finish_distributed()

@@ -40,6 +40,12 @@ class DiffSHEGConfig:
     n_speakers: int = 8               # style ids (speaker embedding table)
     dropout: float = 0.1
 
+    # variant switches (livegesture.variants; the paper's DiffSHEG by default, docs/diffsheg.md "Variants")
+    variant: str = "full"             # the name of the variant this config is (recorded in checkpoints, manifests)
+    flow: str = "uni"                 # "uni" (expression -> gesture), "reverse", "concat" (section 4.5, Table 1)
+    detach: bool = True               # x0 of the first branch detached before the second branch reads it
+    x0_condition: bool = True         # the second branch reads the first branch's x0
+
     # diffusion + sampling defaults (paper values)
     diffusion_steps: int = 1000
     beta_start: float = 1e-4

@@ -27,6 +27,7 @@ import torch.nn.functional as F
 from tqdm import tqdm
 
 from .. import checkpoint as ckpt
+from .. import families, variants
 from ..trainkit import (Logger, LossTrack, Prefetcher, RunOptions, TrainData, dist_info, log_values, sync_grads,
                         to_device)
 from .config import get_config
@@ -117,7 +118,8 @@ def losses(model: DiffSHEG, x0, mel, spk, t, eps, cond, tc: DiffSHEGTrainConfig,
 
 
 def train(config: str, data_dir: str, out: str, device: str = "cpu", overrides: dict | None = None,
-          init_from: str | None = None, opts: RunOptions | None = None, step_hook=None) -> Path:
+          init_from: str | None = None, opts: RunOptions | None = None, step_hook=None,
+          variant: str | None = None) -> Path:
     """``init_from``: fine-tune a trained DiffSHEG checkpoint (its config, weights, motion and mel
     normalisation and style ids are kept; ``config`` must name the same config). Fresh Adam state and warm-up.
     ``opts``: how to run (:class:`livegesture.trainkit.RunOptions`; default: those of ``device``): batches
@@ -126,11 +128,12 @@ def train(config: str, data_dir: str, out: str, device: str = "cpu", overrides: 
     (benchmarks) runs after each step."""
     opts = opts or RunOptions.for_device(str(device))
     rank, world = dist_info()
-    cfg = get_config(config)
+    cfg = variants.apply(get_config(config), families.DIFFSHEG.name, variant)   # livegesture.variants
     src = None
     if init_from:
         src = ckpt.load_to_fine_tune(init_from, "diffsheg", cfg, config)
     tc = DiffSHEGTrainConfig.for_model(cfg.name)
+    overrides = {**(overrides or {}), **variants.train_overrides(families.DIFFSHEG.name, variant)}
     if overrides:
         tc = replace(tc, **{k: v for k, v in overrides.items() if k in DiffSHEGTrainConfig.__dataclass_fields__})
     out = Path(out)
@@ -171,7 +174,7 @@ def train(config: str, data_dir: str, out: str, device: str = "cpu", overrides: 
     ab = alphas_cumprod(cfg.diffusion_steps, cfg.beta_start, cfg.beta_end)
     sab = torch.from_numpy(ab ** 0.5).float().to(device)
     s1mab = torch.from_numpy((1 - ab) ** 0.5).float().to(device)
-    info = {"family": "diffsheg", "config": cfg.name, "train_config": asdict(tc), "data": str(Path(data_dir).resolve()),
+    info = {"family": "diffsheg", "config": cfg.name, "variant": cfg.variant, "train_config": asdict(tc), "data": str(Path(data_dir).resolve()),
             **({"world_size": world} if world > 1 else {}),
             "train_clips": len(data.clips), "train_frames": int(wd.frames.sum()),
             "train_minutes": round(float(wd.frames.sum()) / 30 / 60, 2), "speakers": numbers,
@@ -270,4 +273,4 @@ def train_from_args(args, device, opts, speakers):
           "max_minutes": args.max_minutes, "augment": args.augment, "speakers": speakers}
     return train(args.config, args.data, args.out, device=device,
                  overrides={k: v for k, v in ov.items() if v is not None or k == "speakers"},
-                 init_from=args.init_from, opts=opts)
+                 init_from=args.init_from, opts=opts, variant=args.variant)

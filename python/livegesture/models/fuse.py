@@ -11,6 +11,13 @@ At token step t it reads the hidden states h_t^r of the four frozen region eXper
     logits_t^r = classifier_r(LN(.))        (the region classifiers are shared with the eXperts)
 
 Guided sampling happens outside the graph, in the runtime (``livegesture.sampling``).
+
+Variants (``livegesture.variants``; config fields, all on by default): ``pilor`` (False: h~ = h +
+region_embedding, Table 2a "w/o PILOR"), ``fuse_spatial`` / ``fuse_temporal`` / ``fuse_audio`` (False: the
+block has no such attention layer, no LayerNorm and no cache for it; Table 2a "w/o spatial / temporal attn."),
+``fusion = "none"`` (eXperts only: no adapter, no blocks, no final LayerNorm: ``logits_t^r = classifier_r(h_t^r)``,
+exactly the eXperts' own predictions, so the bundle's ``fusion`` graph is the eXperts' classifiers and the
+runtime runs it unchanged).
 """
 from __future__ import annotations
 
@@ -57,12 +64,19 @@ class SpatialAttention(nn.Module):
 
 
 class FuseBlock(nn.Module):
+    """One fusion block; a layer switched off by the config (``fuse_spatial``, ``fuse_temporal``, ``fuse_audio``)
+    is absent (no weights, no cache), not computed and discarded."""
+
     def __init__(self, cfg: LiveGestureConfig):
         super().__init__()
         d = cfg.d_model
-        self.ln_s, self.spatial = nn.LayerNorm(d), SpatialAttention(d, cfg.n_heads)
-        self.ln_t, self.temporal = nn.LayerNorm(d), WindowedAttention(d, cfg.n_heads, cfg.fuse_window)
-        self.ln_a, self.cross = nn.LayerNorm(d), WindowedAttention(d, cfg.n_heads, cfg.audio_window, cfg.audio_dim)
+        self.has_spatial, self.has_temporal, self.has_cross = cfg.fuse_spatial, cfg.fuse_temporal, cfg.fuse_audio
+        if self.has_spatial:
+            self.ln_s, self.spatial = nn.LayerNorm(d), SpatialAttention(d, cfg.n_heads)
+        if self.has_temporal:
+            self.ln_t, self.temporal = nn.LayerNorm(d), WindowedAttention(d, cfg.n_heads, cfg.fuse_window)
+        if self.has_cross:
+            self.ln_a, self.cross = nn.LayerNorm(d), WindowedAttention(d, cfg.n_heads, cfg.audio_window, cfg.audio_dim)
         self.ln_f, self.ffn = nn.LayerNorm(d), FeedForward(d, cfg.ffn_mult)
 
 
@@ -74,29 +88,48 @@ class XARFuse(nn.Module):
         self.cfg = cfg
         d, R = cfg.d_model, len(REGION_NAMES)
         self.R = R
-        self.pilor = nn.ModuleList(nn.Linear(d, d) for _ in range(R))
-        for lin in self.pilor:   # start as the identity adapter: h~ = h
-            nn.init.zeros_(lin.weight)
-            nn.init.zeros_(lin.bias)
-        self.region_embed = nn.Parameter(torch.zeros(R, d))
-        self.null_audio = nn.Parameter(torch.zeros(cfg.audio_dim))
-        self.blocks = nn.ModuleList(FuseBlock(cfg) for _ in range(cfg.fuse_blocks))
-        self.norm = nn.LayerNorm(d)
+        if cfg.fusion not in ("xar", "none"):
+            raise ValueError(f"config: fusion {cfg.fusion!r}: expected 'xar' (xAR-Fuse) or 'none' (eXperts only)")
+        self.fused = cfg.fusion == "xar"
+        self.has_pilor = self.fused and cfg.pilor
+        if self.has_pilor:
+            self.pilor = nn.ModuleList(nn.Linear(d, d) for _ in range(R))
+            for lin in self.pilor:   # start as the identity adapter: h~ = h
+                nn.init.zeros_(lin.weight)
+                nn.init.zeros_(lin.bias)
+        if self.fused:
+            self.region_embed = nn.Parameter(torch.zeros(R, d))
+            self.null_audio = nn.Parameter(torch.zeros(cfg.audio_dim))
+            self.norm = nn.LayerNorm(d)
+        self.blocks = nn.ModuleList(FuseBlock(cfg) for _ in range(cfg.fuse_blocks if self.fused else 0))
         self.classifiers = classifiers if classifiers is not None else \
             nn.ModuleList(nn.Linear(d, cfg.codebook_size) for _ in range(R))
 
+    @property
+    def uses_audio(self) -> bool:
+        """Whether the step reads ``audio`` and ``cond`` (not without audio cross-attention: the exported graph
+        then has no such inputs)."""
+        return self.fused and any(b.has_cross for b in self.blocks)
+
     def _adapt(self, h):  # h (..., R, d)
+        if not self.fused:
+            return h
+        if not self.has_pilor:
+            return h + self.region_embed
         return torch.stack([h[..., r, :] + self.pilor[r](h[..., r, :]) for r in range(self.R)], dim=-2) \
             + self.region_embed
 
     def _audio(self, audio, cond):
+        if not self.fused:
+            return audio
         c = cond.to(audio.dtype)
         while c.dim() < audio.dim():
             c = c.unsqueeze(-1)
         return c * audio + (1 - c) * self.null_audio
 
     def _classify(self, x):  # (..., R, d) -> (..., R, K)
-        x = self.norm(x)
+        if self.fused:
+            x = self.norm(x)
         return torch.stack([self.classifiers[r](x[..., r, :]) for r in range(self.R)], dim=-2)
 
     def forward(self, hidden: torch.Tensor, audio: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
@@ -109,20 +142,24 @@ class XARFuse(nn.Module):
         a = self._audio(audio, cond)
         a_rep = a[:, None].expand(B, R, T, a.shape[-1]).reshape(B * R, T, -1)
         for blk in self.blocks:
-            x = x + blk.spatial(blk.ln_s(x).reshape(B * T, R, d)).reshape(B, T, R, d)
-            xt = blk.ln_t(x).permute(0, 2, 1, 3).reshape(B * R, T, d)
-            x = x + blk.temporal(xt, xt).reshape(B, R, T, d).permute(0, 2, 1, 3)
-            xa = blk.ln_a(x).permute(0, 2, 1, 3).reshape(B * R, T, d)
-            x = x + blk.cross(xa, a_rep).reshape(B, R, T, d).permute(0, 2, 1, 3)
+            if blk.has_spatial:
+                x = x + blk.spatial(blk.ln_s(x).reshape(B * T, R, d)).reshape(B, T, R, d)
+            if blk.has_temporal:
+                xt = blk.ln_t(x).permute(0, 2, 1, 3).reshape(B * R, T, d)
+                x = x + blk.temporal(xt, xt).reshape(B, R, T, d).permute(0, 2, 1, 3)
+            if blk.has_cross:
+                xa = blk.ln_a(x).permute(0, 2, 1, 3).reshape(B * R, T, d)
+                x = x + blk.cross(xa, a_rep).reshape(B, R, T, d).permute(0, 2, 1, 3)
             x = x + blk.ffn(blk.ln_f(x))
         return self._classify(x)
 
     def cache_specs(self) -> list[CacheSpec]:
         specs = [CacheSpec("step", (), "int64")]
         for i, blk in enumerate(self.blocks):
-            t = blk.temporal
-            specs += t.cache_spec(f"block{i}.tattn", lead=(self.R,))
-            specs += blk.cross.cache_spec(f"block{i}.xattn")
+            if blk.has_temporal:
+                specs += blk.temporal.cache_spec(f"block{i}.tattn", lead=(self.R,))
+            if blk.has_cross:
+                specs += blk.cross.cache_spec(f"block{i}.xattn")
         return specs
 
     def init_cache(self, batch: int, device=None) -> dict:
@@ -154,13 +191,17 @@ class XARFuse(nn.Module):
         bias_t = (bias_t[:, None] + torch.zeros((1, R, 1, 1), device=bias_t.device)).reshape(
             -1, 1, self.cfg.fuse_window)
         for i, blk in enumerate(self.blocks):
-            spatial, temporal, cross = ((blk.spatial.step_op, blk.temporal.step_op, blk.cross.step_op) if attention_op
-                                        else (blk.spatial.step, blk.temporal.step, blk.cross.step))
-            x = x + spatial(blk.ln_s(x))
-            # temporal attention on B * R rows (stream-major, region-minor); its caches keep the region axis
-            xt = blk.ln_t(x).reshape(-1, d)
-            x = x + temporal(xt, xt, bias_t, cache, new_cache, f"block{i}.tattn", lead=(R,)).reshape(-1, R, d)
-            x = x + cross(blk.ln_a(x), a, bias_a, cache, new_cache, f"block{i}.xattn")
+            def core(layer):
+                return layer.step_op if attention_op else layer.step
+            if blk.has_spatial:
+                x = x + core(blk.spatial)(blk.ln_s(x))
+            if blk.has_temporal:
+                # temporal attention on B * R rows (stream-major, region-minor); its caches keep the region axis
+                xt = blk.ln_t(x).reshape(-1, d)
+                x = x + core(blk.temporal)(xt, xt, bias_t, cache, new_cache, f"block{i}.tattn",
+                                           lead=(R,)).reshape(-1, R, d)
+            if blk.has_cross:
+                x = x + core(blk.cross)(blk.ln_a(x), a, bias_a, cache, new_cache, f"block{i}.xattn")
             x = x + blk.ffn(blk.ln_f(x))
         new_cache["step"] = step + 1
         return {"logits": self._classify(x)}, new_cache

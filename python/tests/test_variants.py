@@ -1,0 +1,190 @@
+"""The papers' variants as configuration (livegesture.variants): listed, refused when unknown, and each one changes
+the model or the training the way its paper reference says (and nothing else). The end-to-end proof (train a few
+steps, export, parity on both backends, generate) is scripts/variants.sh, run by the test command."""
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from livegesture import checkpoint as ckpt
+from livegesture import families, variants
+from livegesture.config import get_config
+from livegesture.diffsheg.config import get_config as get_diffsheg_config
+from livegesture.diffsheg.denoiser import EXP_DIM, GES_DIM, MOTION_DIM, concat_width
+from livegesture.regions import REGION_NAMES
+from livegesture.train import TrainConfig, TrainData, main as train_main, stage_fuse, stage_svq2, tokenize_clips
+
+LG, DS = families.LIVEGESTURE.name, families.DIFFSHEG.name
+
+
+def lg_model(variant, seed=0):
+    return ckpt.random_model(variants.apply(get_config("tiny"), LG, variant), seed)
+
+
+def ds_model(variant, seed=0):
+    return ckpt.random_model(variants.apply(get_diffsheg_config("tiny"), DS, variant), seed, family=DS)
+
+
+def test_list_variants_prints_the_names_one_a_line_for_both_families(capsys):
+    for fam in (LG, DS):
+        assert train_main(["--family", fam, "--list-variants"]) == 0
+        lines = capsys.readouterr().out.splitlines()
+        assert lines == list(variants.variants_of(fam)) and lines[0] == "full" and len(lines) >= 5
+
+
+def test_an_unknown_variant_is_refused_naming_the_choices(capsys):
+    with pytest.raises(SystemExit):
+        train_main(["--variant", "no-such", "--data", "x", "--out", "y"])
+    err = capsys.readouterr().err
+    assert "--variant no-such" in err and "no-pilor" in err
+    with pytest.raises(ValueError, match="unknown diffsheg variant 'no-pilor'"):
+        variants.apply(get_diffsheg_config("tiny"), DS, "no-pilor")     # a LiveGesture variant is not DiffSHEG's
+
+
+def test_every_variant_names_its_paper_reference_and_only_known_fields():
+    for v in variants.VARIANTS:
+        assert v.paper and v.summary, v.name
+        base = get_config("tiny") if v.family == LG else get_diffsheg_config("tiny")
+        cfg = variants.apply(base, v.family, v.name)           # raises on a field the config lacks
+        assert cfg.variant == v.name
+        tfields = {f.name for f in dataclasses.fields(TrainConfig)} if v.family == LG else None
+        if tfields is not None:
+            assert set(v.train) <= tfields, v.name
+
+
+def test_full_is_the_unchanged_model():
+    """The default variant is the model the shipped bundles were exported from: same weights from the same seed."""
+    a, b = ckpt.random_model("tiny", 0), lg_model("full")
+    assert a.state_dict().keys() == b.state_dict().keys()
+    assert all(torch.equal(a.state_dict()[k], b.state_dict()[k]) for k in a.state_dict())
+    c, d = ckpt.random_model("tiny", 0, family=DS), ds_model("full")
+    assert all(torch.equal(c.state_dict()[k], d.state_dict()[k]) for k in c.state_dict())
+
+
+def test_fusion_switches_remove_their_layers_and_caches():
+    full = lg_model("full")
+    keys = set(full.state_dict())
+    assert any(".pilor." in k for k in keys)
+    assert not any(".pilor." in k for k in lg_model("no-pilor").state_dict())
+    names = {s.name for s in full.fuse.cache_specs()}
+    assert any("tattn" in n for n in names) and any("xattn" in n for n in names)
+    assert not any("tattn" in s.name for s in lg_model("no-temporal").fuse.cache_specs())
+    no_audio = lg_model("no-fuse-audio").fuse
+    assert not any("xattn" in s.name for s in no_audio.cache_specs()) and not no_audio.uses_audio
+    assert not any(".spatial." in k for k in lg_model("no-spatial").state_dict())
+    assert lg_model("codebook-half").cfg.codebook_size == get_config("tiny").codebook_size // 2
+    assert lg_model("codebook-double").cfg.codebook_size == get_config("tiny").codebook_size * 2
+
+
+@torch.no_grad()
+def test_experts_only_predicts_with_the_experts_own_classifiers():
+    m = lg_model("experts-only")
+    g = torch.Generator().manual_seed(0)
+    B = 3
+    hidden = {r: torch.randn(B, m.cfg.d_model, generator=g) for r in REGION_NAMES}
+    out, new = m.fuse.step(hidden, torch.randn(B, m.cfg.audio_dim, generator=g), torch.ones(B), m.fuse.init_cache(B))
+    want = torch.stack([m.experts[r].logits(hidden[r]) for r in REGION_NAMES], 1)
+    assert torch.equal(out["logits"], want)
+    # must-fail: with xAR-Fuse the logits are not the eXperts'
+    full = lg_model("full")
+    out, _ = full.fuse.step(hidden, torch.randn(B, m.cfg.audio_dim, generator=g), torch.ones(B),
+                            full.fuse.init_cache(B))
+    assert not torch.allclose(out["logits"], torch.stack([full.experts[r].logits(hidden[r]) for r in REGION_NAMES], 1))
+
+
+def _eps(model, x, t):
+    B, n = x.shape[:2]
+    audio = torch.randn(B, n, model.cfg.audio_dim, generator=torch.Generator().manual_seed(1))
+    return model.denoiser(x, t, audio, torch.zeros(B, dtype=torch.int64), torch.ones(B))
+
+
+@torch.no_grad()
+def test_diffsheg_condition_flow_follows_the_variant():
+    """uni: the expression's eps never depends on the gesture input; reverse: it does, and the gesture's eps no
+    longer depends on the expression; no-x0: neither reads the other."""
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(2, 12, MOTION_DIM, generator=g)
+    t = torch.tensor([500, 20])
+    x_g = x.clone()
+    x_g[..., :GES_DIM] += 1.0          # the gesture part changed
+    x_e = x.clone()
+    x_e[..., GES_DIM:] += 1.0          # the expression part changed
+
+    def moved(model, x2, part):
+        a, b = _eps(model, x, t), _eps(model, x2, t)
+        sl = slice(GES_DIM, None) if part == "exp" else slice(0, GES_DIM)
+        return not torch.equal(a[..., sl], b[..., sl])
+    full, rev, nox0 = ds_model("full"), ds_model("reverse"), ds_model("no-x0")
+    assert not moved(full, x_g, "exp") and moved(full, x_e, "ges")
+    assert moved(rev, x_g, "exp") and not moved(rev, x_e, "ges")
+    assert not moved(nox0, x_g, "exp") and not moved(nox0, x_e, "ges")
+    concat = ds_model("naive-concat")
+    assert concat.denoiser.joint.inp.out_features == concat_width(concat.cfg) > concat.cfg.d_model
+    assert moved(concat, x_g, "exp") and moved(concat, x_e, "ges")
+    assert EXP_DIM == MOTION_DIM - GES_DIM
+
+
+def test_no_detach_lets_the_gesture_loss_reach_the_expression_branch():
+    x = torch.randn(2, 12, MOTION_DIM, generator=torch.Generator().manual_seed(0))
+    t = torch.tensor([500, 20])
+    grads = {}
+    for v in ("full", "no-detach"):
+        m = ds_model(v)          # eval mode: no dropout
+        _eps(m, x, t)[..., :GES_DIM].square().sum().backward()          # the gesture's loss only
+        grads[v] = sum(float(p.grad.abs().sum()) for p in m.denoiser.exp.parameters() if p.grad is not None)
+    assert grads["full"] == 0.0 and grads["no-detach"] > 0.0
+
+
+def _data(tiny_corpus, cfg, tcfg):
+    data = TrainData(tiny_corpus, cfg, None)
+    return data
+
+
+def test_training_variants_change_the_fuse_stage(tiny_corpus):
+    cfg = get_config("tiny")
+    base = TrainConfig.for_model("tiny")
+    model = ckpt.random_model("tiny", 0)
+    data = _data(tiny_corpus, cfg, base)
+    tokenize_clips(model, data, "cpu")
+
+    def batch(variant, step=0, seed=5):
+        tcfg = dataclasses.replace(base, **variants.train_overrides(LG, variant))
+        _, fn, _ = stage_fuse(model, data, tcfg, "cpu")
+        return fn.sample(step, np.random.default_rng(seed)), fn, tcfg
+    # at step 0 the project's ramp allows no region drop; the paper's U(0, 0.2) does from the first step
+    assert batch("full")[0]["p_drop"] == 0.0
+    drops = [batch("paper-region-mask", 0, s)[0]["p_drop"] for s in range(20)]
+    assert 0.0 < max(drops) <= 0.2
+    late = [batch("no-region-mask", base.steps_fuse, s)[0] for s in range(5)]
+    assert all(b["p_drop"] == 0.0 and not b["region_mask"].any() for b in late)
+    assert all(batch("no-ugm", base.steps_fuse, s)[0]["ratio"] == 0.0 for s in range(5))
+    assert max(batch("full", base.steps_fuse, s)[0]["ratio"] for s in range(5)) > 0.0     # must-fail side
+    # masked-fuse-loss: with nothing masked (step 0: ratio and p_drop are 0) there is no fuse loss
+    b, fn, _ = batch("masked-fuse-loss")
+    from livegesture.trainkit import to_device
+    with torch.no_grad():
+        _, parts = fn.compute(0, to_device(b, "cpu"))
+        _, parts_full = batch("full")[1].compute(0, to_device(b, "cpu"))
+    assert float(parts["fuse"]) == 0.0 and float(parts_full["fuse"]) > 0.0
+
+
+def test_one_stage_svq_trains_the_autoencoder_with_the_quantizer(tiny_corpus):
+    cfg = get_config("tiny")
+    base = TrainConfig.for_model("tiny")
+    data = _data(tiny_corpus, cfg, base)
+    for variant, joint in (("full", False), ("one-stage-svq", True)):
+        model = ckpt.random_model("tiny", 0)
+        tcfg = dataclasses.replace(base, **variants.train_overrides(LG, variant))
+        params, _, _ = stage_svq2(model, data, tcfg, "cpu")
+        dec = {id(p) for p in model.svq["upper"].decoder.parameters()}
+        assert any(id(p) in dec for p in params) == joint, variant
+
+
+def test_the_manifest_records_the_variant():
+    from export.bundle_writer import variant_record
+    cfg = variants.apply(get_config("tiny"), LG, "codebook-half")
+    rec = variant_record(LG, cfg)
+    assert rec["name"] == "codebook-half" and rec["model_options"] == {"codebook_size": cfg.codebook_size}
+    assert "Table 3" in rec["paper"]
+    assert variant_record(LG, get_config("tiny"))["name"] == "full"

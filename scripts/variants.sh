@@ -1,0 +1,69 @@
+#!/usr/bin/env bash
+# Every model variant of both families (python -m livegesture.train --list-variants; docs/model.md and
+# docs/diffsheg.md "Variants"), end to end on the tiny config:
+#   a few training steps on a small synthetic corpus -> export (every graph verified against torch by the
+#   exporter; a shorter reference rollout than the shipped bundles') -> `livegesture parity` on ort and tract
+#   -> `livegesture generate` on both backends.
+# Called by scripts/test.sh (stage "variants"); alone: scripts/variants.sh [OUT] (default target/variants),
+# with the release binary built (LIVEGESTURE_BIN overrides it). VARIANTS="livegesture/no-pilor diffsheg/reverse"
+# limits the run to those.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+# shellcheck source=/dev/null
+source scripts/env.sh
+export PYTHONPATH="$PWD/python${PYTHONPATH:+:$PYTHONPATH}"
+OUT="${1:-target/variants}"
+BIN="${LIVEGESTURE_BIN:-$PWD/target/release/livegesture}"
+[ -x "$BIN" ] || { echo "variants: no livegesture binary at $BIN (cargo build --release -p livegesture)" >&2; exit 1; }
+rm -rf "$OUT"
+mkdir -p "$OUT"
+t0=$SECONDS
+
+# 0.4 minutes of synthetic speech and motion (espeak-ng), every speaker
+"$LIVEGESTURE_PY" -m livegesture.data.synth --out "$OUT/corpus" --minutes 0.4 --seed 3 --jobs 1 \
+  --clip-seconds 10 14 >/dev/null 2>&1
+# 6 s of the corpus' first clip's speech for generate
+"$LIVEGESTURE_PY" - "$OUT" <<'PY'
+import sys, wave
+from pathlib import Path
+out = Path(sys.argv[1])
+src = sorted((out / "corpus").rglob("*.wav"))[0]
+with wave.open(str(src), "rb") as r, wave.open(str(out / "speech.wav"), "wb") as w:
+    w.setparams(r.getparams())
+    w.writeframes(r.readframes(6 * r.getframerate()))
+PY
+
+run_variant() {   # family variant
+  local fam="$1" v="$2" dir="$OUT/$1-$2" t=$SECONDS
+  local steps=(--steps-svq1 3 --steps-svq2 3 --steps-experts 3 --steps-fuse 3)
+  local rollout=(--rollout-tokens 100)
+  if [ "$fam" = diffsheg ]; then steps=(--steps 3 --batch 4); rollout=(--rollout-windows 4); fi
+  "$LIVEGESTURE_PY" -m livegesture.train --family "$fam" --config tiny --variant "$v" --data "$OUT/corpus" \
+    --out "$dir/run" --speakers all --device cpu "${steps[@]}" >"$dir.train.log" 2>&1 \
+    || { tail -20 "$dir.train.log" >&2; echo "variants: $fam/$v: training failed" >&2; return 1; }
+  "$LIVEGESTURE_PY" export/export.py --checkpoint "$dir/run/final.pt" --out "$dir/bundle" "${rollout[@]}" \
+    >"$dir.export.log" 2>&1 \
+    || { tail -20 "$dir.export.log" >&2; echo "variants: $fam/$v: export failed" >&2; return 1; }
+  "$LIVEGESTURE_PY" - "$dir/bundle/manifest.json" "$fam" "$v" <<'PY'
+import json, sys
+m = json.load(open(sys.argv[1]))
+got = (m.get("family", "livegesture"), m["model"]["variant"]["name"], m["model"]["config"]["variant"])
+assert got == (sys.argv[2], sys.argv[3], sys.argv[3]), f"{sys.argv[1]}: family/variant {got}, expected {sys.argv[2:]}"
+PY
+  "$BIN" parity --bundle "$dir/bundle" --backends ort,tract --junit "$dir.parity.xml" >"$dir.parity.log" 2>&1 \
+    || { tail -30 "$dir.parity.log" >&2; echo "variants: $fam/$v: parity failed" >&2; return 1; }
+  for backend in ort tract; do
+    "$BIN" generate "$OUT/speech.wav" -o "$dir/motion-$backend.npz" --seed 1 --backend "$backend" \
+      --bundle "$dir/bundle" >"$dir.generate.log" 2>&1 \
+      || { cat "$dir.generate.log" >&2; echo "variants: $fam/$v: generate ($backend) failed" >&2; return 1; }
+  done
+  echo "variant $fam/$v: trained, exported, parity ort+tract, generate ort+tract ($(( SECONDS - t )) s)"
+}
+
+for fam in livegesture diffsheg; do
+  for v in $("$LIVEGESTURE_PY" -m livegesture.train --family "$fam" --list-variants); do
+    if [ -n "${VARIANTS:-}" ] && [[ " $VARIANTS " != *" $fam/$v "* ]]; then continue; fi
+    run_variant "$fam" "$v"
+  done
+done
+echo "variants: all done in $(( SECONDS - t0 )) s"
