@@ -2,7 +2,9 @@
 
 - ``tiny``: for tests (seconds on a CPU), same structure, tiny widths and windows;
 - ``default``: the model we train on the synthetic corpus and ship in ``models/default``;
-- ``paper``: exactly the LiveGesture paper's values (docs/model.md), for users with BEAT2 and a GPU.
+- ``paper``: the LiveGesture paper's values where it gives one (supp. B: K 2048, 128-d codes, embedding 128 -> 256,
+  history 32, eXperts 2 x (3 + 3), 3 fuse blocks), the project's choice where it gives none (widths of the SVQ
+  and the audio encoder, mel bins, heads, the fusion's windows; docs/model.md), for users with BEAT2 and a GPU.
 """
 from __future__ import annotations
 

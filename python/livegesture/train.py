@@ -61,7 +61,9 @@ STAGES = ("svq1", "svq2", "experts", "fuse")
 
 @dataclass
 class TrainConfig:
-    """Training hyper-parameters. Defaults are the paper's (supp. B); ``for_model`` scales step counts."""
+    """Training hyper-parameters. Adam 1e-4 / batch 128 for experts and fuse, the masking, noise and loss values
+    are the paper's (supp. B); the step counts and the SVQ stages' batch and learning rate are the project's
+    choice (the paper gives none). ``for_model`` scales step counts."""
     steps_svq1: int = 20000
     steps_svq2: int = 20000
     steps_experts: int = 50000

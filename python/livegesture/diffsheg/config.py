@@ -2,9 +2,10 @@
 
 - ``tiny``: tests (a random-weights export in seconds);
 - ``default``: trained on the synthetic corpus on one CPU thread in ~30-40 minutes, shipped in models/diffsheg;
-- ``paper``: the paper's / the authors' code's widths and depths (latent 512, feed-forward 1024, 8 heads,
-  8 style-aware transformer layers per branch, audio latent 256, 128 mel bins), 88-frame windows at 30 fps
-  with an overlap of 10 (the SHOW setting), DDIM 25 steps.
+- ``paper``: a paper-sized model (latent 512, feed-forward 1024, 8 heads, 8 style-aware transformer layers per
+  branch, audio latent 256, 128 mel bins): the project's choice, the paper gives no widths or depths;
+  88-frame windows at 30 fps with an overlap of 10 (the project's choice; the paper's runtime test overlaps 4
+  frames at 15 fps), DDIM 25 steps (the paper's, section 3.5).
 
 The guidance scale is the project's choice: the paper gives none (the authors' SHOW scripts use 1.15). Configs
 keep 1.25; the shipped models/diffsheg bundle samples with 3.0, set at export (``export.py --guidance 3``,
@@ -46,7 +47,7 @@ class DiffSHEGConfig:
     detach: bool = True               # x0 of the first branch detached before the second branch reads it
     x0_condition: bool = True         # the second branch reads the first branch's x0
 
-    # diffusion + sampling defaults (paper values)
+    # diffusion + sampling defaults (the paper's: 1000-step DDPM, 25 DDIM steps, section 3.5; the rest the project's)
     diffusion_steps: int = 1000
     beta_start: float = 1e-4
     beta_end: float = 0.02
