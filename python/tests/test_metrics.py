@@ -285,9 +285,12 @@ def test_cli_report(tmp_path, capsys):
         src = np.load(tmp_path / "c" / "smplxflame_30" / f"{ids[(k + 1) % 3]}.npz")
         np.savez(gen / f"{cid}.npz", **{key: src[key] for key in src.files})
     out = tmp_path / "report.json"
+    # the project's rule (an option; EMAGE's is the default, test_bc_default_rule_is_emages): on this synthetic
+    # motion the strokes stop dead at the beat, which EMAGE's rule drops as "no motion"
     assert main(["--data", str(tmp_path / "c"), "--generated", str(gen), "--fgd-encoder",
-                 str(tmp_path / "enc.pt"), "--fgd-steps", "5", "--out", str(out)]) == 0
+                 str(tmp_path / "enc.pt"), "--fgd-steps", "5", "--out", str(out), "--bc-rule", "prominence"]) == 0
     r = json.loads(out.read_text())
+    assert r["settings"]["bc_rule"] == "prominence"
     gt, g = r["ground_truth"], r["generated"]
     printed = capsys.readouterr().out
     assert "BC (matched audio)" in printed and "BC gap, motion swap" in printed
@@ -301,3 +304,19 @@ def test_cli_report(tmp_path, capsys):
     assert gt["face"]["face"] == 0.0 and g["face"]["face"] > 0
     assert g["fgd"] >= 0 and gt["fgd"] >= 0 and g["l1div_realisations"] is None
     assert (tmp_path / "enc.pt").exists()
+
+
+def test_bc_default_rule_is_emages(capsys):
+    """Beat Constancy's default motion-beat rule is EMAGE's (the papers' BC), in the function and the CLI; the
+    project's prominence rule is an option, and the two differ on a stroke that stops dead at its beat."""
+    import inspect
+    from livegesture.eval.__main__ import main
+    assert M.BC_RULE == "emage"
+    assert inspect.signature(M.beat_constancy).parameters["rule"].default == "emage"
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    assert "emage (default" in " ".join(capsys.readouterr().out.split())
+    speed = np.abs(np.sin(np.linspace(0, 6 * np.pi, 180)))     # comes to a full stop six times
+    emage = M._beat_frames(speed, 0, 180, 7, 0.1, float(speed.mean()), "emage")
+    prominence = M._beat_frames(speed, 0, 180, 7, 0.1, float(speed.mean()), "prominence")
+    assert len(emage) == 0 and len(prominence) >= 4

@@ -264,8 +264,9 @@ def main(argv: list[str] | None = None) -> int:
                                           "DATA/fgd_encoder.pt)")
     ap.add_argument("--fgd-steps", type=int, default=1000, help="training steps if the encoder is trained")
     ap.add_argument("--max-clips", type=int, default=None, help="evaluate only the first N clips (sorted ids)")
-    ap.add_argument("--bc-rule", choices=("prominence", "emage"), default="prominence",
-                    help="motion-beat filter (see livegesture.eval.metrics)")
+    ap.add_argument("--bc-rule", choices=("emage", "prominence"), default=M.BC_RULE,
+                    help="motion-beat filter (livegesture.eval.metrics): emage (default, EMAGE's rule, as the "
+                         "papers' BC) or prominence (the project's rule; the figures before 2026-11-27 used it)")
     ap.add_argument("--bc-mode", choices=("per_joint", "mean_speed"), default="per_joint")
     ap.add_argument("--face-model", help="module:function computing SMPL-X vertices (user-supplied model) for "
                                          "the face vertex MSE")

@@ -84,6 +84,9 @@ from ..data.synth_motion import STROKE_DRIVES
 
 SPEED_SMOOTH_S = 0.2
 BC_TRIM_S = 0.5          # the recordings are 4-30 s: livegesture.eval's 2 s trim would leave nothing of some
+# the project's motion-beat rule, as every real-speech figure so far: this is the project's own measure (0.5 s trim),
+# not the papers' BC (livegesture.eval, whose default is EMAGE's rule)
+BC_RULE = "prominence"
 ENV_RANGE_DB = 50.0
 MEASURES = ("bc", "jaw_env", "speed_env")
 DESIGNS = ("audio_swap", "motion_swap")
@@ -169,7 +172,8 @@ def clip_measures(m: ClipMotion, a: ClipAudio, speed_ref=None, n_frames: int | N
     ``n_frames`` when shorter (BC is NaN when the clip is too short for its trim)."""
     T = min(m.n, a.n) if n_frames is None else min(m.n, a.n, n_frames)
     try:
-        bc = M.beat_constancy(m.joints[:T], onset_times=a.onsets, fps=FPS, speed_ref=speed_ref, trim_s=BC_TRIM_S)
+        bc = M.beat_constancy(m.joints[:T], onset_times=a.onsets, fps=FPS, speed_ref=speed_ref, trim_s=BC_TRIM_S,
+                              rule=BC_RULE)
     except ValueError:
         bc = float("nan")
     env = a.env[:T]
@@ -321,7 +325,7 @@ def shifted_bc(m: "ClipMotion", a: "ClipAudio", speed_ref=None, min_shift_s: flo
     T = min(m.n, a.n)
     try:
         _, det = M.beat_constancy(m.joints[:T], onset_times=a.onsets, fps=FPS, speed_ref=speed_ref,
-                                  trim_s=BC_TRIM_S, return_details=True)
+                                  trim_s=BC_TRIM_S, return_details=True, rule=BC_RULE)
     except ValueError:
         return float("nan")
     start, W = det["start"], det["stop"] - det["start"]
@@ -647,7 +651,7 @@ def main(argv: list[str] | None = None) -> int:
                                        "swap: clip i's audio gets the motion of every clip j != i",
                            "env_range_db": ENV_RANGE_DB, "speed_smooth_s": SPEED_SMOOTH_S, "bc_trim_s": BC_TRIM_S,
                            "bootstrap": a.bootstrap, "ci": 0.95, "reference_drive": a.reference_drive,
-                           "bc_speed_ref": "synth train split" if speed_ref is not None else "evaluated motion",
+                           "bc_rule": BC_RULE, "bc_speed_ref": "synth train split" if speed_ref is not None else "evaluated motion",
                            "motion": a.checkpoint or gen},
               "sets": {}}
     if "real" in sets:

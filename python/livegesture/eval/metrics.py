@@ -15,13 +15,15 @@ Beat Constancy (BC), paper eq. 3
     it is a strict minimum of the speed over +-``order`` (7) frames (``scipy.signal.argrelextrema``, as
     EMAGE). BC is computed per joint and averaged over the 13 joints; a joint without any beat in the
     window counts 0 (EMAGE does the same). Minima are filtered so that noise in still segments does not
-    count as beats. Two rules are available:
+    count as beats. Two rules are available (``BC_RULE`` is the default):
 
-    - ``rule="prominence"`` (default): keep a minimum when the joint's speed rises above it by at least
+    - ``rule="emage"`` (default, ``BC_RULE``): EMAGE's rule, below; the paper's BC is EMAGE's metric, so its
+      figures compare with this one.
+    - ``rule="prominence"`` (the project's rule, an option: ``--bc-rule prominence``): keep a minimum when the joint's speed rises above it by at least
       ``threshold * ref`` somewhere within +-``order`` frames (``ref`` = the joint's reference mean speed).
       This keeps the stroke ends of real beat gestures (where the speed can drop to ~0) and drops the
       wobble of a joint at rest.
-    - ``rule="emage"``: EMAGE's rule, keep a minimum when the speed itself is above ``threshold * ref``
+    - ``rule="emage"``: keep a minimum when the speed itself is above ``threshold * ref``
       (EMAGE divides the speed by the dataset mean joint speed ``mean_vel_smplxflame_30.npy`` and keeps
       minima above 0.1). It drops stroke ends that come to a full stop.
 
@@ -74,6 +76,7 @@ SIGMA_S = 0.3             # BC temporal tolerance (seconds)
 TRIM_S = 2.0              # seconds excluded at each end of a clip for BC
 BEAT_ORDER = 7            # argrelextrema order (frames), EMAGE
 BEAT_THRESHOLD = 0.1      # fraction of the reference joint speed, EMAGE
+BC_RULE = "emage"         # the default motion-beat rule: EMAGE's (the project's "prominence" is an option)
 
 
 # ============================================================================ joints
@@ -150,7 +153,7 @@ def _beat_frames(speed: np.ndarray, start: int, stop: int, order: int, threshold
 def motion_beats(joints: np.ndarray, fps: float = FPS, joint_ids: Sequence[int] = UPPER_JOINTS,
                  start: int = 0, stop: int | None = None, order: int = BEAT_ORDER,
                  threshold: float = BEAT_THRESHOLD, speed_ref: np.ndarray | None = None,
-                 rule: str = "prominence", mode: str = "per_joint") -> list[np.ndarray]:
+                 rule: str = BC_RULE, mode: str = "per_joint") -> list[np.ndarray]:
     """Motion beats as absolute frame indices, one array per joint of ``joint_ids`` (``mode="per_joint"``)
     or a single array for the minima of the mean speed over those joints (``mode="mean_speed"``)."""
     speed = joint_speed(joints, fps)
@@ -243,7 +246,7 @@ def beat_constancy(joints: np.ndarray, audio: np.ndarray | None = None, sample_r
                    fps: float = FPS, *, onset_times: np.ndarray | None = None, sigma: float = SIGMA_S,
                    trim_s: float = TRIM_S, joint_ids: Sequence[int] = UPPER_JOINTS, order: int = BEAT_ORDER,
                    threshold: float = BEAT_THRESHOLD, speed_ref: np.ndarray | None = None,
-                   rule: str = "prominence", mode: str = "per_joint", return_details: bool = False):
+                   rule: str = BC_RULE, mode: str = "per_joint", return_details: bool = False):
     """Beat Constancy of one clip.
 
     ``joints``: (T,55,3) joint positions (global translation removed; see :func:`joints_from_motion`).
