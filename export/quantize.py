@@ -70,6 +70,7 @@ if __name__ == "__main__" and not __package__:
     runpy.run_module("export.quantize", run_name="__main__", alter_sys=True)
     raise SystemExit(0)
 
+from livegesture import families  # noqa: E402
 from livegesture.compare import diff  # noqa: E402
 from livegesture.ort_chain import Chain, Streams, reference, token_mels  # noqa: E402
 from livegesture.sampling import guide  # noqa: E402
@@ -341,7 +342,7 @@ def build(src: Path, out: Path, precision: str, per_channel: bool, log=print, ac
     weights = WEIGHTS[precision]
     cast = weights in ("float16", "bfloat16")
     manifest = json.loads((src / "manifest.json").read_text())
-    if manifest.get("family", "livegesture") != "livegesture":
+    if families.of_manifest(manifest) is not families.LIVEGESTURE:
         raise ValueError(f"{src}/manifest.json: family {manifest['family']}: only LiveGesture bundles are supported")
     if manifest.get("precision", {}).get("weights", "float32") != "float32":
         raise ValueError(f"{src}/manifest.json: precision.weights is {manifest['precision']['weights']}; "

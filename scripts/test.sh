@@ -83,6 +83,10 @@ for ort in "$ORT_OLDEST:$ORT_DYLIB_PATH" "$ORT_NEWEST:$ORT_NEWEST_LIB"; do
   done
 done
 
+stage "variants: every model variant of both families trained a few steps, exported, parity ort+tract, generate"
+# (scripts/variants.sh; docs/model.md "Variants and fidelity choices", docs/diffsheg.md "Variants")
+LIVEGESTURE_BIN="$PWD/target/release/livegesture" scripts/variants.sh target/variants
+
 stage "rust tests"
 if command -v cargo-nextest >/dev/null 2>&1; then
   cargo nextest run --workspace --release --no-fail-fast

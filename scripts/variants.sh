@@ -36,8 +36,8 @@ PY
 run_variant() {   # family variant
   local fam="$1" v="$2" dir="$OUT/$1-$2" t=$SECONDS
   local steps=(--steps-svq1 3 --steps-svq2 3 --steps-experts 3 --steps-fuse 3)
-  local rollout=(--rollout-tokens 100)
-  if [ "$fam" = diffsheg ]; then steps=(--steps 3 --batch 4); rollout=(--rollout-windows 4); fi
+  local rollout=(--reference-seconds 6 --rollout-tokens 100)
+  if [ "$fam" = diffsheg ]; then steps=(--steps 3 --batch 4); rollout=(--reference-seconds 6 --rollout-windows 4); fi
   "$LIVEGESTURE_PY" -m livegesture.train --family "$fam" --config tiny --variant "$v" --data "$OUT/corpus" \
     --out "$dir/run" --speakers all --device cpu "${steps[@]}" >"$dir.train.log" 2>&1 \
     || { tail -20 "$dir.train.log" >&2; echo "variants: $fam/$v: training failed" >&2; return 1; }

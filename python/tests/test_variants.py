@@ -188,3 +188,27 @@ def test_the_manifest_records_the_variant():
     assert rec["name"] == "codebook-half" and rec["model_options"] == {"codebook_size": cfg.codebook_size}
     assert "Table 3" in rec["paper"]
     assert variant_record(LG, get_config("tiny"))["name"] == "full"
+
+
+FAMILY_COMPARISON = r"""[!=]=\s*["'](?:livegesture|diffsheg)["']|["'](?:livegesture|diffsheg)["']\s*[!=]=|""" \
+    r"""["'](?:livegesture|diffsheg)["']\s*(?:not\s+)?in\b|\bin\s*\(\s*["'](?:livegesture|diffsheg)["']"""
+
+
+def test_no_family_string_comparison_outside_the_registry():
+    """Issue 37: the family is picked through livegesture.families only (checkpoint, stream, eval, train, export,
+    bench_train, quantize...); a comparison with a family name anywhere else fails here."""
+    import re
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[2]
+    pat = re.compile(FAMILY_COMPARISON)
+    assert pat.search('if fam == "diffsheg":') and pat.search("x = 'livegesture' != y")   # must-fail cases
+    assert pat.search('if family in ("livegesture", "diffsheg"):')
+    offenders = []
+    for base in ("python/livegesture", "export", "bench"):
+        for p in sorted((root / base).rglob("*.py")):
+            if p.name == "families.py":
+                continue
+            for n, line in enumerate(p.read_text().splitlines(), 1):
+                if pat.search(line.split("#")[0]):
+                    offenders.append(f"{p.relative_to(root)}:{n}: {line.strip()}")
+    assert not offenders, "family names compared outside livegesture.families:\n" + "\n".join(offenders)
