@@ -58,6 +58,10 @@ def test_full_is_the_unchanged_model():
     a, b = ckpt.random_model("tiny", 0), lg_model("full")
     assert a.state_dict().keys() == b.state_dict().keys()
     assert all(torch.equal(a.state_dict()[k], b.state_dict()[k]) for k in a.state_dict())
+    # the fusion's parameters registered in the order of the shipped bundles' export (the ONNX initializer names
+    # follow it: its own parameters, then the adapters, blocks and final norm)
+    fuse = [k.split(".")[1] for k in b.state_dict() if k.startswith("fuse.") and not k.startswith("fuse.classifiers")]
+    assert list(dict.fromkeys(fuse)) == ["region_embed", "null_audio", "pilor", "blocks", "norm"]
     c, d = ckpt.random_model("tiny", 0, family=DS), ds_model("full")
     assert all(torch.equal(c.state_dict()[k], d.state_dict()[k]) for k in c.state_dict())
 

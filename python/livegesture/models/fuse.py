@@ -100,8 +100,10 @@ class XARFuse(nn.Module):
         if self.fused:
             self.region_embed = nn.Parameter(torch.zeros(R, d))
             self.null_audio = nn.Parameter(torch.zeros(cfg.audio_dim))
-            self.norm = nn.LayerNorm(d)
+        # registration order as before the variants (the exported graph's initializer names follow it)
         self.blocks = nn.ModuleList(FuseBlock(cfg) for _ in range(cfg.fuse_blocks if self.fused else 0))
+        if self.fused:
+            self.norm = nn.LayerNorm(d)
         self.classifiers = classifiers if classifiers is not None else \
             nn.ModuleList(nn.Linear(d, cfg.codebook_size) for _ in range(R))
 
