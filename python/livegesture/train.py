@@ -369,17 +369,20 @@ def stage_fuse(model, data, tcfg, device):
             conf = torch.stack(conf, -1)                     # confidence of x_t, t = 0..T-1
             corrupted = clean_in.clone()
             n_mask = int(ratio * T * R_)
-            masked = torch.zeros(B, T, R_, dtype=torch.bool, device=dev)    # the history inputs masked (at t)
+            # the history inputs masked (at t), for the masked-only fuse loss (no work, no host sync otherwise)
+            masked = torch.zeros(B, T, R_, dtype=torch.bool, device=dev) if tcfg.fuse_loss_masked else None
             if n_mask > 0:
                 # x_t is the history input at t+1
                 c = conf[:, :-1].reshape(B, -1)
                 idx = c.argsort(dim=1)[:, :n_mask]
                 m = torch.zeros_like(c, dtype=torch.bool).scatter_(1, idx, True).reshape(B, T - 1, R_)
                 corrupted[:, 1:] = torch.where(m, model.cfg.mask_token, corrupted[:, 1:])
-                masked[:, 1:] |= m
+                if masked is not None:
+                    masked[:, 1:] |= m
             # random region masking: p_drop ramps up to region_drop_max (drawn with the batch)
             corrupted[:, 1:] = torch.where(batch["region_mask"][:, None, :], model.cfg.mask_token, corrupted[:, 1:])
-            masked[:, 1:] |= batch["region_mask"][:, None, :]
+            if masked is not None:
+                masked[:, 1:] |= batch["region_mask"][:, None, :]
             cond = cfg_cond(B, tcfg.cfg_dropout, dev)
             hidden = torch.stack([model.experts[r](corrupted[..., i], audio, cond)[0].float()
                                   for i, r in enumerate(REGION_NAMES)], 2)   # (B, T, R, d)
