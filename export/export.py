@@ -33,7 +33,7 @@ if __name__ == "__main__" and not __package__:
     raise SystemExit(0)
 
 from livegesture import checkpoint as ckpt  # noqa: E402
-from livegesture import families  # noqa: E402
+from livegesture import families, variants  # noqa: E402
 from livegesture.compare import diff  # noqa: E402
 from livegesture.frontend import logmel  # noqa: E402
 from livegesture.regions import REGION_NAMES  # noqa: E402
@@ -319,6 +319,8 @@ def main(argv=None):
     src.add_argument("--checkpoint", help="trained checkpoint (.pt) written by livegesture.train")
     src.add_argument("--config", help="export random weights of this config (tiny, default, paper)")
     ap.add_argument("--random-seed", type=int, default=0, help="seed of the random weights (with --config)")
+    ap.add_argument("--variant", default=None, help="with --config: a variant of the model (livegesture.variants; "
+                                                   "a checkpoint records its own)")
     ap.add_argument("--family", choices=families.NAMES, default=None,
                     help=f"model family of --config (default {families.DEFAULT.name}); a checkpoint names its own family")
     ap.add_argument("--out", required=True, help="bundle folder to write (replaced atomically)")
@@ -344,6 +346,10 @@ def main(argv=None):
                                          "description, evaluation figures, commands)")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
+    if args.checkpoint and args.variant:
+        print(f"export failed: --variant {args.variant}: a checkpoint records its own variant (use it with --config)",
+              file=sys.stderr)
+        return 2
     if args.checkpoint:
         try:
             model = ckpt.load(args.checkpoint)
@@ -360,7 +366,9 @@ def main(argv=None):
             provenance["checkpoint_when_trained"] = trained_as
     else:
         try:
-            model = ckpt.random_model(args.config, args.random_seed, family=families.get(args.family).name)
+            fam = families.get(args.family)
+            cfg = variants.apply(fam.get_config(args.config), fam.name, args.variant)
+            model = ckpt.random_model(cfg, args.random_seed, family=fam.name)
         except ValueError as e:
             print(f"export failed: {e}", file=sys.stderr)
             return 2
