@@ -4,6 +4,9 @@
 #   a few training steps on a small synthetic corpus -> export (every graph verified against torch by the
 #   exporter; a shorter reference rollout than the shipped bundles') -> `livegesture parity` on ort and tract
 #   -> `livegesture generate` on both backends.
+# Variants that change only the training (Variant.changes_graphs false: no-ugm, no-detach, ...) are trained
+# and their checkpoint's model config is checked to be the full model's: their bundle would have exactly the
+# graphs of the family's `full` variant, which is exported and run here (the group shares its graphs).
 # Called by scripts/test.sh (stage "variants"); alone: scripts/variants.sh [OUT] (default target/variants),
 # with the release binary built (LIVEGESTURE_BIN overrides it). VARIANTS="livegesture/no-pilor diffsheg/reverse"
 # limits the run to those.
@@ -33,7 +36,7 @@ with wave.open(str(src), "rb") as r, wave.open(str(out / "speech.wav"), "wb") as
     w.writeframes(r.readframes(6 * r.getframerate()))
 PY
 
-run_variant() {   # family variant
+run_variant() {   # family variant graphs|training
   local fam="$1" v="$2" dir="$OUT/$1-$2" t=$SECONDS
   local steps=(--steps-svq1 3 --steps-svq2 3 --steps-experts 3 --steps-fuse 3)
   local rollout=(--reference-seconds 6 --rollout-tokens 100)
@@ -41,6 +44,19 @@ run_variant() {   # family variant
   "$LIVEGESTURE_PY" -m livegesture.train --family "$fam" --config tiny --variant "$v" --data "$OUT/corpus" \
     --out "$dir/run" --speakers all --device cpu "${steps[@]}" >"$dir.train.log" 2>&1 \
     || { tail -20 "$dir.train.log" >&2; echo "variants: $fam/$v: training failed" >&2; return 1; }
+  if [ "$3" = training ]; then   # the full model's graphs: the checkpoint's config is the full one but its name
+    "$LIVEGESTURE_PY" - "$dir/run/final.pt" "$fam" "$v" <<'PY'
+import sys
+from livegesture import checkpoint as ckpt, families, variants
+m = ckpt.load(sys.argv[1])
+fam = families.get(sys.argv[2])
+full = variants.apply(fam.get_config("tiny"), fam.name, "full").to_dict()
+got = m.cfg.to_dict()
+assert got["variant"] == sys.argv[3] and {**got, "variant": "full"} == full, f"{sys.argv[1]}: config {got}"
+PY
+    echo "variant $fam/$v: trained (training-only variant: the graphs of $fam/full) ($(( SECONDS - t )) s)"
+    return 0
+  fi
   "$LIVEGESTURE_PY" export/export.py --checkpoint "$dir/run/final.pt" --out "$dir/bundle" "${rollout[@]}" \
     >"$dir.export.log" 2>&1 \
     || { tail -20 "$dir.export.log" >&2; echo "variants: $fam/$v: export failed" >&2; return 1; }
@@ -61,9 +77,14 @@ PY
 }
 
 for fam in livegesture diffsheg; do
-  for v in $("$LIVEGESTURE_PY" -m livegesture.train --family "$fam" --list-variants); do
+  # every listed variant; "graphs" or "training" (livegesture.variants.Variant.changes_graphs; full: graphs)
+  kinds="$("$LIVEGESTURE_PY" -c "import sys; from livegesture import families
+for n, v in families.get(sys.argv[1]).variants().items(): print(n, 'graphs' if v.changes_graphs or n == 'full' else 'training')" "$fam")"
+  [ "$(echo "$kinds" | cut -d' ' -f1)" = "$("$LIVEGESTURE_PY" -m livegesture.train --family "$fam" --list-variants)" ] \
+    || { echo "variants: the listing and the registry disagree" >&2; exit 1; }
+  while read -r v kind; do
     if [ -n "${VARIANTS:-}" ] && [[ " $VARIANTS " != *" $fam/$v "* ]]; then continue; fi
-    run_variant "$fam" "$v"
-  done
+    run_variant "$fam" "$v" "$kind" </dev/null
+  done <<<"$kinds"
 done
 echo "variants: all done in $(( SECONDS - t0 )) s"

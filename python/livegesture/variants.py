@@ -29,6 +29,12 @@ class Variant:
     train: dict = field(default_factory=dict)     # training-config fields
     model_fn: Callable | None = None              # cfg -> model-config fields that depend on the base config
 
+    @property
+    def changes_graphs(self) -> bool:
+        """Whether the variant changes the model (its exported graphs); otherwise only training differs and its
+        bundle has the ``full`` model's graphs."""
+        return bool(self.model) or self.model_fn is not None
+
     def model_fields(self, cfg) -> dict:
         out = dict(self.model)
         if self.model_fn is not None:
