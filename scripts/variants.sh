@@ -39,7 +39,7 @@ PY
 run_variant() {   # family variant graphs|training
   local fam="$1" v="$2" dir="$OUT/$1-$2" t=$SECONDS
   local steps=(--steps-svq1 3 --steps-svq2 3 --steps-experts 3 --steps-fuse 3)
-  local rollout=(--reference-seconds 6 --rollout-tokens 100)
+  local rollout=(--reference-seconds 6 --rollout-tokens 40)
   if [ "$fam" = diffsheg ]; then steps=(--steps 3 --batch 4); rollout=(--reference-seconds 6 --rollout-windows 4); fi
   "$LIVEGESTURE_PY" -m livegesture.train --family "$fam" --config tiny --variant "$v" --data "$OUT/corpus" \
     --out "$dir/run" --speakers all --device cpu "${steps[@]}" >"$dir.train.log" 2>&1 \
