@@ -2,6 +2,8 @@
 
     python -m livegesture.train --config default --data DIR --out runs/NAME              # all stages
     python -m livegesture.train --config default --data DIR --out runs/NAME --stage svq1 # one stage
+    python -m livegesture.train --config tiny --variant no-pilor --data DIR --out runs/x # a paper variant
+    python -m livegesture.train --list-variants                                          # their names
 
 Stages (each writes ``OUT/<stage>.pt``; a finished stage is skipped on re-run, an interrupted one resumes
 from its last periodic save; the stages may run in different sittings with different ``--lr-*``: each stage
