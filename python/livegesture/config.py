@@ -57,6 +57,7 @@ class LiveGestureConfig:
     fuse_temporal: bool = True        # causal global temporal attention in the fuse blocks (Table 2a)
     fuse_audio: bool = True           # causal audio-motion cross-attention in the fuse blocks
     fusion: str = "xar"               # "xar": xAR-Fuse; "none": eXperts only (the eXperts' own classifiers)
+    audio_fusion: str = "cross"       # "cross": audio-motion cross-attention; "additive": audio added (Table 4)
 
     # inference defaults
     guidance: float = 1.25

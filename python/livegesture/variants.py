@@ -60,6 +60,9 @@ VARIANTS: tuple[Variant, ...] = (
             model={"fuse_temporal": False}),
     Variant("no-fuse-audio", _LG, "section 3.2.2 (the fuse block's audio-motion cross-attention; no table)",
             "fuse blocks without audio-motion cross-attention", model={"fuse_audio": False}),
+    Variant("additive-audio", _LG, "Table 4, supp. G: causal self-attention with audio added",
+            "the audio token projected and added to the motion embedding (eXperts) and to the fused states (fuse "
+            "blocks) instead of audio-motion cross-attention", model={"audio_fusion": "additive"}),
     Variant("experts-only", _LG, "Table 2b, region-eXperts alone",
             "no xAR-Fuse: the eXperts' own classifiers predict; the fuse stage is skipped",
             model={"fusion": "none"}, train={"steps_fuse": 0}),

@@ -82,6 +82,24 @@ def test_fusion_switches_remove_their_layers_and_caches():
 
 
 @torch.no_grad()
+def test_additive_audio_replaces_the_cross_attention_and_still_follows_the_audio():
+    m = lg_model("additive-audio")
+    e = m.experts["upper"]
+    assert not any(layer.is_cross for layer in e.layers) and e.additive
+    assert not any("xattn" in s.name for s in e.cache_specs() + m.fuse.cache_specs())
+    assert m.fuse.uses_audio and m.fuse.additive
+    g = torch.Generator().manual_seed(0)
+    B = 2
+    prev = torch.full((B,), m.cfg.bos_token)
+    a1, a2 = torch.randn(B, m.cfg.audio_dim, generator=g), torch.randn(B, m.cfg.audio_dim, generator=g)
+    h1, _ = e.step(prev, a1, torch.ones(B), e.init_cache(B))
+    h2, _ = e.step(prev, a2, torch.ones(B), e.init_cache(B))
+    assert not torch.allclose(h1["hidden"], h2["hidden"])            # the audio reaches the eXpert
+    full = lg_model("full")
+    assert any(layer.is_cross for layer in full.experts["upper"].layers)    # must-fail side: full cross-attends
+
+
+@torch.no_grad()
 def test_experts_only_predicts_with_the_experts_own_classifiers():
     m = lg_model("experts-only")
     g = torch.Generator().manual_seed(0)

@@ -77,6 +77,9 @@ class FusedExperts(PerRegionWeights):
             self.layer_meta.append({"name": name, "cross": layers[0].is_cross, "w": a0.w, "h": a0.h, "hd": a0.hd,
                                     "ln_eps": layers[0].ln1.eps})
         per_region("norm", [e.norm for e in experts])
+        self.additive = e0.additive       # variant additive-audio: each region's audio projection added
+        if self.additive:
+            per_region("audio_add", [e.audio_add for e in experts])
 
     def cache_specs(self) -> list[CacheSpec]:
         specs = [CacheSpec("step", (), "int64")]
@@ -117,6 +120,8 @@ class FusedExperts(PerRegionWeights):
         c = cond.to(audio.dtype)[:, None, None]                                       # (B, 1, 1)
         a = (c * audio[:, None, :] + (1 - c) * self.null_audio).reshape(-1, R * Da)   # (B, R*Da)
         a_blocks = self._split(a, Da)
+        if self.additive:
+            x = x + self._lin(a_blocks, "audio_add")
         bias = {w: window_bias(step, w) for w in {m["w"] for m in self.layer_meta}}   # (B, 1, W)
         for li, m in enumerate(self.layer_meta):
             p = f"l{li}_"

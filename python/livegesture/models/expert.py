@@ -33,14 +33,20 @@ class RegionExpert(nn.Module):
         self.embed = nn.Embedding(cfg.codebook_size + 2, cfg.embed_dim)   # + BOS, MASK
         self.embed_mlp = nn.Sequential(nn.Linear(cfg.embed_dim, d), nn.GELU(), nn.Linear(d, d))
         self.null_audio = nn.Parameter(torch.zeros(cfg.audio_dim))
+        if cfg.audio_fusion not in ("cross", "additive"):
+            raise ValueError(f"config: audio_fusion {cfg.audio_fusion!r}: expected 'cross' or 'additive'")
+        # variant additive-audio (Table 4): no cross-attention layers, the audio token added to the embedding
+        self.additive = cfg.audio_fusion == "additive"
         layers = []
         for _ in range(cfg.expert_blocks):
             layers += [AttnLayer(d, cfg.n_heads, cfg.audio_window, cfg.ffn_mult, d_kv=cfg.audio_dim)
-                       for _ in range(cfg.expert_cross_layers)]
+                       for _ in range(0 if self.additive else cfg.expert_cross_layers)]
             layers += [AttnLayer(d, cfg.n_heads, cfg.history, cfg.ffn_mult) for _ in range(cfg.expert_self_layers)]
         self.layers = nn.ModuleList(layers)
         self.norm = nn.LayerNorm(d)
         self.classifier = nn.Linear(d, cfg.codebook_size)
+        if self.additive:
+            self.audio_add = nn.Linear(cfg.audio_dim, d)
 
     def layer_names(self) -> list[str]:
         return [f"layer{i}.{'xattn' if l.is_cross else 'sattn'}" for i, l in enumerate(self.layers)]
@@ -65,6 +71,8 @@ class RegionExpert(nn.Module):
             on = (torch.rand(B, 1, 1, device=x.device) < noise_p).to(x.dtype)
             x = x + on * noise_sigma * torch.randn_like(x)
         a = self._audio(audio, cond)
+        if self.additive:
+            x = x + self.audio_add(a)
         for layer in self.layers:
             x = layer(x, a)
         h = self.norm(x)
@@ -91,6 +99,8 @@ class RegionExpert(nn.Module):
         step = cache["step"]
         x = self.embed_mlp(self.embed(prev_token))
         a = self._audio(audio, cond)
+        if self.additive:
+            x = x + self.audio_add(a)
         bias = {w: window_bias(step, w) for w in {l.attn.w for l in self.layers}}   # one mask per window size
         for name, layer in zip(self.layer_names(), self.layers):
             x = layer.step(x, a, bias[layer.attn.w], cache, new_cache, name)

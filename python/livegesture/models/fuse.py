@@ -70,7 +70,8 @@ class FuseBlock(nn.Module):
     def __init__(self, cfg: LiveGestureConfig):
         super().__init__()
         d = cfg.d_model
-        self.has_spatial, self.has_temporal, self.has_cross = cfg.fuse_spatial, cfg.fuse_temporal, cfg.fuse_audio
+        self.has_spatial, self.has_temporal = cfg.fuse_spatial, cfg.fuse_temporal
+        self.has_cross = cfg.fuse_audio and cfg.audio_fusion == "cross"     # additive: the audio is added instead
         if self.has_spatial:
             self.ln_s, self.spatial = nn.LayerNorm(d), SpatialAttention(d, cfg.n_heads)
         if self.has_temporal:
@@ -104,6 +105,10 @@ class XARFuse(nn.Module):
         self.blocks = nn.ModuleList(FuseBlock(cfg) for _ in range(cfg.fuse_blocks if self.fused else 0))
         if self.fused:
             self.norm = nn.LayerNorm(d)
+        # variant additive-audio (Table 4): the audio token projected and added to every region's state
+        self.additive = self.fused and cfg.fuse_audio and cfg.audio_fusion == "additive"
+        if self.additive:
+            self.audio_add = nn.Linear(cfg.audio_dim, d)
         self.classifiers = classifiers if classifiers is not None else \
             nn.ModuleList(nn.Linear(d, cfg.codebook_size) for _ in range(R))
 
@@ -111,7 +116,7 @@ class XARFuse(nn.Module):
     def uses_audio(self) -> bool:
         """Whether the step reads ``audio`` and ``cond`` (not without audio cross-attention: the exported graph
         then has no such inputs)."""
-        return self.fused and any(b.has_cross for b in self.blocks)
+        return self.fused and (self.additive or any(b.has_cross for b in self.blocks))
 
     def _adapt(self, h):  # h (..., R, d)
         if not self.fused:
@@ -142,6 +147,8 @@ class XARFuse(nn.Module):
         check_shape(self.name, "audio", audio, (B, T, self.cfg.audio_dim), torch.float32)
         x = self._adapt(hidden)
         a = self._audio(audio, cond)
+        if self.additive:
+            x = x + self.audio_add(a)[:, :, None, :]
         a_rep = a[:, None].expand(B, R, T, a.shape[-1]).reshape(B * R, T, -1)
         for blk in self.blocks:
             if blk.has_spatial:
@@ -186,6 +193,8 @@ class XARFuse(nn.Module):
         step = cache["step"]
         x = self._adapt(torch.stack([hidden[r] for r in REGION_NAMES], dim=1))   # (B, R, d)
         a = self._audio(audio, cond)
+        if self.additive:
+            x = x + self.audio_add(a)[:, None, :]
         # one additive mask per window, shared by the blocks; the temporal attention runs on B * R rows
         # (stream-major, region-minor), so its mask is repeated per region with a broadcast, not an Expand
         bias_a = window_bias(step, self.cfg.audio_window)[:, None]     # (B, 1, 1, W): R queries per stream
