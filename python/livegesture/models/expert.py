@@ -10,6 +10,9 @@ token a_t, and predicts x_t^r:
     h_t^r = LN(.)          (hidden state, fed to xAR-Fuse)
     logits = classifier_r(h_t^r)   (K classes; the classifier is shared with xAR-Fuse)
 
+Variant ``additive-audio`` (config ``audio_fusion = "additive"``, LiveGesture Table 4): no cross-attention
+layers; ``e_t = MLP(Embed(x_{t-1})) + W_a a_t`` instead (``audio_add``).
+
 Classifier-free guidance: ``cond`` (B,) is 1 for the conditional branch and 0 for the unconditional one,
 whose audio tokens are replaced by a learned null embedding (the same substitution as CFG dropout in
 training). Both branches are just streams on the batch axis.
