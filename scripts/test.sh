@@ -125,6 +125,18 @@ fi
 export LIVEGESTURE_REQUIRE_HAPROXY=1
 LIVEGESTURE_BIN="$PWD/target/release/livegesture" "$LIVEGESTURE_PY" -m pytest -q runtime/tests/py
 
+stage "web page: the committed runtime/web/dist (embedded in the binary) is what runtime/web/src builds"
+# the locked versions (see the browser stage below on why not `npm ci`); vite's build is reproducible,
+# so a dist that differs from a fresh build is stale: rebuild it (cd runtime/web && npm run build)
+(cd runtime/web && npm install --no-save --no-audit --no-fund --loglevel=error)
+rm -rf target/web-dist-fresh
+(cd runtime/web && npx vite build --outDir ../../target/web-dist-fresh --emptyOutDir --logLevel error)
+if ! diff -r target/web-dist-fresh runtime/web/dist >/dev/null; then
+  diff -rq target/web-dist-fresh runtime/web/dist || true
+  echo "runtime/web/dist is stale: it differs from a fresh build of runtime/web (run: cd runtime/web && npm run build; commit dist)" >&2
+  exit 1
+fi
+
 stage "avatars: glTF/BVH of a real recording, Khronos glTF validator, Blender imports, retargeting tests"
 # the locked versions (see the browser stage below on why not `npm ci`)
 (cd runtime/web && npm install --no-save --no-audit --no-fund --loglevel=error)

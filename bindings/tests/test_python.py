@@ -255,8 +255,11 @@ def test_bad_options_and_arguments_raise(models, clips):
         lg.stream(guidance=float("nan"))
     with pytest.raises(ValueError, match="temperature must be > 0"):
         lg.stream(temperature=0.0)
-    with pytest.raises(ValueError, match="--ddim-steps"):
+    # the option named as the keyword argument, not as a CLI flag
+    with pytest.raises(ValueError, match="^ddim_steps only apply to DiffSHEG bundles"):
         lg.stream(ddim_steps=5)
+    with pytest.raises(ValueError, match="^temperature, top_k only apply to LiveGesture bundles"):
+        ds.stream(temperature=0.5, top_k=3)
     with pytest.raises(ValueError, match="DDIM steps must divide 1000"):
         ds.stream(ddim_steps=7)
     with pytest.raises(ValueError, match="sample_rate is required"):

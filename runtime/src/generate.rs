@@ -32,14 +32,60 @@ use anyhow::{Context, Result};
 use crate::audio::{AudioError, AudioSpan, Resampler16k, WavStream, TARGET_RATE};
 use crate::backend::{self, BackendOptions};
 use crate::bundle::{default_bundle_dir, Bundle, BundleError};
-use crate::model::livegesture::FormChoice;
+use crate::model::GraphForm;
 use crate::model::{self, LoadOptions, MotionModel, MotionStream, StreamOptions};
 use crate::output::Frame;
 
-/// Bad input given to this module or a binding (options, audio arrays, a stream used out of turn).
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct InputError(pub String);
+/// Bad input given to the library, a tool or a binding (options, audio arrays, a stream used out of
+/// turn, arguments): the one input error type of every door.
+///
+/// `fields` names the options it concerns as [`StreamOptions`] spells them (`guidance`,
+/// `ddim_steps`); the message follows them ("ddim_steps only apply to DiffSHEG bundles ..."). Each
+/// door names them its own way ([`InputError::render`]): the CLI as flags (`--ddim-steps`),
+/// Python as keyword arguments, C as `LgStreamOptions` fields (both the names as they are). Library
+/// messages never carry a door's spelling.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct InputError {
+    /// The options concerned (empty: the input as a whole).
+    pub fields: Vec<&'static str>,
+    /// What is wrong and what was expected (after the fields, if any).
+    pub message: String,
+}
+
+impl InputError {
+    /// An error about the input as a whole.
+    pub fn new(message: impl Into<String>) -> Self {
+        Self {
+            fields: Vec::new(),
+            message: message.into(),
+        }
+    }
+
+    /// An error about the options `fields` (names as in [`StreamOptions`]); `message` follows them.
+    pub fn fields(fields: Vec<&'static str>, message: impl Into<String>) -> Self {
+        Self {
+            fields,
+            message: message.into(),
+        }
+    }
+
+    /// The text with each field spelled by `name` (the CLI passes `--` and dashes).
+    pub fn render(&self, name: impl Fn(&str) -> String) -> String {
+        if self.fields.is_empty() {
+            return self.message.clone();
+        }
+        let names: Vec<String> = self.fields.iter().map(|f| name(f)).collect();
+        format!("{} {}", names.join(", "), self.message)
+    }
+}
+
+impl std::fmt::Display for InputError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.render(str::to_string))
+    }
+}
+
+impl std::error::Error for InputError {}
 
 /// What kind of failure an error is, for a binding's error types (Python exceptions, C status codes).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -94,7 +140,7 @@ pub fn classify(e: &anyhow::Error) -> ErrorKind {
 pub fn open_model(
     dir: Option<&Path>,
     backend: &BackendOptions,
-    form: FormChoice,
+    form: GraphForm,
 ) -> Result<Box<dyn MotionModel>> {
     let bundle = Bundle::load(&default_bundle_dir(dir))?;
     let be = backend::create(backend)?;
@@ -112,15 +158,32 @@ pub fn open_model(
 /// stream of `model` with them; a refusal (out of range, another family's option) is an
 /// [`InputError`].
 pub fn new_stream(model: &dyn MotionModel, opts: &StreamOptions) -> Result<Box<dyn MotionStream>> {
+    check_options(opts)?;
+    model.new_stream(opts).map_err(|e| {
+        if e.chain().any(|c| c.is::<InputError>()) {
+            e
+        } else {
+            InputError::new(format!("{e:#}")).into()
+        }
+    })
+}
+
+/// The checks of [`StreamOptions`] that do not depend on the bundle (the family checks its own
+/// ranges in [`MotionModel::new_stream`]): every door's options pass here, through [`new_stream`].
+pub fn check_options(opts: &StreamOptions) -> Result<(), InputError> {
     if let Some(g) = opts.guidance.filter(|g| !g.is_finite()) {
-        return Err(InputError(format!("guidance must be a finite number, got {g}")).into());
+        return Err(InputError::fields(
+            vec!["guidance"],
+            format!("must be a finite number, got {g}"),
+        ));
     }
     if let Some(t) = opts.temperature.filter(|t| !(t.is_finite() && *t > 0.0)) {
-        return Err(InputError(format!("temperature must be > 0, got {t}")).into());
+        return Err(InputError::fields(
+            vec!["temperature"],
+            format!("must be > 0, got {t}"),
+        ));
     }
-    model
-        .new_stream(opts)
-        .map_err(|e| InputError(format!("{e:#}")).into())
+    Ok(())
 }
 
 /// The frames covering a whole input, and that input's length at its own rate.
@@ -135,9 +198,9 @@ pub struct Generation {
 /// Streams the whole of `wav` through `stream` (a fresh one) and finishes it at the audio's end, as
 /// `livegesture generate` does. `on_frames` gets each batch of frames in order, with the 16 kHz
 /// samples pushed so far (for progress). Returns the input's span. `origin` names the input in errors.
-pub fn stream_wav(
+pub fn stream_wav<R: std::io::Read>(
     stream: &mut dyn MotionStream,
-    wav: &mut WavStream,
+    wav: &mut WavStream<R>,
     origin: &str,
     on_frames: &mut dyn FnMut(&[Frame], u64) -> Result<()>,
 ) -> Result<AudioSpan> {
@@ -166,10 +229,31 @@ pub fn generate_wav(
     path: &Path,
 ) -> Result<Generation> {
     let mut wav = WavStream::open(path)?;
+    generate_from(model, opts, &mut wav, &path.display().to_string())
+}
+
+/// All frames of a WAV file held in memory (`bytes`; `name` stands for it in errors) with a new
+/// stream of `model`: the frames [`generate_wav`] gives for the same file (the same reader, chunks
+/// and stream calls; what the WebAssembly binding's `generate` runs).
+pub fn generate_wav_bytes(
+    model: &dyn MotionModel,
+    opts: &StreamOptions,
+    bytes: &[u8],
+    name: &str,
+) -> Result<Generation> {
+    let mut wav = WavStream::from_bytes(bytes, name)?;
+    generate_from(model, opts, &mut wav, name)
+}
+
+fn generate_from<R: std::io::Read>(
+    model: &dyn MotionModel,
+    opts: &StreamOptions,
+    wav: &mut WavStream<R>,
+    origin: &str,
+) -> Result<Generation> {
     let mut stream = new_stream(model, opts)?;
     let mut frames = Vec::new();
-    let origin = path.display().to_string();
-    let span = stream_wav(stream.as_mut(), &mut wav, &origin, &mut |f, _| {
+    let span = stream_wav(stream.as_mut(), wav, origin, &mut |f, _| {
         frames.extend_from_slice(f);
         Ok(())
     })?;
@@ -187,7 +271,7 @@ pub fn generate_pcm(
     origin: &str,
 ) -> Result<Generation> {
     if samples.is_empty() {
-        return Err(InputError(format!(
+        return Err(InputError::new(format!(
             "{origin}: the audio contains no samples; expected at least one sample"
         ))
         .into());
@@ -292,14 +376,14 @@ impl PcmStream {
     /// complete.
     pub fn push(&mut self, samples: &[f32], sample_rate: u32) -> Result<Vec<Frame>> {
         if self.finished {
-            return Err(InputError(format!(
+            return Err(InputError::new(format!(
                 "{}: the stream is finished; reset it to start a new input",
                 self.origin
             ))
             .into());
         }
         if let Some(rate) = self.sample_rate().filter(|&r| r != sample_rate) {
-            return Err(InputError(format!(
+            return Err(InputError::new(format!(
                 "{}: sample rate {sample_rate} Hz differs from the {rate} Hz of this stream's first push; expected one rate per stream (reset it to change)",
                 self.origin
             ))
@@ -330,7 +414,7 @@ impl PcmStream {
     /// frames for the `n` samples pushed at `rate` Hz.
     pub fn finish(&mut self) -> Result<Vec<Frame>> {
         if self.finished {
-            return Err(InputError(format!(
+            return Err(InputError::new(format!(
                 "{}: the stream is already finished; reset it to start a new input",
                 self.origin
             ))
@@ -390,6 +474,29 @@ mod tests {
         assert!(panic_message("f", p.as_ref()).contains("runtime: static)"));
         let p = std::panic::catch_unwind(|| std::panic::panic_any(7u8)).unwrap_err();
         assert!(panic_message("f", p.as_ref()).contains("unknown panic"));
+    }
+
+    #[test]
+    fn input_errors_name_their_fields_as_each_door_spells_them() {
+        let e = InputError::fields(vec!["ddim_steps", "top_k"], "only apply to X");
+        assert_eq!(e.to_string(), "ddim_steps, top_k only apply to X");
+        let flag = |f: &str| format!("--{}", f.replace('_', "-"));
+        assert_eq!(e.render(flag), "--ddim-steps, --top-k only apply to X");
+        assert_eq!(InputError::new("bad").render(flag), "bad");
+        // the option checks every door's options pass, naming the field
+        let bad = StreamOptions {
+            guidance: Some(f64::NAN),
+            ..Default::default()
+        };
+        let e = check_options(&bad).unwrap_err();
+        assert_eq!(e.fields, ["guidance"]);
+        assert_eq!(e.to_string(), "guidance must be a finite number, got NaN");
+        let bad = StreamOptions {
+            temperature: Some(0.0),
+            ..Default::default()
+        };
+        assert_eq!(check_options(&bad).unwrap_err().fields, ["temperature"]);
+        assert!(check_options(&StreamOptions::default()).is_ok());
     }
 
     #[test]

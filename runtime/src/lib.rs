@@ -17,9 +17,13 @@
 //!   [`generate::PcmStream`], a stream fed with PCM at any sample rate (the bindings' streams);
 //! - [`audio`]: WAV and raw PCM input, converted to 16 kHz mono, and [`audio::AudioSpan`] (how many
 //!   frames cover an input);
+//! - [`portable_parity`]: the parity checks that need no files, no onnxruntime and no clock (every
+//!   graph vs its reference vectors, the reference rollout; the browser's parity) and the graph and
+//!   rollout bounds of docs/parity.md;
 //! - [`compare`]: the one NaN-safe comparison of two tensors against a scaled bound (docs/parity.md),
 //!   used by the parity suite and the tests;
 //! - [`frontend`]: the log-mel audio frontend (the Python training frontend's definition, within 1e-4);
+//! - [`stats`]: the one quantile definition of the benchmark and load-test figures;
 //! - [`sampling`]: the portable seeded sampler (SplitMix64 + guided top-k sampling);
 //! - [`rotation`]: rot6d / matrix / quaternion / axis-angle conversions;
 //! - [`output`]: frames, BEAT2 `.npz` files and live records (JSON lines and binary);
@@ -50,9 +54,11 @@ pub mod model;
 pub mod output;
 #[cfg(feature = "parity")]
 pub mod parity;
+pub mod portable_parity;
 pub mod rotation;
 pub mod sampling;
 #[cfg(feature = "serve")]
 pub mod serve;
 pub mod skeleton;
+pub mod stats;
 pub mod tensor;

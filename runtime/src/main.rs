@@ -21,7 +21,7 @@ fn main() -> ExitCode {
     match cli::run(args) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("livegesture: error: {e:#}");
+            eprintln!("livegesture: error: {}", cli::error_text(&e));
             ExitCode::from(cli::exit_code(&e))
         }
     }

@@ -162,6 +162,19 @@ pub fn rest_joints() -> [[f64; 3]; N_JOINTS] {
     out
 }
 
+/// The skeleton as JSON: `names`, `parents` (-1 for the root), `offsets` (metres, from the parent,
+/// [`rest_offsets`]) and `units` (`m`): what the browser page poses, served by `livegesture serve`
+/// as `/skeleton.json` and returned by the WebAssembly binding's `skeletonJson()`.
+pub fn skeleton_json() -> String {
+    serde_json::json!({
+        "names": &JOINT_NAMES[..],
+        "parents": &PARENTS[..],
+        "offsets": rest_offsets().to_vec(),
+        "units": "m",
+    })
+    .to_string()
+}
+
 /// Children of joint `j`, in joint order.
 pub fn children(j: usize) -> Vec<usize> {
     (0..N_JOINTS).filter(|&c| PARENTS[c] == j as i32).collect()

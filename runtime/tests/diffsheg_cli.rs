@@ -101,7 +101,11 @@ fn bad_sampler_options_are_refused_clearly() {
         (vec!["--overlap", "24"], "overlap"),
         (vec!["--jumps", "0"], "jumps"),
         (vec!["--speaker", "99"], "speaker"),
-        (vec!["--temperature", "0.5"], "LiveGesture"),
+        // the library names the option (`temperature`), the CLI spells it as its flag
+        (
+            vec!["--temperature", "0.5"],
+            "error: --temperature only apply to LiveGesture bundles",
+        ),
     ] {
         let mut a = vec![
             "generate",

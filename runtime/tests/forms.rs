@@ -15,10 +15,10 @@ use std::process::{Command, Output};
 use livegesture::audio::read_wav_16k_mono;
 use livegesture::backend::{self, BackendKind, BackendOptions};
 use livegesture::bundle::Bundle;
-use livegesture::model::livegesture::{FormChoice, LiveGestureGraphs, StreamOptions, TokenStep};
+use livegesture::model::livegesture::{GraphForm, LiveGestureGraphs, StreamOptions, TokenStep};
 use livegesture::parity::{batch_bound, Check};
 
-fn pipeline(bundle: &Bundle, kind: BackendKind, form: FormChoice) -> LiveGestureGraphs {
+fn pipeline(bundle: &Bundle, kind: BackendKind, form: GraphForm) -> LiveGestureGraphs {
     if kind == BackendKind::Ort {
         common::require_ort();
     }
@@ -87,10 +87,10 @@ fn the_tiny_bundle_carries_every_form() {
     );
     let be = backend::create(&BackendOptions::default()).unwrap();
     for (choice, name) in [
-        (FormChoice::Canonical, "canonical"),
-        (FormChoice::Fused, "fused"),
-        (FormChoice::Attention, "attention"),
-        (FormChoice::Auto, lg.default_form("tract")),
+        (GraphForm::Canonical, "canonical"),
+        (GraphForm::Fused, "fused"),
+        (GraphForm::Attention, "attention"),
+        (GraphForm::Auto, lg.default_form("tract")),
     ] {
         let p = LiveGestureGraphs::with_form(&bundle, be.as_ref(), choice).unwrap();
         assert_eq!(p.form(), name);
@@ -100,9 +100,9 @@ fn the_tiny_bundle_carries_every_form() {
 fn forms_agree(kind: BackendKind) {
     let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
     let audio = audio(&bundle, 20.0);
-    let mut canonical = pipeline(&bundle, kind, FormChoice::Canonical);
-    let mut fused = pipeline(&bundle, kind, FormChoice::Fused);
-    let mut attention = pipeline(&bundle, kind, FormChoice::Attention);
+    let mut canonical = pipeline(&bundle, kind, GraphForm::Canonical);
+    let mut fused = pipeline(&bundle, kind, GraphForm::Fused);
+    let mut attention = pipeline(&bundle, kind, GraphForm::Attention);
     for opts in [
         StreamOptions {
             seed: 7,
@@ -177,7 +177,7 @@ fn forms_agree(kind: BackendKind) {
 fn the_form_comparison_fails_on_nan_either_side() {
     let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
     let audio = audio(&bundle, 1.0);
-    let mut p = pipeline(&bundle, BackendKind::Tract, FormChoice::Canonical);
+    let mut p = pipeline(&bundle, BackendKind::Tract, GraphForm::Canonical);
     let opts = StreamOptions {
         seed: 7,
         ..Default::default()
@@ -313,7 +313,7 @@ fn parity_fails_on_a_perturbed_attention_fusion_weight_naming_the_graph() {
     let opts = livegesture::parity::ParityOptions {
         backends: vec![BackendKind::Tract],
         checks: vec![Check::Rollout],
-        form: FormChoice::Attention,
+        form: GraphForm::Attention,
         ..Default::default()
     };
     let report = livegesture::parity::run(&broken, &opts, &mut |m: &str| eprintln!("parity: {m}"))
@@ -398,10 +398,10 @@ fn a_bundle_without_the_attention_form_runs_the_canonical_fusion() {
         ..Default::default()
     };
     for kind in [BackendKind::Ort, BackendKind::Tract] {
-        let mut p = pipeline(&b, kind, FormChoice::Auto);
+        let mut p = pipeline(&b, kind, GraphForm::Auto);
         let got = run(&mut p, &opts, &audio);
         let want = run(
-            &mut pipeline(&full, kind, FormChoice::Canonical),
+            &mut pipeline(&full, kind, GraphForm::Canonical),
             &opts,
             &audio,
         );
@@ -416,7 +416,7 @@ fn a_bundle_without_the_attention_form_runs_the_canonical_fusion() {
             ..Default::default()
         })
         .unwrap();
-        let e = LiveGestureGraphs::with_form(&b, be.as_ref(), FormChoice::Attention)
+        let e = LiveGestureGraphs::with_form(&b, be.as_ref(), GraphForm::Attention)
             .err()
             .expect("the attention form is refused");
         let e = format!("{e:#}");
@@ -455,10 +455,10 @@ fn a_bundle_without_fused_decoders_runs_its_fused_form_with_the_canonical_decode
         ..Default::default()
     };
     for kind in [BackendKind::Ort, BackendKind::Tract] {
-        let mut p = pipeline(&b, kind, FormChoice::Fused);
+        let mut p = pipeline(&b, kind, GraphForm::Fused);
         assert_eq!(p.form(), "fused");
         let got = run(&mut p, &opts, &audio);
-        let want = run(&mut pipeline(&full, kind, FormChoice::Fused), &opts, &audio);
+        let want = run(&mut pipeline(&full, kind, GraphForm::Fused), &opts, &audio);
         // the canonical decoders and decoders_fused are bit-identical on both backends at one stream
         assert_same(&got, &want, 0.0, &format!("{kind}: without decoders_fused"));
     }

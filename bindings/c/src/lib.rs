@@ -22,7 +22,7 @@ use anyhow::{anyhow, Result};
 
 use livegesture::backend::{BackendKind, BackendOptions};
 use livegesture::generate::{self, ErrorKind, InputError, PcmStream};
-use livegesture::model::livegesture::FormChoice;
+use livegesture::model::GraphForm;
 use livegesture::model::{MotionModel, StreamOptions};
 use livegesture::output::Frame;
 
@@ -148,7 +148,7 @@ fn ffi(what: &str, f: impl FnOnce() -> Result<()>) -> LgStatus {
 }
 
 fn null(what: &str) -> anyhow::Error {
-    InputError(format!("{what} is NULL")).into()
+    InputError::new(format!("{what} is NULL")).into()
 }
 
 unsafe fn str_arg<'a>(p: *const c_char, what: &str) -> Result<Option<&'a str>> {
@@ -158,7 +158,7 @@ unsafe fn str_arg<'a>(p: *const c_char, what: &str) -> Result<Option<&'a str>> {
     let s = unsafe { CStr::from_ptr(p) };
     s.to_str()
         .map(Some)
-        .map_err(|_| InputError(format!("{what} is not valid UTF-8")).into())
+        .map_err(|_| InputError::new(format!("{what} is not valid UTF-8")).into())
 }
 
 unsafe fn stream_mut<'a>(s: *mut LgStream) -> Result<&'a mut LgStream> {
@@ -233,13 +233,13 @@ pub unsafe extern "C" fn lg_model_load(
         let dir = unsafe { str_arg(bundle_dir, "bundle_dir") }?.map(PathBuf::from);
         let kind: BackendKind = match unsafe { str_arg(backend, "backend") }? {
             None => BackendKind::Tract,
-            Some(b) => b.parse().map_err(InputError)?,
+            Some(b) => b.parse().map_err(InputError::new)?,
         };
         let opts = BackendOptions {
             kind,
             ..Default::default()
         };
-        let model = generate::open_model(dir.as_deref(), &opts, FormChoice::Auto)?;
+        let model = generate::open_model(dir.as_deref(), &opts, GraphForm::Auto)?;
         let handle = Box::new(LgModel {
             inner: Arc::from(model),
         });
@@ -475,7 +475,7 @@ mod tests {
 
     #[test]
     fn errors_are_classified_and_kept_per_thread() {
-        let st = ffi("x", || Err(InputError("bad thing".into()).into()));
+        let st = ffi("x", || Err(InputError::new("bad thing".into()).into()));
         assert_eq!(st, LgStatus::Input);
         let here = unsafe { CStr::from_ptr(lg_last_error()) }
             .to_str()

@@ -22,7 +22,7 @@ use pyo3::types::PyDict;
 
 use livegesture::backend::{BackendKind, BackendOptions};
 use livegesture::generate::{self, ErrorKind, PcmStream};
-use livegesture::model::livegesture::FormChoice;
+use livegesture::model::GraphForm;
 use livegesture::model::{MotionModel, StreamOptions};
 use livegesture::output::{Frame, EXPR_DIM, POSE_DIM, TRANS_DIM};
 
@@ -187,7 +187,7 @@ impl Model {
         form: &str,
     ) -> PyResult<Self> {
         let kind: BackendKind = backend.parse().map_err(PyValueError::new_err)?;
-        let form: FormChoice = form.parse().map_err(PyValueError::new_err)?;
+        let form: GraphForm = form.parse().map_err(PyValueError::new_err)?;
         if kind == BackendKind::Tract && !ep.eq_ignore_ascii_case("cpu") {
             return Err(PyValueError::new_err(format!(
                 "ep={ep} needs backend=\"ort\" (tract runs on the CPU only)"

@@ -6,7 +6,7 @@
 //! ```js
 //! const files = new BundleFiles();
 //! files.add('manifest.json', bytes); files.add('audio_encoder.onnx', bytes); // ...
-//! const model = Model.load('models/default', files);   // sha256 of every listed file checked
+//! const model = Model.load('models/default', files, true); // sha256 of every listed file checked
 //! const stream = model.stream(7, undefined);           // seed, guidance (undefined: the bundle's)
 //! const f = stream.push(pcm, 48000);                   // Float32Array at any rate -> Frames
 //! const last = stream.finish();                        // frames covering the whole input
@@ -15,19 +15,23 @@
 //!
 //! Errors come back as JS exceptions carrying the runtime's message. A panic cannot be caught on
 //! wasm32 (it aborts the instance): [`last_panic`] returns its message so the worker can report it.
+//!
+//! Everything here is the library's: the bundle in memory ([`Bundle::from_some_files`]), the WAV
+//! reader ([`generate::generate_wav_bytes`]), the stream at any sample rate ([`PcmStream`]), the
+//! option checks ([`generate::new_stream`]), the parity checks ([`portable_parity::run`]) and the
+//! skeleton ([`livegesture::skeleton::skeleton_json`]); this crate only converts to and from
+//! JavaScript.
 
 use std::cell::RefCell;
 use std::collections::BTreeMap;
 
-use livegesture::audio::{AudioSpan, Resampler16k};
 use livegesture::backend::tract::TractBackend;
 use livegesture::bundle::Bundle;
-use livegesture::model::{self, MotionModel, MotionStream, StreamOptions};
+use livegesture::generate::{self, PcmStream};
+use livegesture::model::{self, MotionModel, StreamOptions};
 use livegesture::output::Frame;
+use livegesture::portable_parity;
 use wasm_bindgen::prelude::*;
-
-mod parity;
-mod wav;
 
 thread_local! {
     static PANIC: RefCell<Option<String>> = const { RefCell::new(None) };
@@ -66,14 +70,7 @@ pub fn version() -> String {
 /// poses, the same as `livegesture serve`'s `/skeleton.json`.
 #[wasm_bindgen(js_name = skeletonJson)]
 pub fn skeleton_json() -> String {
-    use livegesture::skeleton::{rest_offsets, JOINT_NAMES, PARENTS};
-    serde_json::json!({
-        "names": &JOINT_NAMES[..],
-        "parents": &PARENTS[..],
-        "offsets": rest_offsets().to_vec(),
-        "units": "m",
-    })
-    .to_string()
+    livegesture::skeleton::skeleton_json()
 }
 
 fn js_err(e: impl std::fmt::Display) -> JsError {
@@ -219,15 +216,18 @@ impl Model {
     /// A fresh stream with `seed` and classifier-free guidance `guidance` (undefined: the bundle's
     /// default).
     pub fn stream(&self, seed: f64, guidance: Option<f64>) -> Result<Stream, JsError> {
-        let opts = StreamOptions {
+        let opts = Self::options(seed, guidance)?;
+        let inner = generate::new_stream(self.model.as_ref(), &opts).map_err(anyhow_err)?;
+        Ok(Stream {
+            inner: PcmStream::new(inner, "stream"),
+        })
+    }
+
+    fn options(seed: f64, guidance: Option<f64>) -> Result<StreamOptions, JsError> {
+        Ok(StreamOptions {
             seed: seed_from(seed)?,
             guidance,
             ..Default::default()
-        };
-        let inner = self.model.new_stream(&opts).map_err(anyhow_err)?;
-        Ok(Stream {
-            inner,
-            resampler: None,
         })
     }
 
@@ -239,65 +239,28 @@ impl Model {
         seed: f64,
         guidance: Option<f64>,
     ) -> Result<Frames, JsError> {
-        let audio = wav::decode_mono(wav).map_err(anyhow_err)?;
-        let mut s = self.stream(seed, guidance)?;
+        let opts = Self::options(seed, guidance)?;
+        let g = generate::generate_wav_bytes(self.model.as_ref(), &opts, wav, "wav")
+            .map_err(anyhow_err)?;
         let mut out = Frames::default();
-        for chunk in audio.samples.chunks(4096) {
-            let f = s.push_inner(chunk, audio.sample_rate).map_err(anyhow_err)?;
-            out.extend(&f);
-        }
-        let f = s.finish_inner().map_err(anyhow_err)?;
-        out.extend(&f);
+        out.extend(&g.frames);
         Ok(out)
     }
 
-    /// The parity checks of docs/wasm.md on this bundle (every graph against its reference
-    /// vectors, the whole reference rollout); a JSON string `{passed, failed, lines}`.
+    /// The parity checks of docs/wasm.md on this bundle (the library's
+    /// [`portable_parity::run`]: every graph against its reference vectors, the whole reference
+    /// rollout); a JSON string `{passed, failed, lines}`.
     pub fn parity(&self) -> Result<String, JsError> {
-        let report = parity::run(&self.bundle).map_err(anyhow_err)?;
+        let report = portable_parity::run(&self.bundle, &TractBackend::new(), "wasm tract");
         Ok(report.to_json())
     }
 }
 
-/// One stream: its own state (audio buffers, caches, random generator, resampler).
+/// One stream: its own state (audio buffers, caches, random generator, resampler), the library's
+/// [`PcmStream`].
 #[wasm_bindgen]
 pub struct Stream {
-    inner: Box<dyn MotionStream>,
-    /// Made on the first push at that push's rate.
-    resampler: Option<Resampler16k>,
-}
-
-impl Stream {
-    fn push_inner(&mut self, pcm: &[f32], sample_rate: u32) -> anyhow::Result<Vec<Frame>> {
-        let r = match &mut self.resampler {
-            Some(r) => {
-                anyhow::ensure!(
-                    r.input_rate() == sample_rate,
-                    "push: sample rate {sample_rate} Hz, but this stream's audio is at {} Hz; reset the stream to change the rate",
-                    r.input_rate()
-                );
-                r
-            }
-            None => self
-                .resampler
-                .insert(Resampler16k::new(sample_rate, "push")?),
-        };
-        let audio = r.push(pcm)?;
-        self.inner.push_audio(&audio)
-    }
-
-    fn finish_inner(&mut self) -> anyhow::Result<Vec<Frame>> {
-        let (tail, span) = match &mut self.resampler {
-            Some(r) => {
-                let span = r.input_span();
-                (r.finish()?, span)
-            }
-            None => (Vec::new(), AudioSpan::at_16k(0)),
-        };
-        let mut frames = self.inner.push_audio(&tail)?;
-        frames.extend(self.inner.finish(span)?);
-        Ok(frames)
-    }
+    inner: PcmStream,
 }
 
 #[wasm_bindgen]
@@ -305,7 +268,7 @@ impl Stream {
     /// Pushes mono PCM in [-1, 1] at `sample_rate` Hz (any chunk size; one rate per stream until
     /// reset); returns the frames it completes.
     pub fn push(&mut self, pcm: &[f32], sample_rate: u32) -> Result<Frames, JsError> {
-        let f = self.push_inner(pcm, sample_rate).map_err(anyhow_err)?;
+        let f = self.inner.push(pcm, sample_rate).map_err(anyhow_err)?;
         let mut out = Frames::default();
         out.extend(&f);
         Ok(out)
@@ -314,7 +277,7 @@ impl Stream {
     /// Ends the stream: the remaining frames, so that the stream has emitted
     /// `ceil(samples x fps / rate)` frames in total.
     pub fn finish(&mut self) -> Result<Frames, JsError> {
-        let f = self.finish_inner().map_err(anyhow_err)?;
+        let f = self.inner.finish().map_err(anyhow_err)?;
         let mut out = Frames::default();
         out.extend(&f);
         Ok(out)
@@ -322,25 +285,24 @@ impl Stream {
 
     /// Back to a cold start with the same seed and options (also after an error or finish).
     pub fn reset(&mut self) -> Result<(), JsError> {
-        self.resampler = None;
         self.inner.reset().map_err(anyhow_err)
     }
 
     /// Frames emitted so far.
     #[wasm_bindgen(getter, js_name = framesEmitted)]
     pub fn frames_emitted(&self) -> f64 {
-        self.inner.frames_emitted() as f64
+        self.inner.stream().frames_emitted() as f64
     }
 
     /// Frames emitted together (a token of 4 frames for LiveGesture, a window step for DiffSHEG).
     #[wasm_bindgen(getter, js_name = framesPerUnit)]
     pub fn frames_per_unit(&self) -> f64 {
-        self.inner.frames_per_unit() as f64
+        self.inner.stream().frames_per_unit() as f64
     }
 
     /// The guidance scale in use.
     #[wasm_bindgen(getter)]
     pub fn guidance(&self) -> f64 {
-        self.inner.guidance()
+        self.inner.stream().guidance()
     }
 }

@@ -370,3 +370,82 @@ fn raw_stream_resamples_and_is_read_size_invariant() {
             .collect();
     assert_eq!(y, x[..1000].to_vec());
 }
+
+/// Every chunk of `s` (or its first error, as text).
+fn drain<R: std::io::Read>(mut s: WavStream<R>) -> Result<(Vec<Vec<f32>>, AudioSpan), String> {
+    let mut chunks = Vec::new();
+    while let Some(c) = s.next_chunk().map_err(|e| e.to_string())? {
+        chunks.push(c);
+    }
+    Ok((chunks, s.input_span()))
+}
+
+#[test]
+fn bytes_and_readers_decode_as_the_file() {
+    // the same files through WavStream::open, ::from_bytes and ::from_reader: the same chunks, span
+    // and errors (named by the name given), good files and broken ones alike
+    let dir = tempfile::tempdir().unwrap();
+    let x = tone(30_000, 44_100, 300.0, 0.4);
+    let stereo: Vec<Vec<f64>> = x.iter().map(|&v| vec![v, -0.5 * v]).collect();
+    let files = [
+        "stereo44k.wav",
+        "mono8.wav",
+        "float.wav",
+        "nan.wav",
+        "trunc.wav",
+        "short.wav",
+        "b12.wav",
+        "garbage.wav",
+        "empty.wav",
+    ];
+    write_int(&dir.path().join("stereo44k.wav"), 44_100, 2, 16, &stereo);
+    let mono: Vec<Vec<f64>> = x[..5000].iter().map(|&v| vec![v]).collect();
+    write_int(&dir.path().join("mono8.wav"), 22_050, 1, 8, &mono);
+    write_float(
+        &dir.path().join("float.wav"),
+        16_000,
+        1,
+        &[vec![0.25], vec![-0.5], vec![0.125]],
+    );
+    write_float(
+        &dir.path().join("nan.wav"),
+        16_000,
+        1,
+        &[vec![0.0], vec![f32::NAN]],
+    );
+    write_int(&dir.path().join("trunc.wav"), 16_000, 1, 16, &mono);
+    let t = std::fs::read(dir.path().join("trunc.wav")).unwrap();
+    std::fs::write(dir.path().join("trunc.wav"), &t[..t.len() - 1001]).unwrap();
+    std::fs::write(dir.path().join("short.wav"), &t[..30]).unwrap();
+    handmade(&dir.path().join("b12.wav"), 1, 1, 16000, 12, &[0; 20], 20);
+    std::fs::write(dir.path().join("garbage.wav"), b"not audio").unwrap();
+    std::fs::write(dir.path().join("empty.wav"), b"").unwrap();
+    let mut good = 0;
+    for name in files {
+        let path = dir.path().join(name);
+        let bytes = std::fs::read(&path).unwrap();
+        let from_file = WavStream::open(&path)
+            .map_err(|e| e.to_string())
+            .and_then(|s| drain(s.with_read_frames(1000)));
+        let from_bytes = WavStream::from_bytes(&bytes[..], &path)
+            .map_err(|e| e.to_string())
+            .and_then(|s| drain(s.with_read_frames(1000)));
+        let from_reader = WavStream::from_reader(std::io::Cursor::new(bytes.clone()), &path)
+            .map_err(|e| e.to_string())
+            .and_then(|s| drain(s.with_read_frames(1000)));
+        assert_eq!(from_file, from_bytes, "{name}");
+        assert_eq!(from_file, from_reader, "{name}");
+        if let Err(e) = &from_bytes {
+            assert!(e.contains(name), "{name}: {e}");
+        } else {
+            good += 1;
+        }
+    }
+    assert_eq!(good, 3, "three of the files decode");
+    // the name given is the one errors carry
+    let e = WavStream::from_bytes(b"RIFF", "upload #3").unwrap_err();
+    assert!(matches!(e, AudioError::Truncated { .. }), "{e}");
+    assert!(e.to_string().starts_with("upload #3: "), "{e}");
+    let e = WavStream::from_bytes(Vec::new(), "upload #4").unwrap_err();
+    assert!(matches!(e, AudioError::EmptyFile { .. }), "{e}");
+}

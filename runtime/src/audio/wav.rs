@@ -1,7 +1,10 @@
 //! WAV files: probing the header (for precise errors), then block-wise reading with hound.
+//!
+//! The source is any `Read + Seek` ([`WavStream::from_reader`]): a file ([`WavStream::open`]), bytes
+//! in memory ([`WavStream::from_bytes`], what the WebAssembly binding decodes), a network buffer.
 
 use std::fs::File;
-use std::io::{self, BufReader, Read, Seek, SeekFrom};
+use std::io::{self, BufReader, Cursor, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
 use super::{
@@ -38,9 +41,20 @@ fn read_exact_or_eof(f: &mut impl Read, buf: &mut [u8]) -> io::Result<bool> {
     }
 }
 
-fn probe_wav(path: &Path) -> Result<Probe, AudioError> {
-    let mut f = File::open(path).map_err(|e| io_err(path, e))?;
-    let file_len = f.metadata().map_err(|e| io_err(path, e))?.len();
+/// Walks the RIFF chunks of `f` from its start, then rewinds it to the start.
+fn probe_wav<R: Read + Seek>(f: &mut R, path: &Path) -> Result<Probe, AudioError> {
+    let file_len = f.seek(SeekFrom::End(0)).map_err(|e| io_err(path, e))?;
+    f.seek(SeekFrom::Start(0)).map_err(|e| io_err(path, e))?;
+    let p = probe_chunks(f, path, file_len)?;
+    f.seek(SeekFrom::Start(0)).map_err(|e| io_err(path, e))?;
+    Ok(p)
+}
+
+fn probe_chunks<R: Read + Seek>(
+    f: &mut R,
+    path: &Path,
+    file_len: u64,
+) -> Result<Probe, AudioError> {
     if file_len == 0 {
         return Err(AudioError::EmptyFile {
             path: path.to_path_buf(),
@@ -69,7 +83,7 @@ fn probe_wav(path: &Path) -> Result<Probe, AudioError> {
     let mut pos = 12u64;
     loop {
         let mut ch = [0u8; 8];
-        if !read_exact_or_eof(&mut f, &mut ch).map_err(|e| io_err(path, e))? {
+        if !read_exact_or_eof(f, &mut ch).map_err(|e| io_err(path, e))? {
             let detail = if p.format_tag.is_none() {
                 "it ends before the fmt chunk"
             } else {
@@ -85,7 +99,7 @@ fn probe_wav(path: &Path) -> Result<Probe, AudioError> {
         match &ch[..4] {
             b"fmt " => {
                 let mut fmt = vec![0u8; len.min(40) as usize];
-                if !read_exact_or_eof(&mut f, &mut fmt).map_err(|e| io_err(path, e))? {
+                if !read_exact_or_eof(f, &mut fmt).map_err(|e| io_err(path, e))? {
                     return Err(AudioError::Truncated {
                         path: path.to_path_buf(),
                         detail: "it ends inside the fmt chunk".into(),
@@ -173,24 +187,26 @@ fn encoding_supported(p: &Probe) -> bool {
 
 // ----------------------------------------------------------------------------------------- WAV stream
 
-enum Samples {
+enum Samples<R: Read> {
     Int {
-        reader: hound::WavReader<BufReader<File>>,
+        reader: hound::WavReader<R>,
         scale: f64,
     },
     Float {
-        reader: hound::WavReader<BufReader<File>>,
+        reader: hound::WavReader<R>,
     },
 }
 
 /// Reads a WAV file block by block, yielding 16 kHz mono `f32` chunks (see the module docs).
 ///
 /// Memory is bounded by the block size whatever the file's length. Iterate it, or call
-/// [`WavStream::next_chunk`]; after the last chunk it returns `None`.
-pub struct WavStream {
+/// [`WavStream::next_chunk`]; after the last chunk it returns `None`. The source is a file
+/// ([`WavStream::open`]) or any `Read + Seek` ([`WavStream::from_reader`], [`WavStream::from_bytes`]);
+/// all three decode alike (same checks, same errors, naming the source).
+pub struct WavStream<R: Read = BufReader<File>> {
     path: PathBuf,
     info: WavInfo,
-    samples: Samples,
+    samples: Samples<R>,
     read_frames: usize,
     frames_read: u64,
     resampler: Resampler16k,
@@ -198,7 +214,7 @@ pub struct WavStream {
     interleaved: Vec<f64>,
 }
 
-impl std::fmt::Debug for WavStream {
+impl<R: Read> std::fmt::Debug for WavStream<R> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("WavStream")
             .field("path", &self.path)
@@ -210,15 +226,33 @@ impl std::fmt::Debug for WavStream {
 impl WavStream {
     /// Opens and validates a WAV file (header, encoding, length) without reading its samples.
     pub fn open(path: impl AsRef<Path>) -> Result<Self, AudioError> {
-        let path = path.as_ref().to_path_buf();
-        let probe = probe_wav(&path)?;
+        let path = path.as_ref();
+        let f = File::open(path).map_err(|e| io_err(path, e))?;
+        WavStream::from_reader(BufReader::new(f), path)
+    }
+}
+
+impl<B: AsRef<[u8]>> WavStream<Cursor<B>> {
+    /// A WAV file held in memory (`bytes`), validated as [`WavStream::open`] validates a file;
+    /// `name` stands for it in errors (e.g. `upload.wav`, a URL).
+    pub fn from_bytes(bytes: B, name: impl AsRef<Path>) -> Result<Self, AudioError> {
+        WavStream::from_reader(Cursor::new(bytes), name)
+    }
+}
+
+impl<R: Read + Seek> WavStream<R> {
+    /// A WAV file read from `reader` (from its start), validated as [`WavStream::open`] validates a
+    /// file; `name` stands for it in errors.
+    pub fn from_reader(mut reader: R, name: impl AsRef<Path>) -> Result<Self, AudioError> {
+        let path = name.as_ref().to_path_buf();
+        let probe = probe_wav(&mut reader, &path)?;
         if probe.format_tag.is_some() && !encoding_supported(&probe) {
             return Err(AudioError::UnsupportedEncoding {
                 found: describe_encoding(&probe),
                 path,
             });
         }
-        let reader = match hound::WavReader::open(&path) {
+        let reader = match hound::WavReader::new(reader) {
             Ok(r) => r,
             Err(e) => {
                 return Err(match e {
@@ -288,7 +322,9 @@ impl WavStream {
             interleaved: Vec::new(),
         })
     }
+}
 
+impl<R: Read> WavStream<R> {
     /// Sets how many source frames are read per block (at least 1).
     pub fn with_read_frames(mut self, frames: usize) -> Self {
         self.read_frames = frames.max(1);
@@ -379,7 +415,7 @@ impl WavStream {
     }
 }
 
-impl Iterator for WavStream {
+impl<R: Read> Iterator for WavStream<R> {
     type Item = Result<Vec<f32>, AudioError>;
 
     fn next(&mut self) -> Option<Self::Item> {

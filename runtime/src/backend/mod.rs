@@ -287,7 +287,7 @@ pub fn create(opts: &BackendOptions) -> Result<Box<dyn Backend>> {
         BackendKind::Tract => {
             ensure!(
                 opts.execution_provider.eq_ignore_ascii_case("cpu"),
-                "the tract backend runs on the CPU only; execution provider '{}' needs --backend ort",
+                "the tract backend runs on the CPU only; execution provider '{}' needs the ort backend",
                 opts.execution_provider
             );
             Ok(Box::new(tract::TractBackend::new()))

@@ -71,7 +71,7 @@ pub struct BenchConfig {
     pub churn: bool,
     /// LiveGesture: the form of the region eXperts and decoders to measure (docs/bundle.md#forms-and-precision; auto = the
     /// bundle's form for the backend).
-    pub form: crate::model::livegesture::FormChoice,
+    pub form: crate::model::GraphForm,
 }
 
 impl Default for BenchConfig {

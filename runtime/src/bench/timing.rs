@@ -112,15 +112,9 @@ pub struct Stats {
     pub max: f64,
 }
 
+/// The `p`-th percentile ([`crate::stats::quantile`], the loadtest's too); NaN for no values.
 fn percentile(sorted: &[f64], p: f64) -> f64 {
-    // linear interpolation between closest ranks (numpy's default)
-    if sorted.is_empty() {
-        return f64::NAN;
-    }
-    let x = p / 100.0 * (sorted.len() - 1) as f64;
-    let lo = x.floor() as usize;
-    let hi = x.ceil() as usize;
-    sorted[lo] + (sorted[hi] - sorted[lo]) * (x - lo as f64)
+    crate::stats::quantile(sorted, p / 100.0).unwrap_or(f64::NAN)
 }
 
 impl Stats {

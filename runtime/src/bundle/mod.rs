@@ -107,7 +107,7 @@ pub fn installed_default_bundle() -> Option<PathBuf> {
 /// Why a bundle was refused. Every variant names the file concerned.
 #[derive(Debug, thiserror::Error)]
 pub enum BundleError {
-    #[error("{}: no bundle here (manifest.json not found); expected a folder written by export/export.py (give one with --bundle or {BUNDLE_ENV})", .dir.display())]
+    #[error("{}: no bundle here (manifest.json not found); expected a folder written by export/export.py (give its path, or set {BUNDLE_ENV})", .dir.display())]
     NoManifest { dir: PathBuf },
     #[error("{}: cannot read: {source}", .path.display())]
     Io {

@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 
 use livegesture::bench::diffsheg::DiffshegBenchConfig;
 use livegesture::bench::{run_family, BenchConfig};
-use livegesture::model::livegesture::FormChoice;
+use livegesture::model::GraphForm;
 
 use super::common::{DiffshegArgs, InputError, ModelArgs};
 
@@ -86,12 +86,12 @@ fn positive_list(flag: &str, v: &str) -> Result<Vec<usize>> {
             s.parse::<usize>()
                 .ok()
                 .filter(|&n| n > 0)
-                .ok_or_else(|| InputError(format!("{flag}: '{s}' is not a positive integer")))
+                .ok_or_else(|| InputError::new(format!("{flag}: '{s}' is not a positive integer")))
         })
         .collect::<Result<Vec<_>, _>>()?)
 }
 
-pub fn run(a: Args, form: FormChoice) -> Result<()> {
+pub fn run(a: Args, form: GraphForm) -> Result<()> {
     let streams = positive_list("--streams", &a.streams)?;
     let dcfg = DiffshegBenchConfig {
         ddim_steps: a.diffsheg.ddim_steps,
@@ -104,7 +104,7 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
         table_windows: a.table_windows.max(1),
     };
     if a.steps == 0 {
-        return Err(InputError("--steps must be at least 1".into()).into());
+        return Err(InputError::new("--steps must be at least 1".into()).into());
     }
     let bundle = a.model.bundle()?;
     super::common::check_form(&bundle, form)?;

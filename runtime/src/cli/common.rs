@@ -8,13 +8,11 @@ use clap::ValueEnum;
 use livegesture::audio::AudioError;
 use livegesture::backend::{self, BackendKind, BackendOptions};
 use livegesture::bundle::{default_bundle_dir, Bundle, BundleError};
-use livegesture::model::livegesture::FormChoice;
+use livegesture::model::GraphForm;
 use livegesture::model::{self, MotionModel, StreamOptions};
 
-/// An error caused by the user's input or arguments (exit code 2).
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct InputError(pub String);
+/// An error caused by the user's input or arguments (exit code 2): the library's one input error.
+pub use livegesture::generate::InputError;
 
 /// Exit code for an error: 2 for bad input (audio, bundle, arguments), 1 otherwise.
 pub fn exit_code(e: &anyhow::Error) -> u8 {
@@ -109,20 +107,8 @@ pub struct GenArgs {
 }
 
 impl GenArgs {
-    /// Stream options, with range checks reported as input errors.
+    /// Stream options (checked where every door's are: [`livegesture::generate::new_stream`]).
     pub fn stream_options(&self) -> Result<StreamOptions> {
-        if let Some(g) = self.guidance {
-            if !g.is_finite() {
-                return Err(
-                    InputError(format!("--guidance must be a finite number, got {g}")).into(),
-                );
-            }
-        }
-        if let Some(t) = self.temperature {
-            if !(t.is_finite() && t > 0.0) {
-                return Err(InputError(format!("--temperature must be > 0, got {t}")).into());
-            }
-        }
         Ok(StreamOptions {
             seed: self.seed,
             guidance: self.guidance,
@@ -156,7 +142,7 @@ impl ModelArgs {
             ort_library: self.ort_lib.clone(),
         };
         if opts.kind == BackendKind::Tract && !opts.execution_provider.eq_ignore_ascii_case("cpu") {
-            return Err(InputError(format!(
+            return Err(InputError::new(format!(
                 "--ep {} needs --backend ort (tract runs on the CPU only)",
                 opts.execution_provider
             ))
@@ -167,7 +153,7 @@ impl ModelArgs {
 
     /// Creates the backend and loads the bundle's model (whichever its family), the region eXperts
     /// of a LiveGesture bundle in the form `form` (`--form`).
-    pub fn model(&self, bundle: &Bundle, form: FormChoice) -> Result<Box<dyn MotionModel>> {
+    pub fn model(&self, bundle: &Bundle, form: GraphForm) -> Result<Box<dyn MotionModel>> {
         check_form(bundle, form)?;
         let be = backend::create(&self.backend_options()?)?;
         model::load_with(bundle, be.as_ref(), &model::LoadOptions { form }).with_context(|| {
@@ -182,18 +168,33 @@ impl ModelArgs {
 
 /// `--form` chooses among a LiveGesture bundle's forms; a bundle of a family with one form refuses
 /// it (input error).
-pub fn check_form(bundle: &Bundle, form: FormChoice) -> Result<()> {
+pub fn check_form(bundle: &Bundle, form: GraphForm) -> Result<()> {
     model::check_load_options(bundle, &model::LoadOptions { form })
-        .map_err(|e| InputError(format!("--form {form}: {e:#}")).into())
+        .map_err(|e| InputError::new(format!("--form {form}: {e:#}")).into())
 }
 
-/// A new stream of `model`; options the model refuses (out of range, or of another family) are input
-/// errors (exit code 2).
+/// A new stream of `model` ([`livegesture::generate::new_stream`], where every door's options are
+/// checked); options refused (out of range, or of another family) are input errors (exit code 2).
 pub fn new_stream(
     model: &dyn livegesture::model::MotionModel,
     opts: &StreamOptions,
 ) -> Result<Box<dyn livegesture::model::MotionStream>> {
-    model
-        .new_stream(opts)
-        .map_err(|e| InputError(format!("{e:#}")).into())
+    livegesture::generate::new_stream(model, opts)
+}
+
+/// The text of `e` as the CLI prints it: the causes joined by `: ` (as `{:#}` does), each input
+/// error's fields spelled as this program's flags (`ddim_steps` -> `--ddim-steps`).
+pub fn error_text(e: &anyhow::Error) -> String {
+    e.chain()
+        .map(|c| match c.downcast_ref::<InputError>() {
+            Some(ie) => ie.render(flag),
+            None => c.to_string(),
+        })
+        .collect::<Vec<_>>()
+        .join(": ")
+}
+
+/// The flag of a [`StreamOptions`] field: `top_k` -> `--top-k`.
+pub fn flag(field: &str) -> String {
+    format!("--{}", field.replace('_', "-"))
 }

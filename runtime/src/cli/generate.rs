@@ -15,7 +15,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use livegesture::audio::WavStream;
 use livegesture::generate;
-use livegesture::model::livegesture::FormChoice;
+use livegesture::model::GraphForm;
 use livegesture::output::{FrameSink, NpzFrameWriter};
 
 use super::common::{GenArgs, InputError, ModelArgs};
@@ -60,7 +60,7 @@ impl OutputFormat {
             Some("npz") => Ok(Self::Npz),
             Some("bvh") => Ok(Self::Bvh),
             Some("glb" | "gltf") => Ok(Self::Gltf),
-            other => Err(InputError(format!(
+            other => Err(InputError::new(format!(
                 "{}: cannot write {}; the output name must end in one of {OUTPUT_EXTENSIONS}",
                 path.display(),
                 other.map_or("a file without an extension".to_string(), |e| format!(
@@ -72,12 +72,12 @@ impl OutputFormat {
     }
 }
 
-pub fn run(a: Args, form: FormChoice) -> Result<()> {
+pub fn run(a: Args, form: GraphForm) -> Result<()> {
     let format = OutputFormat::of(&a.output)?;
     let opts = a.gen.stream_options()?;
     if let Some(parent) = a.output.parent().filter(|p| !p.as_os_str().is_empty()) {
         if !parent.is_dir() {
-            return Err(InputError(format!(
+            return Err(InputError::new(format!(
                 "{}: the output folder {} does not exist",
                 a.output.display(),
                 parent.display()
@@ -86,7 +86,7 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
         }
     }
     if a.output.is_dir() {
-        return Err(InputError(format!(
+        return Err(InputError::new(format!(
             "{}: is a folder; expected an output file path",
             a.output.display()
         ))

@@ -86,7 +86,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let bad = |m: String| anyhow::Error::new(InputError(m));
+    let bad = |m: String| anyhow::Error::new(InputError::new(m));
     if a.levels.is_empty() || a.levels.contains(&0) || a.levels.windows(2).any(|w| w[0] >= w[1]) {
         return Err(bad(format!(
             "--levels {:?}: expected increasing positive session counts",

@@ -10,7 +10,7 @@
 //! [`livegesture::model::for_family`].
 
 use clap::{Parser, Subcommand};
-use livegesture::model::livegesture::FormChoice;
+use livegesture::model::GraphForm;
 
 #[cfg(feature = "bench")]
 pub mod bench;
@@ -25,7 +25,7 @@ pub mod parity;
 pub mod serve;
 pub mod stream;
 
-pub use common::exit_code;
+pub use common::{error_text, exit_code};
 
 /// Streaming speech-driven full-body gesture generation (ONNX bundles, tract or ONNX Runtime).
 ///
@@ -55,7 +55,7 @@ pub struct Cli {
         env = "LIVEGESTURE_FORM",
         default_value = "auto"
     )]
-    pub form: FormChoice,
+    pub form: GraphForm,
 }
 
 #[derive(Debug, Subcommand)]

@@ -17,7 +17,7 @@ use anyhow::{Context, Result};
 
 use livegesture::backend::{BackendKind, BackendOptions};
 use livegesture::bundle::default_bundle_dir;
-use livegesture::model::livegesture::FormChoice;
+use livegesture::model::GraphForm;
 use livegesture::parity::{self, AgainstOptions, Check, ParityOptions, ReferenceError};
 
 use super::common::{BackendArg, InputError};
@@ -80,9 +80,9 @@ pub struct ParityFailed {
     pub total: usize,
 }
 
-pub fn run(a: Args, form: FormChoice) -> Result<()> {
+pub fn run(a: Args, form: GraphForm) -> Result<()> {
     if !(a.chunk_seconds.is_finite() && a.chunk_seconds > 0.0) {
-        return Err(InputError(format!(
+        return Err(InputError::new(format!(
             "--chunk-seconds must be > 0, got {}",
             a.chunk_seconds
         ))
@@ -95,7 +95,7 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
             .filter(|p| !p.as_os_str().is_empty())
         {
             if !parent.is_dir() {
-                return Err(InputError(format!(
+                return Err(InputError::new(format!(
                     "{flag}: the folder {} does not exist",
                     parent.display()
                 ))
@@ -127,7 +127,7 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
             ),
         ] {
             if !(v.is_finite() && ok) {
-                return Err(InputError(format!(
+                return Err(InputError::new(format!(
                     "{flag} must be {}, got {v}",
                     if flag.ends_with("agreement") {
                         "in 0..1"
@@ -155,7 +155,7 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
         chunk_seconds: a.chunk_seconds,
         form,
     };
-    if form != FormChoice::Auto {
+    if form != GraphForm::Auto {
         super::common::check_form(&livegesture::bundle::Bundle::load(&dir)?, form)?;
     }
     let quiet = a.quiet;
@@ -177,7 +177,7 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
     let result = match &a.against {
         Some(old) => {
             if !old.join("manifest.json").is_file() {
-                return Err(InputError(format!(
+                return Err(InputError::new(format!(
                     "--against {}: no manifest.json there (expected a bundle folder)",
                     old.display()
                 ))
@@ -190,10 +190,10 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
     let report = match result {
         Ok(r) => r,
         Err(e) if e.chain().any(|c| c.is::<ReferenceError>()) => {
-            return Err(InputError(format!("{e:#} (the bundle's reference vectors are incomplete; re-export it with export/export.py)")).into())
+            return Err(InputError::new(format!("{e:#} (the bundle's reference vectors are incomplete; re-export it with export/export.py)")).into())
         }
         Err(e) if e.chain().any(|c| c.is::<parity::AgainstInputError>()) => {
-            return Err(InputError(format!("{e:#}")).into())
+            return Err(InputError::new(format!("{e:#}")).into())
         }
         Err(e) => return Err(e),
     };

@@ -9,7 +9,7 @@ use anyhow::{Context, Result};
 use sha2::{Digest, Sha256};
 
 use livegesture::backend;
-use livegesture::model::livegesture::FormChoice;
+use livegesture::model::GraphForm;
 use livegesture::model::{self, LoadOptions};
 use livegesture::serve::access::AccessConfig;
 use livegesture::serve::tls::load_config as load_tls;
@@ -97,16 +97,20 @@ impl AccessArgs {
         Option<Arc<tokio_rustls::rustls::ServerConfig>>,
     )> {
         let token = match &self.auth_token_file {
-            Some(p) => Some(AccessConfig::read_token(p).map_err(|e| InputError(format!("{e:#}")))?),
+            Some(p) => {
+                Some(AccessConfig::read_token(p).map_err(|e| InputError::new(format!("{e:#}")))?)
+            }
             None => None,
         };
         let allowed_origins = self
             .allowed_origin
             .iter()
-            .map(|o| AccessConfig::parse_origin(o).map_err(|e| InputError(format!("{e:#}"))))
+            .map(|o| AccessConfig::parse_origin(o).map_err(|e| InputError::new(format!("{e:#}"))))
             .collect::<Result<_, _>>()?;
         let tls = match (&self.tls_cert, &self.tls_key) {
-            (Some(c), Some(k)) => Some(load_tls(c, k).map_err(|e| InputError(format!("{e:#}")))?),
+            (Some(c), Some(k)) => {
+                Some(load_tls(c, k).map_err(|e| InputError::new(format!("{e:#}")))?)
+            }
             _ => None,
         };
         Ok((
@@ -125,20 +129,20 @@ fn secs(name: &str, v: f64) -> Result<Duration> {
     if v.is_finite() && v > 0.0 && v < 1e7 {
         Ok(Duration::from_secs_f64(v))
     } else {
-        Err(InputError(format!(
+        Err(InputError::new(format!(
             "--{name} must be a positive number of seconds, got {v}"
         ))
         .into())
     }
 }
 
-pub fn run(a: Args, form: FormChoice) -> Result<()> {
+pub fn run(a: Args, form: GraphForm) -> Result<()> {
     if a.max_sessions == 0
         || a.max_message_bytes == 0
         || a.queue_frames == 0
         || a.max_pending_tokens == 0
     {
-        return Err(InputError(
+        return Err(InputError::new(
             "--max-sessions, --max-message-bytes, --queue-frames and --max-pending-tokens must be at least 1".into(),
         )
         .into());
@@ -167,7 +171,7 @@ pub fn run(a: Args, form: FormChoice) -> Result<()> {
     };
     if let Some(d) = &a.web_dir {
         if !d.join("wasm").is_dir() {
-            return Err(InputError(format!(
+            return Err(InputError::new(format!(
                 "--web-dir {}: no wasm/ folder here; expected the static page of scripts/build_web_static.sh",
                 d.display()
             ))

@@ -8,7 +8,7 @@ use anyhow::Result;
 use clap::ValueEnum;
 
 use livegesture::audio::{RawFormat, RawPcmStream};
-use livegesture::model::livegesture::FormChoice;
+use livegesture::model::GraphForm;
 use livegesture::output::{BinaryFrameWriter, FrameSink, JsonLinesWriter};
 
 use super::common::{GenArgs, InputError, ModelArgs};
@@ -56,10 +56,10 @@ fn is_broken_pipe(e: &anyhow::Error) -> bool {
     })
 }
 
-pub fn run(a: Args, form: FormChoice) -> Result<()> {
+pub fn run(a: Args, form: GraphForm) -> Result<()> {
     let opts = a.gen.stream_options()?;
     if a.rate == 0 || a.channels == 0 {
-        return Err(InputError("--rate and --channels must be at least 1".into()).into());
+        return Err(InputError::new("--rate and --channels must be at least 1".into()).into());
     }
     let bundle = a.model.bundle()?;
     let model = a.model.model(&bundle, form)?;

@@ -35,13 +35,8 @@ pub struct LevelReport {
     pub first_failure: Option<String>,
 }
 
-/// The `p`-quantile (nearest rank on the sorted values).
-pub fn quantile(sorted: &[f64], p: f64) -> Option<f64> {
-    if sorted.is_empty() {
-        return None;
-    }
-    Some(sorted[((sorted.len() - 1) as f64 * p).round() as usize])
-}
+/// The quantile of the project's figures (linear interpolation, as `livegesture bench`).
+pub use crate::stats::quantile;
 
 impl LevelReport {
     pub fn new(

@@ -91,15 +91,16 @@ pub struct StreamOptions {
 }
 
 impl StreamOptions {
-    /// The DiffSHEG-only options that are set (for a family that refuses them).
+    /// The DiffSHEG-only options that are set (for a family that refuses them), named as the
+    /// fields here (`ddim_steps`; each door spells them its own way, [`crate::generate::InputError`]).
     pub fn diffsheg_options_set(&self) -> Vec<&'static str> {
         [
-            ("--ddim-steps", self.ddim_steps.is_some()),
-            ("--jumps", self.jumps.is_some()),
-            ("--window", self.window.is_some()),
-            ("--overlap", self.overlap.is_some()),
-            ("--blend-steps", self.blend_steps.is_some()),
-            ("--speaker", self.speaker.is_some()),
+            ("ddim_steps", self.ddim_steps.is_some()),
+            ("jumps", self.jumps.is_some()),
+            ("window", self.window.is_some()),
+            ("overlap", self.overlap.is_some()),
+            ("blend_steps", self.blend_steps.is_some()),
+            ("speaker", self.speaker.is_some()),
         ]
         .into_iter()
         .filter(|(_, set)| *set)
@@ -310,12 +311,57 @@ pub fn for_family<T: FamilyTool>(bundle: &Bundle, tool: T) -> T::Output {
     }
 }
 
+/// Which form of a bundle's graphs to load (docs/bundle.md#forms-and-precision), a choice of
+/// [`LoadOptions`] that names no family: a bundle exported in several forms (a LiveGesture bundle's
+/// region eXperts, fusion and decoders) runs the one chosen; a bundle with one form (DiffSHEG)
+/// accepts only `Auto`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum GraphForm {
+    /// The form the bundle's manifest names for the backend (`backend_forms`), else canonical.
+    #[default]
+    Auto,
+    /// One `expert_<region>` graph per region.
+    Canonical,
+    /// The four eXperts as one graph on a region axis (`experts_fused`) and, where the bundle has
+    /// it, the four SVQ decoders as one graph (`decoders_fused`).
+    Fused,
+    /// The canonical eXperts and decoders and the fusion with its attention cores as the ONNX
+    /// `Attention` op (`fusion_attention`).
+    Attention,
+}
+
+impl std::fmt::Display for GraphForm {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            GraphForm::Auto => "auto",
+            GraphForm::Canonical => "canonical",
+            GraphForm::Fused => "fused",
+            GraphForm::Attention => "attention",
+        })
+    }
+}
+
+impl std::str::FromStr for GraphForm {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "auto" | "" => Ok(GraphForm::Auto),
+            "canonical" => Ok(GraphForm::Canonical),
+            "fused" => Ok(GraphForm::Fused),
+            "attention" => Ok(GraphForm::Attention),
+            other => Err(format!(
+                "unknown form '{other}'; expected auto, canonical, fused or attention"
+            )),
+        }
+    }
+}
+
 /// Choices made when a bundle is loaded, among what the bundle carries.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct LoadOptions {
-    /// LiveGesture: the form of the region eXperts and decoders (docs/bundle.md#forms-and-precision; auto = the bundle's
-    /// form for the backend). DiffSHEG bundles carry one form: anything but auto is refused.
-    pub form: livegesture::FormChoice,
+    /// The graph form (docs/bundle.md#forms-and-precision; auto = the bundle's form for the
+    /// backend). A bundle with one form (DiffSHEG) refuses anything but auto.
+    pub form: GraphForm,
 }
 
 /// Loads the model of `bundle`'s family with `backend` and the default [`LoadOptions`].
@@ -365,8 +411,8 @@ pub fn check_load_options(bundle: &Bundle, opts: &LoadOptions) -> Result<()> {
         }
         fn diffsheg(self, bundle: &Bundle) -> Self::Output {
             anyhow::ensure!(
-                self.0.form == livegesture::FormChoice::Auto,
-                "{} is a {} bundle, which has one graph form; the form choice ({}) applies to a LiveGesture bundle's region eXperts",
+                self.0.form == GraphForm::Auto,
+                "{} is a {} bundle, which has one graph form; the form choice ({}) applies to bundles exported in several forms",
                 bundle.dir().display(),
                 bundle.family(),
                 self.0.form

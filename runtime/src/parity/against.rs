@@ -231,7 +231,7 @@ fn livegesture_rollout(
         ..Default::default()
     };
     let run = |b: &Bundle| -> Result<(Vec<TokenStep>, String)> {
-        let mut p = LiveGestureGraphs::with_form(b, backend, FormChoice::Auto)?;
+        let mut p = LiveGestureGraphs::with_form(b, backend, GraphForm::Auto)?;
         let form = p.form().to_string();
         Ok((run_stream(&mut p, &opts, &audio, 16000, false)?, form))
     };

@@ -73,9 +73,8 @@ use crate::audio::{read_wav_16k_mono, AudioSpan};
 use crate::backend::{self, Backend, BackendKind, BackendOptions, Tensor, TensorData};
 use crate::bundle::{Bundle, GraphSpec};
 use crate::frontend::logmel;
-use crate::model::livegesture::{
-    FormChoice, LiveGestureGraphs, StepLogits, StreamOptions, TokenStep,
-};
+use crate::model::livegesture::{LiveGestureGraphs, StepLogits, StreamOptions, TokenStep};
+use crate::model::GraphForm;
 use crate::output::Frame;
 use crate::sampling::{guide, Draw, SplitMix64, TokenDistribution};
 
@@ -85,14 +84,9 @@ pub const TORCH_STEP_VS_OFFLINE: f64 = 1e-5;
 /// torch fused form vs the canonical graphs it replaces, every output and cache (docs/bundle.md#forms-and-precision; measured
 /// at export, recorded in the manifest's `checks`).
 pub const TORCH_FUSED_VS_CANONICAL: f64 = 1e-5;
-/// onnxruntime vs torch, every graph output (docs/parity.md).
-pub const ORT_VS_TORCH: f64 = 1e-5;
-/// tract vs onnxruntime, every graph output (docs/parity.md).
-pub const TRACT_VS_ORT: f64 = 1e-4;
-/// tract vs torch: implied by the two bounds above (triangle inequality).
-pub const TRACT_VS_TORCH: f64 = ORT_VS_TORCH + TRACT_VS_ORT;
-/// Rollout frames, any two of torch, ort, tract (docs/parity.md).
-pub const ROLLOUT_FRAMES: f64 = 1e-4;
+// graph and rollout bounds: defined once, with the checks that run without files or onnxruntime
+// (the browser's parity)
+pub use crate::portable_parity::{ORT_VS_TORCH, ROLLOUT_FRAMES, TRACT_VS_ORT, TRACT_VS_TORCH};
 /// Rust log-mel frontend vs the Python one (docs/parity.md).
 pub const LOGMEL: f64 = 1e-4;
 /// Batched vs separate stepping, frames, on ort (which computes every row alike: exact in practice).
@@ -208,7 +202,7 @@ pub struct ParityOptions {
     pub chunk_seconds: f64,
     /// The form of the region eXperts and decoders the pipeline checks run (auto: the bundle's form
     /// per backend).
-    pub form: FormChoice,
+    pub form: GraphForm,
 }
 
 impl Default for ParityOptions {
@@ -221,7 +215,7 @@ impl Default for ParityOptions {
             },
             checks: Check::ALL.to_vec(),
             chunk_seconds: 3.0,
-            form: FormChoice::Auto,
+            form: GraphForm::Auto,
         }
     }
 }
@@ -457,7 +451,7 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
                 continue;
             }
             for f in forms.keys().filter(|f| f.as_str() == "canonical") {
-                let choice: FormChoice = f.parse().map_err(|e: String| anyhow::anyhow!(e))?;
+                let choice: GraphForm = f.parse().map_err(|e: String| anyhow::anyhow!(e))?;
                 match LiveGestureGraphs::with_form(&bundle, be.as_ref(), choice) {
                     Ok(p) => other_forms.push((*k, p)),
                     Err(e) => rows.push(Row::failed(

@@ -202,7 +202,7 @@ impl BatchScheduler {
         ctl: Arc<SessionCtl>,
         credits: Arc<Semaphore>,
     ) -> Result<Joined> {
-        let stream = self.model.new_stream(opts)?;
+        let stream = crate::generate::new_stream(self.model.as_ref(), opts)?;
         let joined = Joined {
             guidance: stream.guidance(),
             frames_per_unit: stream.frames_per_unit(),

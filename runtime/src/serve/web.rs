@@ -10,7 +10,7 @@ use axum::routing::get;
 use axum::Router;
 
 use super::AppState;
-use crate::skeleton::{rest_offsets, JOINT_NAMES, PARENTS};
+pub use crate::skeleton::skeleton_json;
 
 const INDEX_HTML: &[u8] = include_bytes!("../../web/dist/index.html");
 const APP_JS: &[u8] = include_bytes!("../../web/dist/assets/app.js");
@@ -25,17 +25,6 @@ fn asset(body: &'static [u8], mime: &'static str) -> impl IntoResponse {
         ],
         body,
     )
-}
-
-/// The skeleton as JSON: `names`, `parents` (-1 for the root), `offsets` (metres, from the parent).
-pub fn skeleton_json() -> String {
-    serde_json::json!({
-        "names": &JOINT_NAMES[..],
-        "parents": &PARENTS[..],
-        "offsets": rest_offsets().to_vec(),
-        "units": "m",
-    })
-    .to_string()
 }
 
 /// A file of `--web-dir` (docs/wasm.md): the WebAssembly runtime (`wasm/`) and the bundle

@@ -419,7 +419,18 @@ async function main() {
   $('wav').onchange = (e) => e.target.files[0] && playWav(e.target.files[0]);
   $('motion').onchange = (e) => e.target.files[0] && loadMotion(e.target.files[0]);
   $('playFile').onclick = playFile;
-  if (ENGINE === 'wasm') {
+  // "this browser" needs the WebAssembly runtime beside the page (the static build, or `serve
+  // --web-dir`); a plain `livegesture serve` has none: say how to get it rather than offer a dead end
+  const wasmServed = await fetch('wasm/livegesture_wasm.js', { method: 'HEAD', cache: 'no-store' })
+    .then((r) => r.ok, () => false);
+  if (!wasmServed) {
+    const how = 'not served here: build it with scripts/build_web_static.sh and run livegesture serve --web-dir target/web-static (docs/wasm.md)';
+    $('engine-wasm').replaceWith(Object.assign(document.createElement('span'), { id: 'engine-wasm', title: how, textContent: `this browser (${how})` }));
+  }
+  if (ENGINE === 'wasm' && !wasmServed) {
+    state.error = 'the WebAssembly engine is not served here';
+    setStatus('engine "this browser": the WebAssembly runtime is not served here; run livegesture serve --web-dir target/web-static (docs/wasm.md)', 'error');
+  } else if (ENGINE === 'wasm') {
     installTestHook();
     $('model').textContent = 'loading (this browser)';
     wasmModel((s) => setStatus(s, 'idle')).then(

@@ -55,6 +55,9 @@ try {
   // generous: a loaded 2-core machine is slow to start swiftshader's WebGL
   await page.waitForFunction(() => window.lgState && window.lgState.ready, null, { timeout: 120000 })
     .catch(async () => fail(`page not ready within 120 s: ${JSON.stringify(await page.evaluate(() => window.lgState || null))}\n${consoleLines.join('\n')}`));
+  // a plain `serve` has no WebAssembly runtime: "this browser" is not offered as a link, and says how
+  const wasmEntry = await page.evaluate(() => { const e = document.getElementById('engine-wasm'); return e && { tag: e.tagName, text: e.textContent }; });
+  if (!wasmEntry || wasmEntry.tag === 'A' || !/--web-dir/.test(wasmEntry.text)) fail(`plain serve offers the wasm engine it does not serve: ${JSON.stringify(wasmEntry)}`);
   await page.click('#mic');
   await page.waitForFunction(() => window.lgState.frames >= 90 || window.lgState.error, null, { timeout: 90000 })
     .catch(async () => fail(`no frames within 90 s: ${JSON.stringify(await page.evaluate(() => window.lgState))}\n${consoleLines.join('\n')}`));

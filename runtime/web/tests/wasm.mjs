@@ -126,6 +126,9 @@ try {
       const ws = [];
       page.on('websocket', (w) => ws.push(w.url()));
       await page.waitForFunction(() => window.lgState.status === 'idle' || window.lgState.error, null, { timeout: 180000 });
+      // with the runtime served, "this browser" is offered (a plain serve's page does not: browser.mjs)
+      const entry = await page.evaluate(() => document.getElementById('engine-wasm')?.tagName);
+      if (entry !== 'A') fail(`serve --web-dir: "this browser" is not offered as a link (${entry})`);
       await page.click('#mic');
       await page.waitForFunction(() => window.lgState.frames >= 30 || window.lgState.error, null, { timeout: 120000 })
         .catch(async () => fail(`serve --web-dir: no frames: ${JSON.stringify(await page.evaluate(() => window.lgState))}\n${lines.join('\n')}`));

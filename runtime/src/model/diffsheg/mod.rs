@@ -6,11 +6,11 @@
 //! - [`stream`]: one stream's windowing, buffer and carried state (`foppas.state`);
 //! - [`graphs`]: the window's graph chain on a backend;
 //! - [`model`]: [`DiffshegModel`] and [`DiffshegStream`], the family behind the [`crate::model`] traits;
-//! - `batch`: the windows due in several streams, run together ([`crate::model::MotionModel::step_many`]).
+//!   its child `model::batch` runs the windows due in several streams together
+//!   ([`crate::model::MotionModel::step_many`]).
 //!
 //! The manifest sections are [`crate::bundle::DiffshegManifest`].
 
-mod batch;
 pub mod foppas;
 pub mod graphs;
 pub mod model;

@@ -22,6 +22,10 @@ use crate::model::regions::{assemble_frame, resolve_layouts, RegionLayout};
 use crate::model::{MotionModel, MotionStream, StreamJob, StreamOptions};
 use crate::output::Frame;
 
+// the batch step of `step_many`: a child of this module (it uses the model's and stream's
+// internals), so the two form no import cycle
+mod batch;
+
 /// Everything a DiffSHEG stream needs besides the graphs, shared by the streams of a model.
 #[derive(Debug)]
 pub struct Shared {
@@ -72,7 +76,15 @@ impl Shared {
     /// option.
     pub fn sampler_options(&self, opts: &StreamOptions) -> Result<SamplerOptions> {
         if opts.temperature.is_some() || opts.top_k.is_some() {
-            bail!("--temperature and --top-k are LiveGesture options; a DiffSHEG bundle samples with DDIM (use --ddim-steps, --jumps, --window, --overlap)");
+            let set = [
+                ("temperature", opts.temperature.is_some()),
+                ("top_k", opts.top_k.is_some()),
+            ];
+            return Err(crate::generate::InputError::fields(
+                set.into_iter().filter(|s| s.1).map(|s| s.0).collect(),
+                "only apply to LiveGesture bundles; a DiffSHEG bundle samples with DDIM (its options: ddim_steps, jumps, window, overlap)",
+            )
+            .into());
         }
         let d = self.sections.default_options();
         let o = SamplerOptions {
@@ -227,9 +239,9 @@ impl MotionModel for DiffshegModel {
 
     /// The windows due in several streams run together: windows of the same length share each
     /// `speech_encoder` and `denoiser` call, every stream's rows (both guidance rows with guidance)
-    /// on the batch axis ([`super::batch`]).
+    /// on the batch axis ([`batch`]).
     fn step_many(&self, jobs: &mut [StreamJob<'_>]) -> Vec<Result<Vec<Frame>>> {
-        super::batch::step_many(self, jobs)
+        batch::step_many(self, jobs)
     }
 }
 

@@ -148,7 +148,7 @@ pub fn describe(bundle: &Bundle) -> Result<Description> {
         (
             "forms".to_string(),
             format!(
-                "{} (docs/bundle.md#forms-and-precision); runs ort: {}, tract: {} (--form or $LIVEGESTURE_FORM overrides)",
+                "{} (docs/bundle.md#forms-and-precision); runs ort: {}, tract: {} (a form chosen at load, or $LIVEGESTURE_FORM, overrides)",
                 forms
                     .iter()
                     .map(|(k, g)| format!(

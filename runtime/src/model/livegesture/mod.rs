@@ -92,47 +92,9 @@ use caches::{Caches, SeparateCaches, StackedCaches};
 use chain::Stage;
 use stream::StreamState;
 
-/// Which form of the region eXperts, fusion and decoders a [`LiveGestureGraphs`] runs (docs/bundle.md#forms-and-precision).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum FormChoice {
-    /// The form the bundle's manifest names for the backend (`backend_forms`), else canonical.
-    #[default]
-    Auto,
-    /// One `expert_<region>` graph per region.
-    Canonical,
-    /// The four eXperts as one graph on a region axis (`experts_fused`) and, where the bundle has
-    /// it, the four SVQ decoders as one graph (`decoders_fused`).
-    Fused,
-    /// The canonical eXperts and decoders and the fusion with its attention cores as the ONNX
-    /// `Attention` op (`fusion_attention`).
-    Attention,
-}
-
-impl std::fmt::Display for FormChoice {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            FormChoice::Auto => "auto",
-            FormChoice::Canonical => "canonical",
-            FormChoice::Fused => "fused",
-            FormChoice::Attention => "attention",
-        })
-    }
-}
-
-impl std::str::FromStr for FormChoice {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "auto" | "" => Ok(FormChoice::Auto),
-            "canonical" => Ok(FormChoice::Canonical),
-            "fused" => Ok(FormChoice::Fused),
-            "attention" => Ok(FormChoice::Attention),
-            other => Err(format!(
-                "unknown form '{other}'; expected auto, canonical, fused or attention"
-            )),
-        }
-    }
-}
+/// The graph form a [`LiveGestureGraphs`] runs: the family-neutral [`crate::model::GraphForm`]
+/// (LiveGesture's forms are those of its region eXperts, fusion and decoders).
+pub use crate::model::GraphForm as FormChoice;
 
 /// The loaded graphs of a bundle, shared by any number of [`Stream`]s.
 pub struct LiveGestureGraphs {

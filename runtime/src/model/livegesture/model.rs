@@ -95,10 +95,11 @@ impl MotionModel for LiveGestureModel {
     fn new_stream(&self, opts: &StreamOptions) -> Result<Box<dyn MotionStream>> {
         let set = opts.diffsheg_options_set();
         if !set.is_empty() {
-            anyhow::bail!(
-                "{} only apply to DiffSHEG bundles; a LiveGesture bundle samples tokens (--guidance, --temperature, --top-k)",
-                set.join(", ")
-            );
+            return Err(crate::generate::InputError::fields(
+                set,
+                "only apply to DiffSHEG bundles; a LiveGesture bundle samples tokens (its options: guidance, temperature, top_k)",
+            )
+            .into());
         }
         let stream = lock(&self.graphs)?.new_stream(opts)?;
         let key = lock(&self.cohorts)?.key();

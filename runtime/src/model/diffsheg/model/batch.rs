@@ -8,7 +8,7 @@
 //! cond 0; streams may differ in guidance, speaker, DDIM steps and jumps: a stream whose window is
 //! complete leaves the call). Jobs that end their stream then begin the end
 //! ([`FoppasStream::begin_finish`]) and their last windows run the same way. The sampler arithmetic is
-//! each stream's own ([`super::foppas::WindowSampler`]), so a stream's frames are those it gets stepped alone, up to
+//! each stream's own ([`crate::model::diffsheg::foppas::WindowSampler`]), so a stream's frames are those it gets stepped alone, up to
 //! the backend's rounding for another batch size.
 //!
 //! Streams recording their windows (parity tools) and streams of another model step on their own.
@@ -18,10 +18,10 @@ use std::sync::Arc;
 
 use anyhow::{anyhow, Result};
 
-use super::foppas::{guided_eps, MOTION_DIM};
-use super::graphs::DiffshegGraphs;
-use super::model::{lock, DiffshegModel, DiffshegStream};
-use super::stream::{Emitted, WindowStart};
+use super::{lock, DiffshegModel, DiffshegStream};
+use crate::model::diffsheg::foppas::{guided_eps, MOTION_DIM};
+use crate::model::diffsheg::graphs::DiffshegGraphs;
+use crate::model::diffsheg::stream::{Emitted, WindowStart};
 use crate::model::StreamJob;
 use crate::output::Frame;
 
