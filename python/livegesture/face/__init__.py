@@ -1,4 +1,4 @@
-"""The face channel (SPEC 17): 15 viseme probabilities from a small causal viseme head on the streaming
+"""The face channel (docs/face.md): 15 viseme probabilities from a small causal viseme head on the streaming
 log-mel features, and 52 ARKit blendshape weights made from them by a documented table (docs/face.md).
 
 - :mod:`.names`   the ARKit-52 and viseme names in their fixed orders, the phone -> viseme map and the six

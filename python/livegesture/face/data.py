@@ -33,7 +33,7 @@ def n_frames_of(n_samples: int) -> int:
 
 def clip_mel(audio: np.ndarray) -> np.ndarray:
     """Log-mel frames of every token that covers the audio (the last one completed with silence), as the
-    runtime computes them at the end of a stream (SPEC 8)."""
+    runtime computes them at the end of a stream (docs/output.md)."""
     n_tok = -(-n_frames_of(len(audio)) // FRONTEND.frames_per_token)
     need = int(FRONTEND.token_end(n_tok - 1))
     x = np.concatenate([np.asarray(audio, np.float64), np.zeros(max(0, need - len(audio)))])

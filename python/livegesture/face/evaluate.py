@@ -161,6 +161,32 @@ def head_outputs(head, mel: np.ndarray, n_frames: int) -> tuple[np.ndarray, np.n
     return o["visemes"][0, :n_frames].numpy(), o["arkit_mouth"][0, :n_frames].numpy()
 
 
+def check_npz_face(path, z) -> None:
+    """The face keys of a generated .npz (docs/face.md): names in order, finite values, arkit in [0, 1], visemes
+    summing to 1 (1e-4), one row per frame of ``poses``. Raises naming the file and key."""
+    from .names import VISEME_NAMES
+
+    for k in ("arkit", "arkit_names", "visemes", "viseme_names", "poses"):
+        if k not in z:
+            raise KeyError(f"face evaluation: {path} has no '{k}' key")
+    if [str(x) for x in z["arkit_names"]] != list(ARKIT_NAMES):
+        raise ValueError(f"face evaluation: {path}: arkit_names are not Apple's 52 names in order")
+    if [str(x) for x in z["viseme_names"]] != list(VISEME_NAMES):
+        raise ValueError(f"face evaluation: {path}: viseme_names {list(z['viseme_names'])} != {list(VISEME_NAMES)}")
+    T = z["poses"].shape[0]
+    a, v = z["arkit"], z["visemes"]
+    if a.shape != (T, 52) or v.shape != (T, 15) or a.dtype != np.float32 or v.dtype != np.float32:
+        raise ValueError(f"face evaluation: {path}: arkit {a.shape} {a.dtype} / visemes {v.shape} {v.dtype}, "
+                         f"expected ({T}, 52) / ({T}, 15) float32")
+    if not (np.isfinite(a).all() and np.isfinite(v).all()):
+        raise ValueError(f"face evaluation: {path}: non-finite arkit or visemes")
+    if a.min() < 0 or a.max() > 1:
+        raise ValueError(f"face evaluation: {path}: arkit outside [0, 1] ({a.min()} .. {a.max()})")
+    err = np.abs(v.sum(1) - 1).max() if T else 0.0
+    if err > 1e-4 or v.min() < 0:
+        raise ValueError(f"face evaluation: {path}: visemes do not sum to 1 (worst {err:.2e}) or are negative")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m livegesture.face.evaluate", description=__doc__.split("\n\n")[0])
     src = ap.add_mutually_exclusive_group(required=True)
@@ -191,6 +217,7 @@ def main(argv=None) -> int:
             for k in ("visemes", "arkit"):
                 if k not in z:
                     raise KeyError(f"face evaluation: {f} has no '{k}' key")
+            check_npz_face(f, z)
             vis, ark = z["visemes"].astype(np.float64), z["arkit"].astype(np.float64)
         recs.append({"name": c.name, "phones": c.phones, "visemes": vis, "arkit": ark, "audio": c.audio})
     rep = evaluate(recs)

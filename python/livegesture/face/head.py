@@ -9,7 +9,7 @@ mouth/jaw weights (``visemes @ VISEME_ARKIT``, the table of :mod:`.names`, a con
 
 Video frame j of token t is the 30 fps frame 4t + j; its mel frames end at (8t + 2j + 1) / 60 s and
 (8t + 2j + 2) / 60 s, i.e. within and at the end of the frame's own 33 ms: the head uses no audio after the
-end of the frame, hence none after the end of the token (SPEC 17). Receptive field: 1 + 2 + 2 (1 + 2 + 4 +
+end of the frame, hence none after the end of the token (docs/face.md). Receptive field: 1 + 2 + 2 (1 + 2 + 4 +
 8) = 33 mel frames (0.55 s).
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Names, orders and tables of the face channel (SPEC 17; docs/face.md)."""
+"""Names, orders and tables of the face channel (docs/face.md)."""
 from __future__ import annotations
 
 import numpy as np
