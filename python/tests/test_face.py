@@ -1,4 +1,4 @@
-"""The face channel (SPEC 17, issue 41): names and orders, the viseme head's causality and step/offline
+"""The face channel (docs/face.md, issue 41): names and orders, the viseme head's causality and step/offline
 equality, the lip-sync metrics (with must-fail cases) and the shipped head's bounds on held-out speech."""
 from pathlib import Path
 
@@ -113,3 +113,63 @@ def test_shipped_head_loads_and_matches_its_report():
     rep = json.loads((SHIPPED.parent / "eval.json").read_text())
     assert E.failures(rep) == []
     assert len(rep["recordings"]) == 8
+
+
+def test_blinks_are_seeded_and_shaped():
+    from livegesture.face.blink import BLINK, blinks
+
+    b = blinks(0, 600)
+    # the same peaks as runtime/src/face/tests.rs (the Rust process must match)
+    assert np.nonzero(b > 0.99)[0].tolist() == [39, 110, 226, 314, 374, 510]
+    assert abs(b[36] - 0.38268343) < 1e-6
+    assert ((b >= 0) & (b <= 1)).all()
+    assert not np.array_equal(b, blinks(1, 600))
+    gaps = np.diff(np.nonzero(b > 0.99)[0])
+    assert gaps.min() >= BLINK["gap_lo"] and gaps.max() <= BLINK["gap_hi"]
+
+
+def test_export_into_a_bundle_and_refusals(tmp_path):
+    import json
+
+    from livegesture.face import export as X
+
+    b = tmp_path / "b"
+    (b / "reference").mkdir(parents=True)
+    fr = {"sample_rate": 16000, "fps": 30, "frames_per_token": 4, "mel_frames_per_token": 8, "n_mels": 64}
+    (b / "manifest.json").write_text(json.dumps({"frontend": fr, "graphs": [], "files": {}, "checks": {},
+                                                 "reference": {"graphs": {}}}))
+    m = X.add_to_bundle(SHIPPED, b, log=lambda *_: None)
+    assert [g["name"] for g in m["graphs"]] == ["face"]
+    assert m["checks"]["face"]["ort_vs_torch_max_abs"] <= 1e-5 * max(1.0, m["checks"]["face"]["ort_vs_torch_scale"])
+    assert set(m["files"]) == {"face.onnx", "reference/face.npz"} and (b / "face.onnx").exists()
+    assert m["face"]["visemes"] == list(VISEME_NAMES) and m["face"]["arkit"] == list(ARKIT_NAMES)
+    z = np.load(b / "reference" / "face.npz")
+    assert int(z["n_steps"]) == 10 and z["step0.output.visemes"].shape == (2, 4, 15)
+    # again: the face graph is replaced, not added twice
+    m = X.add_to_bundle(SHIPPED, b, log=lambda *_: None)
+    assert [g["name"] for g in m["graphs"]] == ["face"]
+    # a bundle on another frontend is refused, and left as it was
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    before = json.dumps({"frontend": {**fr, "n_mels": 80}, "graphs": [], "files": {}})
+    (bad / "manifest.json").write_text(before)
+    with pytest.raises(X.FaceExportError, match="n_mels"):
+        X.add_to_bundle(SHIPPED, bad, log=lambda *_: None)
+    assert (bad / "manifest.json").read_text() == before and not (bad / "face.onnx").exists()
+    assert X.main(["--checkpoint", str(SHIPPED), "--bundle", str(tmp_path / "none")]) == 1
+
+
+def test_npz_face_check_refuses_bad_files(tmp_path):
+    T = 5
+    good = {"poses": np.zeros((T, 165), np.float32), "arkit": np.full((T, 52), 0.5, np.float32),
+            "arkit_names": np.array(ARKIT_NAMES), "visemes": np.full((T, 15), 1 / 15, np.float32),
+            "viseme_names": np.array(VISEME_NAMES)}
+    E.check_npz_face("x.npz", good)
+    for key, val, msg in [("arkit", np.full((T, 52), 1.5, np.float32), "outside"),
+                          ("visemes", np.full((T, 15), 0.1, np.float32), "sum to 1"),
+                          ("arkit_names", np.array(ARKIT_NAMES[::-1]), "arkit_names"),
+                          ("visemes", np.full((T, 14), 1 / 14, np.float32), "expected")]:
+        with pytest.raises(ValueError, match=msg):
+            E.check_npz_face("x.npz", {**good, key: val})
+    with pytest.raises(KeyError, match="'visemes'"):
+        E.check_npz_face("x.npz", {k: v for k, v in good.items() if k != "visemes"})
