@@ -40,6 +40,10 @@ stage "export the DiffSHEG tiny config (random weights) -> target/test-bundles/d
 "$LIVEGESTURE_PY" export/export.py --family diffsheg --config tiny --random-seed 0 --out target/test-bundles/diffsheg-tiny
 export LIVEGESTURE_DIFFSHEG_TINY_BUNDLE="$PWD/target/test-bundles/diffsheg-tiny"
 
+stage "face: the shipped face head into both tiny exports (verified against torch; docs/face.md)"
+"$LIVEGESTURE_PY" -m livegesture.face.export --checkpoint models/face.train/face.pt \
+  --bundle target/test-bundles/tiny --bundle target/test-bundles/diffsheg-tiny
+
 # The Python module (bindings/python, a workspace member) is compiled by the workspace build below and packed by
 # maturin in the stage "bindings": both read this PyO3 configuration (abi3, CPython >= 3.10; what maturin writes
 # itself on Linux), so maturin finds pyo3 and the module already built instead of compiling them again
@@ -89,6 +93,20 @@ if command -v cargo-nextest >/dev/null 2>&1; then
 else
   cargo test --workspace --release --no-fail-fast
 fi
+
+stage "face: lip sync of the runtime's face channel on the held-out real speech (docs/face.md)"
+# pocketsphinx (its wheel's en-us acoustic model and phone LM) labels the recordings; not in
+# python/requirements.txt, whose hash names the cached venv
+"$LIVEGESTURE_PY" -c 'import pocketsphinx' 2>/dev/null || "$LIVEGESTURE_VENV/bin/pip" install -q pocketsphinx==5.1.1
+face_out=target/face-eval
+face_rs="$("$LIVEGESTURE_PY" -c 'from livegesture.data.real_speech import real_speech_dir; print(real_speech_dir())')"
+rm -rf "$face_out" && mkdir -p "$face_out"
+for id in $("$LIVEGESTURE_PY" -c 'from livegesture.data.real_speech import VALIDATION; print(*VALIDATION)'); do
+  ./target/release/livegesture generate "$face_rs/$id.wav" -o "$face_out/$id.npz" \
+    --seed 0 --backend tract --bundle models/default
+done
+"$LIVEGESTURE_PY" -m livegesture.face.evaluate --npz-dir "$face_out" --real-speech "$face_rs" \
+  --out "$face_out/report.json" --check
 
 stage "bindings: the Python module (wheel), the C example and the C# P/Invoke declarations vs the CLI"
 # The wheel (docs/python.md): maturin into the project venv (not in python/requirements.txt, whose hash names
