@@ -40,10 +40,6 @@ stage "export the DiffSHEG tiny config (random weights) -> target/test-bundles/d
 "$LIVEGESTURE_PY" export/export.py --family diffsheg --config tiny --random-seed 0 --out target/test-bundles/diffsheg-tiny
 export LIVEGESTURE_DIFFSHEG_TINY_BUNDLE="$PWD/target/test-bundles/diffsheg-tiny"
 
-stage "face: the shipped face head into both tiny exports (verified against torch; docs/face.md)"
-"$LIVEGESTURE_PY" -m livegesture.face.export --checkpoint models/face.train/face.pt \
-  --bundle target/test-bundles/tiny --bundle target/test-bundles/diffsheg-tiny
-
 # The Python module (bindings/python, a workspace member) is compiled by the workspace build below and packed by
 # maturin in the stage "bindings": both read this PyO3 configuration (abi3, CPython >= 3.10; what maturin writes
 # itself on Linux), so maturin finds pyo3 and the module already built instead of compiling them again
