@@ -94,6 +94,20 @@ else
   cargo test --workspace --release --no-fail-fast
 fi
 
+stage "face: lip sync of the runtime's face channel on the held-out real speech (docs/face.md)"
+# pocketsphinx (its wheel's en-us acoustic model and phone LM) labels the recordings; not in
+# python/requirements.txt, whose hash names the cached venv
+"$LIVEGESTURE_PY" -c 'import pocketsphinx' 2>/dev/null || "$LIVEGESTURE_VENV/bin/pip" install -q pocketsphinx==5.1.1
+face_out=target/face-eval
+face_rs="$("$LIVEGESTURE_PY" -c 'from livegesture.data.real_speech import real_speech_dir; print(real_speech_dir())')"
+rm -rf "$face_out" && mkdir -p "$face_out"
+for id in $("$LIVEGESTURE_PY" -c 'from livegesture.data.real_speech import VALIDATION; print(*VALIDATION)'); do
+  ./target/release/livegesture generate "$face_rs/$id.wav" -o "$face_out/$id.npz" \
+    --seed 0 --backend tract --bundle models/default
+done
+"$LIVEGESTURE_PY" -m livegesture.face.evaluate --npz-dir "$face_out" --real-speech "$face_rs" \
+  --out "$face_out/report.json" --check
+
 stage "bindings: the Python module (wheel), the C example and the C# P/Invoke declarations vs the CLI"
 # The wheel (docs/python.md): maturin into the project venv (not in python/requirements.txt, whose hash names
 # the cached venv). It builds in this target/, where the workspace build above compiled the module with the same

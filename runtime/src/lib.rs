@@ -46,6 +46,7 @@ pub mod bundle;
 pub mod bvh;
 pub mod compare;
 pub mod diffusion;
+pub mod face;
 pub mod frontend;
 pub mod generate;
 #[cfg(feature = "loadtest")]

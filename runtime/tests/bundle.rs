@@ -30,7 +30,7 @@ fn test_bundle_loads_and_describes_itself() {
     let lg = b.livegesture().unwrap();
     assert_eq!(lg.region_names(), ["upper", "hands", "lower", "face"]);
     // 10 canonical graphs, the fused eXperts, the fused decoders and the attention form's fusion
-    // (docs/bundle.md#forms-and-precision)
+    // (docs/bundle.md#forms-and-precision); no face graph (the tiny config's 16 mel bands, docs/face.md)
     assert_eq!(b.graphs().len(), 13);
     assert!(b.graph("experts_fused").is_ok());
     assert!(b.graph("decoders_fused").is_ok());

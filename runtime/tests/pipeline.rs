@@ -113,6 +113,7 @@ fn frames_of(ro: &ReferenceRollout) -> Vec<Frame> {
                 trans: [0.0; 3],
                 expressions: [0.0; 100],
                 foot_contact: [0.0; 4],
+                face: None,
             };
             for (dst, src) in [
                 (&mut f.poses[..], &ro.poses),

@@ -292,6 +292,9 @@ pub struct Manifest {
     /// the measured error against the f32 model. Absent: an f32 bundle.
     #[serde(default)]
     pub precision: Option<Precision>,
+    /// The face channel (docs/face.md): absent in a bundle without one.
+    #[serde(default)]
+    pub face: Option<crate::face::FaceManifest>,
     /// The LiveGesture sections: `Some` exactly when `family` is `livegesture`.
     #[serde(skip)]
     pub livegesture: Option<LiveGestureManifest>,
@@ -672,6 +675,7 @@ impl Manifest {
                 }
             }
         }
+        crate::face::manifest_face(self)?;
         match self.family {
             Family::LiveGesture => match &self.livegesture {
                 Some(lg) => lg.check(self),

@@ -125,7 +125,11 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
     match format {
         OutputFormat::Npz => writer.finish()?,
         OutputFormat::Bvh => livegesture::bvh::write_bvh(&a.output, &writer.motion()?)?,
-        OutputFormat::Gltf => livegesture::output::write_gltf(&a.output, &writer.motion()?)?,
+        OutputFormat::Gltf => livegesture::output::write_gltf_with_face(
+            &a.output,
+            &writer.motion()?,
+            writer.face_track()?.as_ref(),
+        )?,
     }
     eprintln!(
         "livegesture: wrote {} frames ({:.3} s of audio at {} Hz, {} fps, {} model on {}) to {}",

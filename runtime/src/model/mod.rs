@@ -397,7 +397,8 @@ pub fn load_with(
             )?))
         }
     }
-    for_family(bundle, Load { backend, opts })
+    let model = for_family(bundle, Load { backend, opts })?;
+    crate::face::with_face(model, bundle, backend)
 }
 
 /// Checks that `opts` apply to `bundle`'s family (the form choice is LiveGesture's: a DiffSHEG bundle

@@ -17,8 +17,11 @@
 //!   docs/output.md) spans `T / 30` s of audio with its last key at `(T - 1) / 30`. Each joint's
 //!   quaternions keep one hemisphere from frame to frame (`q` and `-q` are the same rotation) so that
 //!   interpolation between keys takes the short way.
-//! - Face expressions cannot live here (no face mesh of the project's to put morph targets on): they
-//!   stay in the `.npz`. The jaw opening is the `jaw` joint's rotation.
+//! - With the face channel (docs/face.md): **node 56** (`face`), a child of the `head` joint, holds the
+//!   ICT-FaceKit face region ([`crate::face::mesh`]) with 52 morph targets named as ARKit names them
+//!   (`mesh.extras.targetNames`, in Apple's order; sparse POSITION deltas), and the animation gains one
+//!   `weights` channel on it (52 weights per key, the frames' `arkit`). The FLAME expression coefficients
+//!   stay in the `.npz`. The jaw opening of the body is the `jaw` joint's rotation.
 //!
 //! # Containers
 //!
@@ -38,7 +41,7 @@ use base64::Engine as _;
 use gltf_json as json;
 use json::validation::{Checked::Valid, USize64};
 
-use crate::output::{Beat2Motion, Frame, EXPR_DIM, POSE_DIM, TRANS_DIM};
+use crate::output::{Beat2Motion, FaceTrack, Frame, EXPR_DIM, POSE_DIM, TRANS_DIM};
 use crate::rotation::{axis_angle_to_matrix, matrix_to_quaternion};
 use crate::skeleton::{children, rest_joints, rest_offsets, JOINT_NAMES, N_JOINTS, PARENTS};
 
@@ -47,6 +50,12 @@ pub const GENERATOR: &str = concat!("livegesture ", env!("CARGO_PKG_VERSION"));
 
 /// Index of the mesh node (after the 55 joint nodes).
 pub const MESH_NODE: usize = N_JOINTS;
+/// Index of the face node (with the face channel), a child of the head joint.
+pub const FACE_NODE: usize = N_JOINTS + 1;
+/// The head joint (SMPL-X index 15), parent of the face node.
+const HEAD_JOINT: usize = 15;
+/// The face node's offset from the head joint, metres (the face in front of the skull box).
+const FACE_OFFSET: [f32; 3] = [0.0, 0.07, 0.045];
 
 /// Which glTF container to write.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -320,7 +329,150 @@ fn body_mesh() -> MeshData {
 
 /// The glTF document (JSON) and its binary buffer for `motion`.
 pub fn gltf_document(motion: &Beat2Motion) -> Result<(json::Root, Vec<u8>)> {
+    gltf_document_with_face(motion, None)
+}
+
+/// The face mesh with its 52 morph targets, and the node that holds it (a child of the head joint).
+fn face_node(root: &mut json::Root, bin: &mut Bin) -> Result<json::Index<json::Node>> {
+    use json::accessor::{ComponentType as C, Type as Ty};
+    let m = crate::face::mesh::face_mesh()?;
+    let n = m.n_vertices();
+    let (lo, hi) = min_max(&m.positions, 3);
+    let v = bin.view(
+        root,
+        &f32_bytes(&m.positions),
+        Some(json::buffer::Target::ArrayBuffer),
+        None,
+    );
+    let a_pos = accessor(root, v, n, C::F32, Ty::Vec3, Some(lo), Some(hi), None);
+    let idx: Vec<u8> = m.triangles.iter().flat_map(|i| i.to_le_bytes()).collect();
+    let v = bin.view(
+        root,
+        &idx,
+        Some(json::buffer::Target::ElementArrayBuffer),
+        None,
+    );
+    let a_idx = accessor(
+        root,
+        v,
+        m.triangles.len(),
+        C::U16,
+        Ty::Scalar,
+        None,
+        None,
+        None,
+    );
+    let mut targets = Vec::with_capacity(m.targets.len());
+    for (name, (vi, d)) in crate::face::ARKIT_NAMES.iter().zip(&m.targets) {
+        // a target that moves nothing (tongueOut: the face region has no tongue) stores one zero delta
+        let (vi, d): (Vec<u16>, Vec<f32>) = if vi.is_empty() {
+            (vec![0], vec![0.0; 3])
+        } else {
+            (vi.clone(), d.clone())
+        };
+        // min/max over all vertices: the moving ones' deltas and the zeros of the others
+        let (mut lo, mut hi) = min_max(&d, 3);
+        for k in 0..3 {
+            lo[k] = lo[k].min(0.0);
+            hi[k] = hi[k].max(0.0);
+        }
+        let iv = bin.view(
+            root,
+            &vi.iter().flat_map(|i| i.to_le_bytes()).collect::<Vec<u8>>(),
+            None,
+            None,
+        );
+        let dv = bin.view(root, &f32_bytes(&d), None, None);
+        let a = root.push(json::Accessor {
+            buffer_view: None,
+            byte_offset: None,
+            count: USize64(n as u64),
+            component_type: Valid(json::accessor::GenericComponentType(C::F32)),
+            extensions: None,
+            extras: Default::default(),
+            type_: Valid(Ty::Vec3),
+            min: Some(json::Value::from(lo)),
+            max: Some(json::Value::from(hi)),
+            name: Some(name.to_string()),
+            normalized: false,
+            sparse: Some(json::accessor::sparse::Sparse {
+                count: USize64(vi.len() as u64),
+                indices: json::accessor::sparse::Indices {
+                    buffer_view: iv,
+                    byte_offset: USize64(0),
+                    component_type: Valid(json::accessor::IndexComponentType(C::U16)),
+                    extensions: None,
+                    extras: Default::default(),
+                },
+                values: json::accessor::sparse::Values {
+                    buffer_view: dv,
+                    byte_offset: USize64(0),
+                    extensions: None,
+                    extras: Default::default(),
+                },
+                extensions: None,
+                extras: Default::default(),
+            }),
+        });
+        targets.push(json::mesh::MorphTarget {
+            positions: Some(a),
+            normals: None,
+            tangents: None,
+        });
+    }
+    let material = root.push(json::Material {
+        name: Some("face".to_string()),
+        pbr_metallic_roughness: json::material::PbrMetallicRoughness {
+            base_color_factor: json::material::PbrBaseColorFactor([0.85, 0.68, 0.58, 1.0]),
+            metallic_factor: json::material::StrengthFactor(0.0),
+            roughness_factor: json::material::StrengthFactor(0.6),
+            ..Default::default()
+        },
+        double_sided: true,
+        ..Default::default()
+    });
+    let mut attributes = std::collections::BTreeMap::new();
+    attributes.insert(Valid(json::mesh::Semantic::Positions), a_pos);
+    let names = serde_json::json!({ "targetNames": &crate::face::ARKIT_NAMES[..] });
+    let mesh = root.push(json::Mesh {
+        extensions: None,
+        extras: Some(serde_json::value::to_raw_value(&names)?),
+        name: Some("face".to_string()),
+        primitives: vec![json::mesh::Primitive {
+            attributes,
+            extensions: None,
+            extras: Default::default(),
+            indices: Some(a_idx),
+            material: Some(material),
+            mode: Valid(json::mesh::Mode::Triangles),
+            targets: Some(targets),
+        }],
+        weights: Some(vec![0.0; crate::face::ARKIT_DIM]),
+    });
+    Ok(root.push(json::Node {
+        mesh: Some(mesh),
+        name: Some("face".to_string()),
+        translation: Some(FACE_OFFSET),
+        ..Default::default()
+    }))
+}
+
+/// [`gltf_document`] with the face channel's head mesh and weights animation when `face` is given
+/// (see the module docs).
+pub fn gltf_document_with_face(
+    motion: &Beat2Motion,
+    face: Option<&FaceTrack>,
+) -> Result<(json::Root, Vec<u8>)> {
     motion.validate()?;
+    if let Some(f) = face {
+        ensure!(
+            f.arkit.dim() == (motion.len(), crate::face::ARKIT_DIM),
+            "output: face arkit has shape {:?}, expected ({}, {})",
+            f.arkit.dim(),
+            motion.len(),
+            crate::face::ARKIT_DIM
+        );
+    }
     let t_len = motion.len();
     ensure!(
         t_len > 0,
@@ -471,6 +623,14 @@ pub fn gltf_document(motion: &Beat2Motion) -> Result<(json::Root, Vec<u8>)> {
         ..Default::default()
     });
     debug_assert_eq!(mesh_node.value(), MESH_NODE);
+    if face.is_some() {
+        let fnode = face_node(&mut root, &mut bin)?;
+        debug_assert_eq!(fnode.value(), FACE_NODE);
+        root.nodes[HEAD_JOINT]
+            .children
+            .get_or_insert_with(Vec::new)
+            .push(fnode);
+    }
 
     // animation
     let times: Vec<f32> = (0..t_len)
@@ -538,6 +698,40 @@ pub fn gltf_document(motion: &Beat2Motion) -> Result<(json::Root, Vec<u8>)> {
             json::animation::Property::Rotation,
         );
     }
+    if let Some(f) = face {
+        // one key of 52 weights per frame: the output accessor holds T * 52 scalars
+        let w: Vec<f32> = f.arkit.iter().copied().collect();
+        let v = bin.view(&mut root, &f32_bytes(&w), None, None);
+        let out = accessor(
+            &mut root,
+            v,
+            w.len(),
+            C::F32,
+            Ty::Scalar,
+            None,
+            None,
+            Some("arkit"),
+        );
+        let s = json::Index::new(samplers.len() as u32);
+        samplers.push(json::animation::Sampler {
+            extensions: None,
+            extras: Default::default(),
+            input: a_time,
+            interpolation: Valid(json::animation::Interpolation::Linear),
+            output: out,
+        });
+        channels.push(json::animation::Channel {
+            sampler: s,
+            target: json::animation::Target {
+                extensions: None,
+                extras: Default::default(),
+                node: json::Index::new(FACE_NODE as u32),
+                path: Valid(json::animation::Property::MorphTargetWeights),
+            },
+            extensions: None,
+            extras: Default::default(),
+        });
+    }
     root.push(json::Animation {
         extensions: None,
         extras: Default::default(),
@@ -568,7 +762,12 @@ pub fn gltf_document(motion: &Beat2Motion) -> Result<(json::Root, Vec<u8>)> {
 
 /// The `.glb` bytes of `motion`.
 pub fn glb_bytes(motion: &Beat2Motion) -> Result<Vec<u8>> {
-    let (root, bin) = gltf_document(motion)?;
+    glb_bytes_with_face(motion, None)
+}
+
+/// [`glb_bytes`] with the face channel when given.
+pub fn glb_bytes_with_face(motion: &Beat2Motion, face: Option<&FaceTrack>) -> Result<Vec<u8>> {
+    let (root, bin) = gltf_document_with_face(motion, face)?;
     let mut js = root.to_vec().context("output: serialising the glTF JSON")?;
     while !js.len().is_multiple_of(4) {
         js.push(b' ');
@@ -592,7 +791,12 @@ pub fn glb_bytes(motion: &Beat2Motion) -> Result<Vec<u8>> {
 
 /// The `.gltf` text of `motion` (buffer embedded as a base64 data URI).
 pub fn gltf_text(motion: &Beat2Motion) -> Result<String> {
-    let (mut root, bin) = gltf_document(motion)?;
+    gltf_text_with_face(motion, None)
+}
+
+/// [`gltf_text`] with the face channel when given.
+pub fn gltf_text_with_face(motion: &Beat2Motion, face: Option<&FaceTrack>) -> Result<String> {
+    let (mut root, bin) = gltf_document_with_face(motion, face)?;
     root.buffers[0].uri = Some(format!(
         "data:application/octet-stream;base64,{}",
         base64::engine::general_purpose::STANDARD.encode(&bin)
@@ -605,9 +809,10 @@ pub fn gltf_text(motion: &Beat2Motion) -> Result<String> {
 /// entry point for motion collected from a stream.
 pub fn gltf_from_frames(frames: &[Frame], container: GltfContainer) -> Result<Vec<u8>> {
     let motion = Beat2Motion::from_frames(frames)?;
+    let face = FaceTrack::from_frames(frames)?;
     match container {
-        GltfContainer::Glb => glb_bytes(&motion),
-        GltfContainer::Gltf => Ok(gltf_text(&motion)?.into_bytes()),
+        GltfContainer::Glb => glb_bytes_with_face(&motion, face.as_ref()),
+        GltfContainer::Gltf => Ok(gltf_text_with_face(&motion, face.as_ref())?.into_bytes()),
     }
 }
 
@@ -640,6 +845,15 @@ impl Beat2Motion {
 
 /// Writes `motion` as glTF to `path` (`.glb` or `.gltf`, by extension), atomically.
 pub fn write_gltf(path: impl AsRef<Path>, motion: &Beat2Motion) -> Result<()> {
+    write_gltf_with_face(path, motion, None)
+}
+
+/// [`write_gltf`] with the face channel's head mesh and weights when `face` is given.
+pub fn write_gltf_with_face(
+    path: impl AsRef<Path>,
+    motion: &Beat2Motion,
+    face: Option<&FaceTrack>,
+) -> Result<()> {
     let path = path.as_ref();
     let Some(container) = GltfContainer::from_path(path) else {
         bail!(
@@ -648,8 +862,8 @@ pub fn write_gltf(path: impl AsRef<Path>, motion: &Beat2Motion) -> Result<()> {
         );
     };
     let bytes = match container {
-        GltfContainer::Glb => glb_bytes(motion),
-        GltfContainer::Gltf => gltf_text(motion).map(String::into_bytes),
+        GltfContainer::Glb => glb_bytes_with_face(motion, face),
+        GltfContainer::Gltf => gltf_text_with_face(motion, face).map(String::into_bytes),
     }
     .with_context(|| format!("output: refusing to write {}", path.display()))?;
     crate::output::write_atomically(path, |w| {

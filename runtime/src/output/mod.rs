@@ -27,7 +27,8 @@
 //! `trans` (3), `expressions` (100), `foot_contact` (4, for joints 7, 8, 10, 11, 1 = in contact).
 //!
 //! **JSON lines** ([`JsonLinesWriter`]): one JSON object per line with exactly those keys, arrays as
-//! JSON arrays of numbers (shortest round-tripping decimal form of each `f32`).
+//! JSON arrays of numbers (shortest round-tripping decimal form of each `f32`); from a bundle with the
+//! face channel (docs/face.md) also `arkit` (52) and `visemes` (15).
 //!
 //! **Binary** ([`BinaryFrameWriter`], [`BinaryFrameReader`]), all little-endian. A 16-byte header
 //! once per stream:
@@ -51,7 +52,8 @@
 //! | 688 | 400 | `expressions`, 100 x `f32` |
 //! | 1088 | 16 | `foot_contact`, 4 x `f32` |
 //!
-//! Writers refuse frames with NaN or infinite values, naming the frame and the field.
+//! Writers refuse frames with NaN or infinite values, naming the frame and the field. The binary record
+//! carries the body only (version 1): the face channel is in the JSON lines, the npz and the glTF.
 
 //!
 //! # Layout
@@ -69,9 +71,12 @@ mod jsonl;
 mod npz;
 
 pub use binary::{binary_header, BinaryFrameReader, BinaryFrameWriter};
-pub use gltf::{gltf_from_frames, write_gltf, GltfContainer};
+pub use gltf::{gltf_from_frames, write_gltf, write_gltf_with_face, GltfContainer};
 pub use jsonl::JsonLinesWriter;
-pub use npz::{read_beat2_npz, write_beat2_npz, Beat2Motion, NpzFrameWriter};
+pub use npz::{
+    read_beat2_npz, write_beat2_npz, write_beat2_npz_with_face, Beat2Motion, FaceTrack,
+    NpzFrameWriter,
+};
 
 /// Motion frames per second.
 pub const FPS: u32 = 30;
@@ -113,6 +118,8 @@ pub struct Frame {
     pub expressions: [f32; EXPR_DIM],
     /// Foot contact of joints 7, 8, 10, 11.
     pub foot_contact: [f32; CONTACT_DIM],
+    /// The face channel (ARKit weights and visemes; docs/face.md): `None` from a bundle without one.
+    pub face: Option<crate::face::FaceValues>,
 }
 
 #[derive(Deserialize)]
@@ -123,6 +130,10 @@ struct FrameRepr {
     trans: Vec<f32>,
     expressions: Vec<f32>,
     foot_contact: Vec<f32>,
+    #[serde(default)]
+    arkit: Option<Vec<f32>>,
+    #[serde(default)]
+    visemes: Option<Vec<f32>>,
 }
 
 fn to_array<const N: usize>(v: Vec<f32>, name: &str) -> Result<[f32; N], String> {
@@ -142,19 +153,31 @@ impl TryFrom<FrameRepr> for Frame {
             trans: to_array(r.trans, "trans")?,
             expressions: to_array(r.expressions, "expressions")?,
             foot_contact: to_array(r.foot_contact, "foot_contact")?,
+            face: match (r.arkit, r.visemes) {
+                (None, None) => None,
+                (Some(a), Some(v)) => Some(crate::face::FaceValues {
+                    arkit: to_array(a, "arkit")?,
+                    visemes: to_array(v, "visemes")?,
+                }),
+                _ => return Err("frame has one of 'arkit' and 'visemes' without the other".into()),
+            },
         })
     }
 }
 
 impl Serialize for Frame {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        let mut st = s.serialize_struct("Frame", 6)?;
+        let mut st = s.serialize_struct("Frame", if self.face.is_some() { 8 } else { 6 })?;
         st.serialize_field("index", &self.index)?;
         st.serialize_field("time_s", &self.time_s)?;
         st.serialize_field("poses", &self.poses[..])?;
         st.serialize_field("trans", &self.trans[..])?;
         st.serialize_field("expressions", &self.expressions[..])?;
         st.serialize_field("foot_contact", &self.foot_contact[..])?;
+        if let Some(f) = &self.face {
+            st.serialize_field("arkit", &f.arkit[..])?;
+            st.serialize_field("visemes", &f.visemes[..])?;
+        }
         st.end()
     }
 }
@@ -175,6 +198,7 @@ impl Frame {
             trans,
             expressions,
             foot_contact,
+            face: None,
         }
     }
 
@@ -211,6 +235,9 @@ impl Frame {
             "output: frame {} has a non-finite time_s",
             self.index
         );
+        if let Some(f) = &self.face {
+            f.check(self.index)?;
+        }
         Ok(())
     }
 

@@ -94,9 +94,73 @@ impl<const N: usize> WritableElement for NpyUnicode<N> {
     }
 }
 
+/// The face channel of a whole motion (docs/face.md): `(T, 52)` ARKit weights and `(T, 15)` visemes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FaceTrack {
+    /// `(T, 52)` in [`crate::face::ARKIT_NAMES`] order.
+    pub arkit: Array2<f32>,
+    /// `(T, 15)` in [`crate::face::VISEME_NAMES`] order.
+    pub visemes: Array2<f32>,
+}
+
+impl FaceTrack {
+    /// The face of whole frames: `None` when no frame carries it, an error when only some do.
+    pub fn from_frames(frames: &[Frame]) -> Result<Option<Self>> {
+        let n = frames.iter().filter(|f| f.face.is_some()).count();
+        if n == 0 {
+            return Ok(None);
+        }
+        ensure!(
+            n == frames.len(),
+            "output: {n} of {} frames carry the face channel (all or none must)",
+            frames.len()
+        );
+        let mut arkit = Vec::with_capacity(frames.len() * crate::face::ARKIT_DIM);
+        let mut visemes = Vec::with_capacity(frames.len() * crate::face::VISEME_DIM);
+        for f in frames.iter().filter_map(|f| f.face.as_ref()) {
+            arkit.extend_from_slice(&f.arkit);
+            visemes.extend_from_slice(&f.visemes);
+        }
+        Ok(Some(Self {
+            arkit: Array2::from_shape_vec((frames.len(), crate::face::ARKIT_DIM), arkit)?,
+            visemes: Array2::from_shape_vec((frames.len(), crate::face::VISEME_DIM), visemes)?,
+        }))
+    }
+}
+
+/// `s` padded with NULs to `N` characters (numpy's own padding of a `<U{N}` element).
+fn padded<const N: usize>(s: &str) -> Result<NpyUnicode<N>> {
+    let mut a = ['\0'; N];
+    let chars: Vec<char> = s.chars().collect();
+    ensure!(chars.len() <= N, "'{s}' has more than {N} characters");
+    a[..chars.len()].copy_from_slice(&chars);
+    Ok(NpyUnicode(a))
+}
+
 /// Writes a BEAT2-compatible `.npz` atomically (see the module docs for keys, dtypes and shapes).
 pub fn write_beat2_npz(path: impl AsRef<Path>, motion: &Beat2Motion) -> Result<()> {
+    write_beat2_npz_with_face(path, motion, None)
+}
+
+/// [`write_beat2_npz`] plus, with `face`, the keys `arkit` (T, 52) float32, `arkit_names` (52,) `<U19`,
+/// `visemes` (T, 15) float32 and `viseme_names` (15,) `<U3` (docs/face.md).
+pub fn write_beat2_npz_with_face(
+    path: impl AsRef<Path>,
+    motion: &Beat2Motion,
+    face: Option<&FaceTrack>,
+) -> Result<()> {
     let path = path.as_ref();
+    if let Some(f) = face {
+        let t = motion.len();
+        ensure!(
+            f.arkit.dim() == (t, crate::face::ARKIT_DIM)
+                && f.visemes.dim() == (t, crate::face::VISEME_DIM),
+            "output: refusing to write {}: face arkit {:?} / visemes {:?}, expected ({t}, 52) / ({t}, 15)",
+            path.display(),
+            f.arkit.dim(),
+            f.visemes.dim()
+        );
+    }
     motion
         .validate()
         .with_context(|| format!("output: refusing to write {}", path.display()))?;
@@ -121,6 +185,24 @@ pub fn write_beat2_npz(path: impl AsRef<Path>, motion: &Beat2Motion) -> Result<(
             .with_context(|| what("gender"))?;
         npz.add_array("mocap_frame_rate", &arr0(FPS as i64))
             .with_context(|| what("mocap_frame_rate"))?;
+        if let Some(f) = face {
+            let names: Vec<NpyUnicode<19>> = crate::face::ARKIT_NAMES
+                .iter()
+                .map(|n| padded::<19>(n))
+                .collect::<Result<_>>()?;
+            let vnames: Vec<NpyUnicode<3>> = crate::face::VISEME_NAMES
+                .iter()
+                .map(|n| padded::<3>(n))
+                .collect::<Result<_>>()?;
+            npz.add_array("arkit", &f.arkit)
+                .with_context(|| what("arkit"))?;
+            npz.add_array("arkit_names", &Array1::from_vec(names))
+                .with_context(|| what("arkit_names"))?;
+            npz.add_array("visemes", &f.visemes)
+                .with_context(|| what("visemes"))?;
+            npz.add_array("viseme_names", &Array1::from_vec(vnames))
+                .with_context(|| what("viseme_names"))?;
+        }
         npz.finish()
             .with_context(|| format!("output: finishing {}", path.display()))?;
         Ok(())
@@ -157,6 +239,9 @@ pub struct NpzFrameWriter {
     poses: Vec<f32>,
     trans: Vec<f32>,
     expressions: Vec<f32>,
+    arkit: Vec<f32>,
+    visemes: Vec<f32>,
+    face_frames: usize,
     next_index: Option<u64>,
     frames: usize,
     finished: bool,
@@ -170,6 +255,9 @@ impl NpzFrameWriter {
             poses: Vec::new(),
             trans: Vec::new(),
             expressions: Vec::new(),
+            arkit: Vec::new(),
+            visemes: Vec::new(),
+            face_frames: 0,
             next_index: None,
             frames: 0,
             finished: false,
@@ -179,6 +267,22 @@ impl NpzFrameWriter {
     /// Frames collected so far.
     pub fn frames(&self) -> usize {
         self.frames
+    }
+
+    /// The collected face channel: `None` when no frame carried it, an error when only some did.
+    pub fn face_track(&self) -> Result<Option<FaceTrack>> {
+        let t = self.frames;
+        match self.face_frames {
+            0 => Ok(None),
+            n if n == t => Ok(Some(FaceTrack {
+                arkit: Array2::from_shape_vec((t, crate::face::ARKIT_DIM), self.arkit.clone())?,
+                visemes: Array2::from_shape_vec(
+                    (t, crate::face::VISEME_DIM),
+                    self.visemes.clone(),
+                )?,
+            })),
+            n => bail!("output: {n} of {t} frames carry the face channel (all or none must)"),
+        }
     }
 
     /// The collected motion.
@@ -206,6 +310,11 @@ impl FrameSink for NpzFrameWriter {
         self.poses.extend_from_slice(&frame.poses);
         self.trans.extend_from_slice(&frame.trans);
         self.expressions.extend_from_slice(&frame.expressions);
+        if let Some(f) = &frame.face {
+            self.arkit.extend_from_slice(&f.arkit);
+            self.visemes.extend_from_slice(&f.visemes);
+            self.face_frames += 1;
+        }
         self.next_index = Some(frame.index + 1);
         self.frames += 1;
         Ok(())
@@ -227,6 +336,23 @@ impl FrameSink for NpzFrameWriter {
             )?,
         };
         self.finished = true;
-        write_beat2_npz(&self.path, &motion)
+        let face = match self.face_frames {
+            0 => None,
+            n if n == t => Some(FaceTrack {
+                arkit: Array2::from_shape_vec(
+                    (t, crate::face::ARKIT_DIM),
+                    std::mem::take(&mut self.arkit),
+                )?,
+                visemes: Array2::from_shape_vec(
+                    (t, crate::face::VISEME_DIM),
+                    std::mem::take(&mut self.visemes),
+                )?,
+            }),
+            n => bail!(
+                "output: refusing to write {}: {n} of {t} frames carry the face channel (all or none must)",
+                self.path.display()
+            ),
+        };
+        write_beat2_npz_with_face(&self.path, &motion, face.as_ref())
     }
 }

@@ -22,6 +22,7 @@ fn steps(n: usize) -> Vec<TokenStep> {
                         trans: std::array::from_fn(|j| v(j + 200)),
                         expressions: std::array::from_fn(|j| v(j + 300)),
                         foot_contact: std::array::from_fn(|j| (j % 2) as f32),
+                        face: None,
                     }
                 })
                 .collect(),

@@ -11,7 +11,10 @@ For each of the .glb (Blender's glTF importer) and the .bvh (Blender's BVH impor
   rotations relative to the rest pose makes the check independent of how each importer orients its
   bones (the glTF importer's bone heuristic, the BVH importer's rest axes).
 A broken expectation (the npz's poses of another frame) must fail the same comparison, so the check
-cannot pass by comparing nothing. Exit status 0 when every check passes, 1 otherwise.
+cannot pass by comparing nothing.
+With the face channel (the npz has `arkit`, docs/face.md), the .glb's `face` mesh must import with 52 shape
+keys named as ARKit names them, each animated, and the key values at a few frames must equal the npz's
+`arkit` (a wrong frame's values must not). Exit status 0 when every check passes, 1 otherwise.
 """
 import ast
 import builtins
@@ -38,10 +41,13 @@ BOUND = 2e-3  # max abs difference of rotation-matrix entries (f32 keys, BVH's 6
 C = Matrix(((1.0, 0, 0), (0, 0, -1.0), (0, 1.0, 0)))
 
 
-def read_poses(npz):
-    """The npz's `poses` as a list of frames of 165 floats (Blender's Python has no numpy here)."""
+def read_poses(npz, key="poses"):
+    """The npz's `poses` (or another float32 2-D key) as a list of frames (Blender's Python has no numpy
+    here); None when the npz has no such key."""
     with zipfile.ZipFile(npz) as z:
-        b = z.read("poses.npy")
+        if f"{key}.npy" not in z.namelist():
+            return None
+        b = z.read(f"{key}.npy")
     assert b[:6] == b"\x93NUMPY", f"{npz}: poses.npy is not an npy file"
     hl = int.from_bytes(b[8:10], "little") if b[6] == 1 else int.from_bytes(b[8:12], "little")
     start = 10 + hl if b[6] == 1 else 12 + hl
@@ -125,6 +131,40 @@ def check(label, arm, poses, first_frame, failures):
         failures.append(f"{label}: the comparison does not tell frames apart (wrong frames differ by only {shifted_worst:.2e})")
 
 
+ARKIT_FACE_BOUND = 1e-4
+
+
+def check_face(glb, arkit, failures):
+    """The imported face mesh: 52 ARKit shape keys, animated with the npz's weights."""
+    faces = [o for o in bpy.data.objects if o.type == "MESH" and o.data.shape_keys is not None]
+    if len(faces) != 1:
+        failures.append(f"{glb}: {len(faces)} meshes with shape keys imported, expected 1 (the face)")
+        return
+    keys = faces[0].data.shape_keys
+    names = [k.name for k in keys.key_blocks][1:]   # after the Basis
+    if len(names) != 52 or names[0] != "eyeBlinkLeft" or names[-1] != "tongueOut" or "jawOpen" not in names:
+        failures.append(f"{glb}: face shape keys {names[:3]}...{names[-2:]} ({len(names)}), expected the 52 ARKit names")
+        return
+    action = keys.animation_data.action if keys.animation_data else None
+    curves = {c.data_path: c for c in (action.fcurves if action else [])}
+    animated = [n for n in names if f'key_blocks["{n}"].value' in curves]
+    if len(animated) != 52:
+        failures.append(f"{glb}: {len(animated)} of the 52 face shape keys are animated")
+        return
+    t = len(arkit)
+    worst, wrong = 0.0, 0.0
+    for f in sorted({0, t // 3, t // 2, t - 1}):
+        for j, n in enumerate(names):
+            v = curves[f'key_blocks["{n}"].value'].evaluate(f)   # the glTF import starts at frame 0
+            worst = max(worst, abs(v - arkit[f][j]))
+            wrong = max(wrong, abs(v - arkit[(f + 7) % t][j]))
+    print(f"face: 52 animated ARKit shape keys, worst |key - npz arkit| {worst:.2e} over 4 frames")
+    if worst > ARKIT_FACE_BOUND:
+        failures.append(f"{glb}: face shape key values differ from the npz's arkit by {worst:.2e} > {ARKIT_FACE_BOUND}")
+    if wrong <= ARKIT_FACE_BOUND:
+        failures.append(f"{glb}: the face comparison does not tell frames apart ({wrong:.2e})")
+
+
 def armature_after(importer):
     before = set(bpy.data.objects)
     importer()
@@ -156,6 +196,10 @@ def main():
         failures.append(f"{glb}: {len(arms)} armatures imported, expected 1")
     else:
         check("glb", arms[0], poses, 0, failures)
+
+    arkit = read_poses(npz, "arkit")
+    if arkit is not None:
+        check_face(glb, arkit, failures)
 
     # Blender 3.4's BVH add-on opens its file with mode 'rU', which Python 3.11 removed: drop the 'U'
     real_open = builtins.open
