@@ -475,7 +475,7 @@ mod tests {
 
     #[test]
     fn errors_are_classified_and_kept_per_thread() {
-        let st = ffi("x", || Err(InputError::new("bad thing".into()).into()));
+        let st = ffi("x", || Err(InputError::new("bad thing").into()));
         assert_eq!(st, LgStatus::Input);
         let here = unsafe { CStr::from_ptr(lg_last_error()) }
             .to_str()

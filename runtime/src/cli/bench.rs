@@ -104,7 +104,7 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
         table_windows: a.table_windows.max(1),
     };
     if a.steps == 0 {
-        return Err(InputError::new("--steps must be at least 1".into()).into());
+        return Err(InputError::new("--steps must be at least 1").into());
     }
     let bundle = a.model.bundle()?;
     super::common::check_form(&bundle, form)?;

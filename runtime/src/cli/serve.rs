@@ -143,7 +143,7 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
         || a.max_pending_tokens == 0
     {
         return Err(InputError::new(
-            "--max-sessions, --max-message-bytes, --queue-frames and --max-pending-tokens must be at least 1".into(),
+            "--max-sessions, --max-message-bytes, --queue-frames and --max-pending-tokens must be at least 1",
         )
         .into());
     }

@@ -59,7 +59,7 @@ fn is_broken_pipe(e: &anyhow::Error) -> bool {
 pub fn run(a: Args, form: GraphForm) -> Result<()> {
     let opts = a.gen.stream_options()?;
     if a.rate == 0 || a.channels == 0 {
-        return Err(InputError::new("--rate and --channels must be at least 1".into()).into());
+        return Err(InputError::new("--rate and --channels must be at least 1").into());
     }
     let bundle = a.model.bundle()?;
     let model = a.model.model(&bundle, form)?;
