@@ -26,6 +26,7 @@ use livegesture::model::{self, MotionModel, MotionStream, StreamOptions};
 use livegesture::output::Frame;
 use wasm_bindgen::prelude::*;
 
+mod ortweb;
 mod parity;
 mod wav;
 

@@ -132,19 +132,31 @@ fn values(t: &Tensor) -> Vec<f32> {
     }
 }
 
-/// Runs every check on `bundle` (see the module docs).
+/// Runs every check on `bundle` (see the module docs) with tract compiled to WebAssembly.
 pub fn run(bundle: &Bundle) -> Result<Report> {
+    run_with(bundle, &TractBackend::new(), "wasm tract", GRAPH_BOUND)
+}
+
+/// Runs every check on `bundle` with `backend` (named `label` in the report lines), each graph output
+/// judged at `graph_bound` (scaled) against the reference; the rollout bounds are the same for every
+/// backend.
+pub fn run_with(
+    bundle: &Bundle,
+    backend: &dyn Backend,
+    label: &str,
+    graph_bound: f64,
+) -> Result<Report> {
     let mut report = Report::default();
-    let backend = TractBackend::new();
     for spec in bundle.graphs() {
-        if let Err(e) = graph(bundle, &backend, spec, &mut report) {
+        if let Err(e) = graph(bundle, backend, label, graph_bound, spec, &mut report) {
             report.line(false, format!("graph {}: {e:#}", spec.name));
         }
     }
     let res = model::for_family(
         bundle,
         Rollout {
-            backend: &backend,
+            backend,
+            label,
             report: &mut report,
         },
     );
@@ -158,16 +170,17 @@ pub fn run(bundle: &Bundle) -> Result<Report> {
 /// a family to its code).
 struct Rollout<'a> {
     backend: &'a dyn Backend,
+    label: &'a str,
     report: &'a mut Report,
 }
 
 impl model::FamilyTool for Rollout<'_> {
     type Output = Result<()>;
     fn livegesture(self, bundle: &Bundle) -> Result<()> {
-        livegesture_rollout(bundle, self.backend, self.report)
+        livegesture_rollout(bundle, self.backend, self.label, self.report)
     }
     fn diffsheg(self, bundle: &Bundle) -> Result<()> {
-        diffsheg_rollout(bundle, self.backend, self.report)
+        diffsheg_rollout(bundle, self.backend, self.label, self.report)
     }
 }
 
@@ -175,6 +188,8 @@ impl model::FamilyTool for Rollout<'_> {
 fn graph(
     bundle: &Bundle,
     backend: &dyn Backend,
+    label: &str,
+    graph_bound: f64,
     spec: &GraphSpec,
     report: &mut Report,
 ) -> Result<()> {
@@ -208,7 +223,7 @@ fn graph(
         inputs.extend(caches);
         let out = runner
             .run(&inputs)
-            .with_context(|| format!("wasm tract, {prefix} {s}"))?;
+            .with_context(|| format!("{label}, {prefix} {s}"))?;
         for (k, o) in spec.outputs.iter().enumerate() {
             let want = refv.get(&format!("{prefix}{s}.output.{}", o.name))?;
             let d = diff(&values(&out[k]), &values(want));
@@ -228,13 +243,13 @@ fn graph(
                 let d = diff(&values(&caches[k]), &values(want));
                 report.compare(
                     &format!(
-                        "graph {} output {} {prefix} {s}: wasm tract vs {}",
+                        "graph {} output {} {prefix} {s}: {label} vs {}",
                         spec.name,
                         c.output,
                         bundle.reference_name()
                     ),
                     &d,
-                    GRAPH_BOUND,
+                    graph_bound,
                 );
             }
         }
@@ -243,13 +258,13 @@ fn graph(
         if let Some((d, s)) = &worst[k] {
             report.compare(
                 &format!(
-                    "graph {} output {} (worst of {n} {prefix}s, at {prefix} {s}): wasm tract vs {}",
+                    "graph {} output {} (worst of {n} {prefix}s, at {prefix} {s}): {label} vs {}",
                     spec.name,
                     o.name,
                     bundle.reference_name()
                 ),
                 d,
-                GRAPH_BOUND,
+                graph_bound,
             );
         }
     }
@@ -284,7 +299,12 @@ fn clip_16k(bundle: &Bundle, rel: &str) -> Result<Vec<f32>> {
     Ok(a.samples)
 }
 
-fn livegesture_rollout(bundle: &Bundle, backend: &dyn Backend, report: &mut Report) -> Result<()> {
+fn livegesture_rollout(
+    bundle: &Bundle,
+    backend: &dyn Backend,
+    label: &str,
+    report: &mut Report,
+) -> Result<()> {
     let r = bundle
         .reference()
         .ok_or_else(|| anyhow!("manifest.json has no `reference`"))?;
@@ -318,7 +338,7 @@ fn livegesture_rollout(bundle: &Bundle, backend: &dyn Backend, report: &mut Repo
         .flat_map(|s| s.tokens.iter().copied())
         .collect();
     let what = format!(
-        "rollout tokens ({} tokens, seed {seed}, clip x {repeats}): wasm tract vs {}",
+        "rollout tokens ({} tokens, seed {seed}, clip x {repeats}): {label} vs {}",
         want_tokens.len() / regions.max(1),
         bundle.reference_name()
     );
@@ -368,7 +388,7 @@ fn livegesture_rollout(bundle: &Bundle, backend: &dyn Backend, report: &mut Repo
         let d = diff(&got[..n], &want[..n]);
         report.compare(
             &format!(
-                "rollout {name} ({} frames): wasm tract vs {}",
+                "rollout {name} ({} frames): {label} vs {}",
                 n / width.max(1),
                 bundle.reference_name()
             ),
@@ -379,7 +399,12 @@ fn livegesture_rollout(bundle: &Bundle, backend: &dyn Backend, report: &mut Repo
     Ok(())
 }
 
-fn diffsheg_rollout(bundle: &Bundle, backend: &dyn Backend, report: &mut Report) -> Result<()> {
+fn diffsheg_rollout(
+    bundle: &Bundle,
+    backend: &dyn Backend,
+    label: &str,
+    report: &mut Report,
+) -> Result<()> {
     bundle
         .reference()
         .ok_or_else(|| anyhow!("manifest.json has no `reference`"))?;
@@ -424,7 +449,7 @@ fn diffsheg_rollout(bundle: &Bundle, backend: &dyn Backend, report: &mut Report)
         let d = diff(&field(&frames, k), refv.f32(name)?);
         report.compare(
             &format!(
-                "rollout {name} ({} frames): wasm tract vs {}",
+                "rollout {name} ({} frames): {label} vs {}",
                 frames.len(),
                 bundle.reference_name()
             ),
