@@ -2,7 +2,8 @@
 # The execution-provider and browser targets of the target matrix (docs/targets-providers.md, SPEC 7
 # "Targets"); scripts/targets.sh runs the instruction-set targets. Same interface and output:
 #
-#   scripts/targets_providers.sh [--bundle DIR] TARGET...     TARGET: openvino webgpu wasm-tract wasm-ort-web
+#   scripts/targets_providers.sh [--bundle DIR] [--allow-unsupported] TARGET...
+#                                     TARGET: openvino webgpu wasm-tract wasm-ort-web
 #
 # Each target runs the parity suite of the bundle (default models/default) against the torch references
 # made at export and writes target/targets/TARGET.json:
@@ -10,6 +11,10 @@
 # (native targets: `livegesture parity --json` (rows, notes, divergences); browser targets: the page's
 # parity report (lines, comparisons passed/failed)). A target that cannot run writes
 # {"target", "bundle", "passed": false, "error": "..."}. Exit 0 only when every named target passes.
+# --allow-unsupported: a native target also passes when its only failed rows are graphs that the provider
+# refuses to compile for an operator it does not support (its error says "does not support the following
+# ONNX operations"; the JSON lists them in "unsupported"), every other comparison passing (OpenVINO 2025.4
+# and the ONNX Attention operator of the tract form's fusion_attention graph: docs/targets-providers.md).
 #
 #   openvino      ONNX Runtime 1.24.1 with the OpenVINO execution provider (CPU device), from PyPI's
 #                 onnxruntime-openvino wheel (its libonnxruntime and provider libraries, loaded at run time)
@@ -24,11 +29,13 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 bundle=models/default
+allow_unsupported=0
 targets=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --bundle) bundle="${2:?--bundle needs a folder}"; shift 2 ;;
-    -h|--help) sed -n '2,25p' "$0"; exit 0 ;;
+    --allow-unsupported) allow_unsupported=1; shift ;;
+    -h|--help) sed -n '2,31p' "$0"; exit 0 ;;
     openvino|webgpu|wasm-tract|wasm-ort-web) targets+=("$1"); shift ;;
     *) echo "targets_providers.sh: unknown target '$1' (expected openvino, webgpu, wasm-tract, wasm-ort-web)" >&2; exit 2 ;;
   esac
@@ -67,13 +74,22 @@ native_ep() {
   ORT_DYLIB_PATH="$lib" ./target/release/livegesture parity --bundle "$bundle" --backends ort --ep "$ep" \
     --json "$out/$target.json.part" >"$log" 2>&1 || rc=$?
   if [ -f "$out/$target.json.part" ]; then
-    "$LIVEGESTURE_PY" - "$out/$target.json.part" "$out/$target.json" "$target" "$bundle" "$ep" "$lib" <<'PY'
+    local ok=0
+    "$LIVEGESTURE_PY" - "$out/$target.json.part" "$out/$target.json" "$target" "$bundle" "$ep" "$lib" <<'PY' || ok=$?
 import json, sys
 src, dst, target, bundle, ep, lib = sys.argv[1:]
 r = json.load(open(src))
+failed = [row for row in r["rows"] if not row["pass"]]
+unsupported = [row for row in failed if "does not support the following ONNX operations" in (row.get("detail") or "")]
+r["unsupported"] = sorted({row["what"] for row in unsupported})
+r["passed_except_unsupported"] = len(r["rows"]) > len(failed) and len(failed) == len(unsupported)
 json.dump({"target": target, "bundle": bundle, "execution_provider": ep, "library": lib, **r}, open(dst, "w"), indent=1)
+print(f"{target}: {len(r['rows']) - len(failed)} of {len(r['rows'])} comparisons pass"
+      + (f"; the provider does not support graph(s) {', '.join(r['unsupported'])}" if unsupported else ""))
+sys.exit(0 if r["passed_except_unsupported"] else 1)
 PY
     rm -f "$out/$target.json.part"
+    [ "$allow_unsupported" = 1 ] && [ "$ok" = 0 ] && rc=0
   else
     write_error "$target" "$(grep -v '^parity: ' "$log" | tail -n 5)"
   fi
