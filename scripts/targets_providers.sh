@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The execution-provider and browser targets of the target matrix (docs/targets-providers.md, SPEC 7
+# The execution-provider and browser targets of the target matrix (docs/targets-providers.md, the parity contract (docs/parity.md)
 # "Targets"); scripts/targets.sh runs the instruction-set targets. Same interface and output:
 #
 #   scripts/targets_providers.sh [--bundle DIR] [--allow-unsupported] TARGET...

@@ -30,7 +30,7 @@ use wasm_bindgen::JsCast;
 use crate::{parity, seed_from, wav, BundleFiles, Frames, Stream};
 
 /// ONNX Runtime Web runs ONNX Runtime's CPU provider (compiled to WebAssembly): the bound of an
-/// ONNX Runtime CPU provider against the torch references (SPEC 7, targets: 1e-5 scaled).
+/// ONNX Runtime CPU provider against the torch references (docs/parity.md: 1e-5 scaled).
 pub const ORT_WEB_GRAPH_BOUND: f64 = 1e-5;
 
 #[wasm_bindgen]

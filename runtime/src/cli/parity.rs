@@ -69,7 +69,7 @@ pub struct Args {
     pub ort_lib: Option<PathBuf>,
     /// Execution provider of the ort backend: cpu, openvino, webgpu, xnnpack, cuda, qnn (the library
     /// must have it; docs/targets-providers.md). The graphs are judged at the bound of ONNX Runtime's
-    /// CPU provider (1e-5 scaled, SPEC 7).
+    /// CPU provider (1e-5 scaled, docs/parity.md).
     #[arg(long, value_name = "EP", default_value = "cpu")]
     pub ep: String,
     /// No progress lines on stderr.
