@@ -22,6 +22,12 @@ cp -r runtime/web/dist/. "$out/"
 # the static page has no server: the engine is this browser unless ?engine= says otherwise
 sed -i 's|<meta charset="utf-8">|<meta charset="utf-8">\n<meta name="livegesture-engine" content="wasm">|' "$out/index.html"
 cp target/wasm-pkg/livegesture_wasm.js target/wasm-pkg/livegesture_wasm_bg.wasm "$out/wasm/"
+# onnxruntime-web's WebAssembly CPU build for the page's second engine, ?engine=ort-web (ort-worker.js,
+# docs/wasm.md), from runtime/web's locked npm packages
+ortdist=runtime/web/node_modules/onnxruntime-web/dist
+[ -f "$ortdist/ort.wasm.min.mjs" ] || (cd runtime/web && npm install --no-save --no-audit --no-fund --loglevel=error)
+mkdir -p "$out/ort"
+cp "$ortdist/ort.wasm.min.mjs" "$ortdist/ort-wasm-simd-threaded.mjs" "$ortdist/ort-wasm-simd-threaded.wasm" "$out/ort/"
 # the skeleton the page poses, from the runtime itself
 node --input-type=module -e "
 import { readFileSync, writeFileSync } from 'node:fs';
@@ -30,4 +36,4 @@ m.initSync({ module: readFileSync('target/wasm-pkg/livegesture_wasm_bg.wasm') })
 writeFileSync('$out/skeleton.json', m.skeletonJson());
 "
 scripts/copy_bundle.py "$bundle" "$out/bundle"
-du -sh "$out" "$out/wasm" "$out/bundle"
+du -sh "$out" "$out/wasm" "$out/ort" "$out/bundle"

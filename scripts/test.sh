@@ -16,6 +16,8 @@
 #      https with a token (target/browser-tls/);
 #   9. the runtime compiled to WebAssembly: the static page in chromium (parity of both shipped bundles,
 #      a perturbed weight, the microphone, a WAV vs native tract; report in target/browser-wasm/);
+#  10. the page's second browser engine, onnxruntime-web, in chromium (parity of both shipped bundles, a
+#      perturbed weight; report in target/browser-ortweb/);
 # and first, the docs check (scripts/check_docs.py: relative links in the Markdown resolve).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -205,5 +207,11 @@ timeout 1500 node runtime/web/tests/wasm.mjs --site target/web-static --out targ
   --wav models/default/reference/clip.wav --native target/browser-wasm/native.npz --seed 7 \
   --parity bundle/ --parity bundles/diffsheg/ --broken bundles/broken/:expert_hands \
   --serve target/release/livegesture
+
+stage "providers: onnxruntime-web in chromium, the page's ?engine=ort-web (docs/wasm.md, docs/targets-providers.md)"
+# the page's second engine on the same bundles as the wasm stage above: every graph vs torch at 1e-5, the
+# seeded rollouts, a perturbed weight that must fail naming its graph (~1.5 min on a loaded 2-core VM)
+timeout 900 node runtime/web/tests/ortweb.mjs --site target/web-static --out target/browser-ortweb \
+  --parity bundle/ --parity bundles/diffsheg/ --broken bundles/broken/:expert_hands
 
 stage "all tests passed"

@@ -33,6 +33,8 @@ use livegesture::output::Frame;
 use livegesture::portable_parity;
 use wasm_bindgen::prelude::*;
 
+mod ortweb;
+
 thread_local! {
     static PANIC: RefCell<Option<String>> = const { RefCell::new(None) };
 }

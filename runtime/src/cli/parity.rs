@@ -67,6 +67,11 @@ pub struct Args {
     /// ONNX Runtime shared library for the ort backend (default: $ORT_DYLIB_PATH, else searched).
     #[arg(long, value_name = "PATH")]
     pub ort_lib: Option<PathBuf>,
+    /// Execution provider of the ort backend: cpu, openvino, webgpu, xnnpack, cuda, qnn (the library
+    /// must have it; docs/targets-providers.md). The graphs are judged at the bound of ONNX Runtime's
+    /// CPU provider (1e-5 scaled, docs/parity.md).
+    #[arg(long, value_name = "EP", default_value = "cpu")]
+    pub ep: String,
     /// No progress lines on stderr.
     #[arg(short, long)]
     pub quiet: bool,
@@ -145,6 +150,7 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
         ort: BackendOptions {
             kind: BackendKind::Ort,
             ort_library: a.ort_lib.clone(),
+            execution_provider: a.ep.clone(),
             ..Default::default()
         },
         checks: if a.checks.is_empty() {

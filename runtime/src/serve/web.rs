@@ -49,7 +49,7 @@ async fn web_dir_file(
     let path = dir.join(rel);
     let mime = match path.extension().and_then(|e| e.to_str()) {
         Some("wasm") => "application/wasm",
-        Some("js") => "text/javascript; charset=utf-8",
+        Some("js" | "mjs") => "text/javascript; charset=utf-8",
         Some("json") => "application/json",
         Some("html") => "text/html; charset=utf-8",
         Some("wav") => "audio/wav",

@@ -11,13 +11,14 @@
 // Frames are {count, index, poses (n x 165), trans (n x 3), expressions (n x 100), footContact (n x 4)},
 // row-major typed arrays.
 
-/** Which engine the page runs: `?engine=wasm` this browser, `?engine=server` the server; without
- * the parameter, the page's `<meta name="livegesture-engine">` (the static build sets `wasm`: no
- * server there), else the server. */
+/** Which engine the page runs: `?engine=wasm` this browser (tract in WebAssembly), `?engine=ort-web`
+ * this browser with the graphs on onnxruntime-web (ort-worker.js), `?engine=server` the server;
+ * without the parameter, the page's `<meta name="livegesture-engine">` (the static build sets `wasm`:
+ * no server there), else the server. */
 export function engineFromUrl(href = location.href) {
   const meta = document.querySelector('meta[name="livegesture-engine"]');
   const e = new URL(href).searchParams.get('engine') || (meta && meta.content) || 'server';
-  return e === 'wasm' ? 'wasm' : 'server';
+  return e === 'wasm' || e === 'ort-web' ? e : 'server';
 }
 
 /** Where the page finds the bundle in wasm mode: `?bundle=URL`, else `bundle/` beside the page. */
@@ -94,9 +95,11 @@ export class WasmModel {
  * Starts a worker and loads a bundle into it: `bundleUrl` (a folder with manifest.json), or `files`
  * ({path: ArrayBuffer}, which may hold all of it). `complete`: also load the files that only parity
  * needs (reference vectors); graphs and manifest are always verified against their sha256.
+ * `engine`: 'wasm' (tract, worker.js) or 'ort-web' (onnxruntime-web, ort-worker.js, with `threads`).
  */
-export async function loadModel({ bundleUrl = 'bundle/', files, complete = false, workerUrl } = {}) {
-  const rpc = new Rpc(workerUrl || new URL('worker.js', document.baseURI));
-  const info = await rpc.call('load', { bundleUrl: new URL(bundleUrl, document.baseURI).href, files, complete });
+export async function loadModel({ bundleUrl = 'bundle/', files, complete = false, workerUrl, engine = 'wasm', threads = 1 } = {}) {
+  const worker = engine === 'ort-web' ? 'ort-worker.js' : 'worker.js';
+  const rpc = new Rpc(workerUrl || new URL(worker, document.baseURI));
+  const info = await rpc.call('load', { bundleUrl: new URL(bundleUrl, document.baseURI).href, files, complete, ...(engine === 'ort-web' ? { threads } : {}) });
   return new WasmModel(rpc, info);
 }

@@ -10,12 +10,13 @@ import { createFacePanel } from './facepanel.js';
 import { setupAvatarControls } from './avatarui.js';
 import { loadGltfMotion } from './gltfmotion.js';
 import { engineFromUrl } from './engine.js';
-import { WasmSession, installTestHook, wasmModel } from './wasm-page.js';
+import { WasmSession, engineLabel, installTestHook, wasmModel } from './wasm-page.js';
 
 const $ = (id) => document.getElementById(id);
 const N = 55;
 const RECORD = 1104;
-// `?engine=wasm`: the runtime runs in this browser (wasm-page.js), else on the server (WebSocket)
+// `?engine=wasm` (tract) or `?engine=ort-web` (onnxruntime-web): the runtime runs in this browser
+// (wasm-page.js), else on the server (WebSocket)
 const ENGINE = engineFromUrl();
 
 // state the browser test reads (runtime/web/tests/browser.mjs)
@@ -139,7 +140,7 @@ function openSession(inputRate) {
   rate = inputRate;
   sentSamples = 0; sentLog = []; latencies = []; first = null;
   state.frames = 0; state.moved = 0; state.firstLatencyMs = null;
-  if (ENGINE === 'wasm') {
+  if (ENGINE !== 'server') {
     setStatus('connecting');
     wasm = new WasmSession(rate, {
       onReady: (label) => { setStatus('live'); $('model').textContent = label; },
@@ -419,22 +420,24 @@ async function main() {
   $('wav').onchange = (e) => e.target.files[0] && playWav(e.target.files[0]);
   $('motion').onchange = (e) => e.target.files[0] && loadMotion(e.target.files[0]);
   $('playFile').onclick = playFile;
-  // "this browser" needs the WebAssembly runtime beside the page (the static build, or `serve
+  // the browser engines need the WebAssembly runtime beside the page (the static build, or `serve
   // --web-dir`); a plain `livegesture serve` has none: say how to get it rather than offer a dead end
   const wasmServed = await fetch('wasm/livegesture_wasm.js', { method: 'HEAD', cache: 'no-store' })
     .then((r) => r.ok, () => false);
   if (!wasmServed) {
     const how = 'not served here: build it with scripts/build_web_static.sh and run livegesture serve --web-dir target/web-static (docs/wasm.md)';
-    $('engine-wasm').replaceWith(Object.assign(document.createElement('span'), { id: 'engine-wasm', title: how, textContent: `this browser (${how})` }));
+    for (const [id, label] of [['engine-wasm', 'this browser'], ['engine-ort-web', 'this browser, onnxruntime-web']]) {
+      $(id).replaceWith(Object.assign(document.createElement('span'), { id, title: how, textContent: `${label} (${how})` }));
+    }
   }
-  if (ENGINE === 'wasm' && !wasmServed) {
+  if (ENGINE !== 'server' && !wasmServed) {
     state.error = 'the WebAssembly engine is not served here';
-    setStatus('engine "this browser": the WebAssembly runtime is not served here; run livegesture serve --web-dir target/web-static (docs/wasm.md)', 'error');
-  } else if (ENGINE === 'wasm') {
+    setStatus(`engine "${engineLabel()}": the WebAssembly runtime is not served here; run livegesture serve --web-dir target/web-static (docs/wasm.md)`, 'error');
+  } else if (ENGINE !== 'server') {
     installTestHook();
     $('model').textContent = 'loading (this browser)';
     wasmModel((s) => setStatus(s, 'idle')).then(
-      (m) => { $('model').textContent = `${m.family}, ${m.precision} (wasm tract, this browser)`; setStatus('idle'); },
+      (m) => { $('model').textContent = `${m.family}, ${m.precision} (${engineLabel()}, this browser)`; setStatus('idle'); },
       (e) => { state.error = String(e); setStatus(`model: ${e.message || e}`, 'error'); });
   }
   state.ready = true;

@@ -1,9 +1,22 @@
 // The page's "this browser" engine (`/?engine=wasm`, docs/wasm.md): microphone -> AudioWorklet ->
 // worker (the runtime in WebAssembly) -> frames -> avatar, with no server doing inference; and the
 // test hook `window.livegestureTest` (generate a whole WAV, run the parity checks).
-import { bundleFromUrl, loadModel } from './engine.js';
+import { bundleFromUrl, engineFromUrl, loadModel } from './engine.js';
 
 const params = () => new URL(location.href).searchParams;
+
+/** The in-browser engine's options: `?engine=ort-web` runs the graphs on onnxruntime-web with
+ * `?threads=N` intra-op threads (default 1), else tract in WebAssembly. */
+function engineOptions() {
+  const engine = engineFromUrl() === 'ort-web' ? 'ort-web' : 'wasm';
+  return engine === 'ort-web' ? { engine, threads: Number(params().get('threads') || 1) } : { engine };
+}
+
+/** The engine's name on the page. */
+export function engineLabel() {
+  const o = engineOptions();
+  return o.engine === 'ort-web' ? `onnxruntime-web, ${o.threads} thread${o.threads > 1 ? 's' : ''}` : 'wasm tract';
+}
 
 let modelPromise = null;
 
@@ -12,7 +25,7 @@ export function wasmModel(onStatus = () => {}) {
   if (!modelPromise) {
     modelPromise = (async () => {
       onStatus('loading model');
-      const model = await loadModel({ bundleUrl: bundleFromUrl() });
+      const model = await loadModel({ bundleUrl: bundleFromUrl(), ...engineOptions() });
       // warm-up: the first runs build tract's plans and let the JS engine optimise the module
       onStatus('warming up');
       const t0 = performance.now();
@@ -44,7 +57,7 @@ export class WasmSession {
       const seed = Number(params().get('seed') || 0);
       const g = params().get('guidance');
       this.stream = await model.stream({ seed, guidance: g === null ? undefined : Number(g) });
-      onReady(`${model.family}, ${model.precision} (wasm tract, this browser)`);
+      onReady(`${model.family}, ${model.precision} (${engineLabel()}, this browser)`);
       for (const pcm of this.waiting) this.track(this.stream.push(pcm, this.rate));
       this.waiting = [];
     })().catch((e) => this.fail(e));
@@ -99,11 +112,11 @@ export function installTestHook() {
     async generate(wavBytes, { seed = 0, guidance } = {}) {
       const model = await wasmModel();
       const f = await model.generate(wavBytes, { seed, guidance });
-      return { frames: f.count, poses: f.poses, expressions: f.expressions, trans: f.trans, ms: f.ms };
+      return { frames: f.count, poses: f.poses, expressions: f.expressions, trans: f.trans, ms: f.ms, graphMs: f.graphMs };
     },
     async parity() {
       // a second worker with the whole bundle (reference vectors included)
-      const model = await loadModel({ bundleUrl: bundleFromUrl(), complete: true });
+      const model = await loadModel({ bundleUrl: bundleFromUrl(), complete: true, ...engineOptions() });
       try {
         return await model.parity();
       } finally {
@@ -125,7 +138,8 @@ export function installTestHook() {
     async info() {
       const model = await wasmModel();
       return { family: model.family, precision: model.precision, simd: model.simd, bytes: model.bytes, files: model.files,
-        loadMs: model.loadMs, warmupMs: model.warmupMs, memoryBytes: await model.memoryBytes() };
+        loadMs: model.loadMs, warmupMs: model.warmupMs, memoryBytes: await model.memoryBytes(),
+        engine: model.engine || 'wasm', threads: model.threads || 1, ortVersion: model.ortVersion };
     },
   };
 }

@@ -5,11 +5,12 @@ import { readFileSync, statSync } from 'node:fs';
 import { extname, join, normalize, resolve } from 'node:path';
 import { chromium } from 'playwright-core';
 
-const MIME = { '.html': 'text/html; charset=utf-8', '.js': 'text/javascript; charset=utf-8', '.wasm': 'application/wasm',
+const MIME = { '.html': 'text/html; charset=utf-8', '.js': 'text/javascript; charset=utf-8', '.mjs': 'text/javascript; charset=utf-8', '.wasm': 'application/wasm',
   '.json': 'application/json', '.wav': 'audio/wav' };
 
-/** Serves `dir` on 127.0.0.1 (a free port); `served` lists the paths asked for. */
-export async function serveStatic(dir) {
+/** Serves `dir` on 127.0.0.1 (a free port); `served` lists the paths asked for. `isolate`: send the
+ * cross-origin isolation headers (COOP/COEP) that SharedArrayBuffer, and so onnxruntime-web's threads, need. */
+export async function serveStatic(dir, { isolate = false } = {}) {
   const site = resolve(dir);
   const served = [];
   const server = createServer((req, res) => {
@@ -19,7 +20,8 @@ export async function serveStatic(dir) {
     try {
       const body = readFileSync(file);
       served.push(path);
-      res.writeHead(200, { 'content-type': MIME[extname(file)] || 'application/octet-stream', 'cache-control': 'no-cache' });
+      const iso = isolate ? { 'cross-origin-opener-policy': 'same-origin', 'cross-origin-embedder-policy': 'require-corp' } : {};
+      res.writeHead(200, { 'content-type': MIME[extname(file)] || 'application/octet-stream', 'cache-control': 'no-cache', ...iso });
       res.end(body);
     } catch (_) { res.writeHead(404); res.end('not found'); }
   });
