@@ -15,6 +15,9 @@ out=target/web-static
 [ -f "$bundle/manifest.json" ] || { echo "build_web_static.sh: $bundle: no manifest.json (not a bundle)" >&2; exit 2; }
 [ -n "${SKIP_WASM_BUILD:-}" ] || scripts/build_wasm.sh
 [ -f target/wasm-pkg/livegesture_wasm_bg.wasm ] || { echo "build_web_static.sh: target/wasm-pkg is missing; run scripts/build_wasm.sh" >&2; exit 1; }
+# with SKIP_WASM_BUILD the module must not be older than what it is built from (a stale build would be
+# tested and shipped as the current one)
+scripts/wasm_fresh.sh target/wasm-pkg/livegesture_wasm_bg.wasm
 
 rm -rf "$out"
 mkdir -p "$out/wasm" "$out/bundle"

@@ -462,11 +462,8 @@ pub fn run_parity_on(
 /// `--nocapture`).
 pub fn run_parity(dir: &Path, checks: &[Check]) -> Report {
     let opts = ParityOptions {
-        checks: if checks.is_empty() {
-            Check::ALL.to_vec()
-        } else {
-            checks.to_vec()
-        },
+        // empty: every check that applies to the bundle
+        checks: checks.to_vec(),
         ..Default::default()
     };
     let mut log = |m: &str| eprintln!("parity: {m}");

@@ -213,25 +213,23 @@ fn magnitude_passes_and_a_perturbed_weight_fails(src: &std::path::Path, broken: 
         "values near 40 a few ulps apart must pass the scaled bounds:\n{}",
         failures.join("\n")
     );
-    // every graph was compared at a scale well above 1 (a row reports the scale of its worst step,
-    // which need not be the step with the largest values), and some errors are above the absolute 1e-5
+    // every graph was compared near the magnified magnitude (40: scale > 30), and in every graph
+    // some row's absolute error is above its bound yet passes at its scale (issue 38 item 9: the
+    // thresholds had been lowered to a scale > 4 and one such row in the whole report)
     for g in &graphs {
         let rows = report.rows_for(Check::Graph, g);
         assert!(
             rows.iter()
-                .any(|r| r.comparison.starts_with("ort vs") && r.scale > 4.0),
-            "{g}: no ort row judged at a scale above 4"
+                .any(|r| r.comparison.starts_with("ort vs") && r.scale > 30.0),
+            "{g}: no ort row judged at a scale above 30"
+        );
+        assert!(
+            rows.iter().any(|r| r.comparison.starts_with("ort vs")
+                && r.error > r.bound
+                && r.pass),
+            "{g}: no ort row with an absolute error above its bound: the test does not exercise the scale"
         );
     }
-    let over_absolute = report
-        .rows
-        .iter()
-        .filter(|r| r.comparison.starts_with("ort vs") && r.error > r.bound && r.pass)
-        .count();
-    assert!(
-        over_absolute > 0,
-        "no row had an absolute error above its bound: the test does not exercise the scale"
-    );
 
     let bad = tmp.path().join("magnified-perturbed");
     let change = break_bundle(&big, &bad, broken, &Breakage::PerturbWeight { delta: 0.05 });
@@ -315,11 +313,14 @@ fn f16_scaled_bound_passes_near_40_and_catches_a_perturbed_weight() {
         report
             .rows
             .iter()
-            .any(|r| r.comparison.starts_with("ort vs") && r.scale > 4.0),
-        "no row judged at a scale above 4"
+            .any(|r| r.comparison.starts_with("ort vs") && r.scale > 30.0),
+        "no row judged at a scale above 30"
     );
+    // the bound is stated once, from the scaled error (issue 38 item 4): the same perturbation the
+    // f32 tests catch (0.01-0.05) is caught in the f16 bundle too; with the bound stated from the
+    // absolute error and scaled again it took 0.5
     let bad = tmp.path().join("f16-perturbed");
-    break_bundle(&f16, &bad, BROKEN, &Breakage::PerturbWeight { delta: 0.5 });
+    break_bundle(&f16, &bad, BROKEN, &Breakage::PerturbWeight { delta: 0.02 });
     let report = run_parity(&bad, &[Check::Graph]);
     let failed: std::collections::BTreeSet<&str> =
         report.failures().iter().map(|r| r.what.as_str()).collect();

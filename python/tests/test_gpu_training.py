@@ -123,8 +123,35 @@ def test_training_steps_do_not_wait_for_the_gpu(tiny_corpus, tmp_path):
         short, _ = _stage_syncs(model, data, tcfg, name, 2, tmp_path)
         model.to("cpu")
         long, syncs = _stage_syncs(model, data, tcfg, name, 7, tmp_path)
+        # the premise: the counter sees the logging steps' syncs (0 == 0 would pass a counter that counts nothing)
+        assert short > 0, f"stage {name}: no host sync counted in 2 steps: the counter is not counting"
         assert long == short, f"stage {name}: {long - short} more host syncs in 5 more steps: {syncs}"
     model.to("cpu")
+
+
+def test_a_livegesture_sync_per_step_would_be_seen(tiny_corpus, tmp_path, monkeypatch):
+    """The LiveGesture check above fails on a loop that reads the loss at every step: the same count, with one
+    host sync injected per step, differs by exactly the 5 extra steps (issue 38 item 8: a positive control)."""
+    from dataclasses import replace
+
+    from livegesture import trainkit
+    from livegesture.train import TrainConfig, TrainData
+    real = trainkit.LossTrack.update
+
+    def update_and_read(self, loss):
+        real(self, loss)
+        float(loss.detach())
+    monkeypatch.setattr(trainkit.LossTrack, "update", update_and_read)
+    cfg = get_config("tiny")
+    tcfg = replace(TrainConfig.for_model("tiny"), log_every=1000, save_every=1000, dead_code_every=1000)
+    torch.manual_seed(0)
+    model = LiveGesture(cfg)
+    data = TrainData(tiny_corpus, cfg, None)
+    short, _ = _stage_syncs(model, data, tcfg, "svq1", 2, tmp_path)
+    model.to("cpu")
+    long, _ = _stage_syncs(model, data, tcfg, "svq1", 7, tmp_path)
+    model.to("cpu")
+    assert short > 0 and long - short == 5, (short, long)
 
 
 def test_diffsheg_steps_do_not_wait_for_the_gpu(tiny_corpus, tmp_path):
@@ -135,6 +162,7 @@ def test_diffsheg_steps_do_not_wait_for_the_gpu(tiny_corpus, tmp_path):
             train("tiny", str(tiny_corpus), str(tmp_path / f"s{steps}"), device="cuda",
                   overrides={"steps": steps, "batch": 2, "log_every": 1000, "save_every": 1000})
         counts.append(vc.count_syncs())
+    assert counts[0] > 0, f"no host sync counted in 2 steps: the counter is not counting ({counts})"
     assert counts[0] == counts[1], counts
 
 

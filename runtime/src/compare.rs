@@ -41,6 +41,8 @@ pub struct Diff {
     pub length_mismatch: Option<(usize, usize)>,
     /// The value pair `(got, reference)` at [`Diff::index`].
     pub values: Option<(f32, f32)>,
+    /// Tensors of different shapes or element types ([`diff_tensors`]): both, named.
+    pub shape_mismatch: Option<String>,
 }
 
 /// Compares `got` with `reference` element by element (see the module documentation).
@@ -87,6 +89,46 @@ pub fn diff(got: &[f32], reference: &[f32]) -> Diff {
         nonfinite,
         length_mismatch,
         values,
+        shape_mismatch: None,
+    }
+}
+
+/// Compares two tensors ([`crate::backend::Tensor`]): shapes and element types must match (else the
+/// comparison fails, naming both); float32 through [`diff`]; int64 (tokens, step counters) exactly,
+/// in integers, at scale 1 (any difference is >= 1, over every bound the project uses).
+pub fn diff_tensors(got: &crate::backend::Tensor, reference: &crate::backend::Tensor) -> Diff {
+    use crate::backend::TensorData;
+    if got.shape != reference.shape || got.dtype() != reference.dtype() {
+        let mut d = diff(&[], &[]);
+        d.shape_mismatch = Some(format!(
+            "got {} {:?}, reference {} {:?}",
+            got.dtype(),
+            got.shape,
+            reference.dtype(),
+            reference.shape
+        ));
+        return d;
+    }
+    match (&got.data, &reference.data) {
+        (TensorData::F32(a), TensorData::F32(b)) => diff(a, b),
+        (TensorData::I64(a), TensorData::I64(b)) => {
+            let mut d = diff(&[], &[]);
+            d.compared = a.len().min(b.len());
+            d.max_abs = 0.0;
+            for (i, (x, y)) in a.iter().zip(b).enumerate() {
+                let e = x.abs_diff(*y) as f64;
+                if d.index.is_none() || e > d.max_abs {
+                    d.max_abs = e;
+                    d.index = Some(i);
+                    d.values = Some((*x as f32, *y as f32));
+                }
+            }
+            if d.compared == 0 {
+                d.max_abs = f64::INFINITY;
+            }
+            d
+        }
+        _ => unreachable!("element types checked above"),
     }
 }
 
@@ -96,6 +138,7 @@ impl Diff {
     pub fn within(&self, bound: f64) -> bool {
         self.nonfinite.is_none()
             && self.length_mismatch.is_none()
+            && self.shape_mismatch.is_none()
             && self.compared > 0
             && self.max_abs <= bound * self.scale
     }
@@ -108,6 +151,9 @@ impl Diff {
     /// Why this comparison cannot pass any bound, if it cannot (non-finite value, nothing compared,
     /// lengths that differ).
     pub fn problem(&self) -> Option<String> {
+        if let Some(m) = &self.shape_mismatch {
+            return Some(format!("shapes or element types differ: {m}"));
+        }
         if let Some((g, r)) = self.length_mismatch {
             return Some(format!("lengths differ: got {g} values, reference {r}"));
         }
@@ -286,5 +332,52 @@ mod tests {
     #[should_panic(expected = "non-finite value: got[0]")]
     fn assert_within_panics_on_nan() {
         assert_within(&[f32::NAN], &[0.0], 1.0, "probe");
+    }
+
+    /// issue 38 item 2: tensors compared by their values as float32 (what the browser parity did)
+    /// passed an int64 off by one at magnitude 1e5 (scaled 1e-5) and a transposed shape; compared as
+    /// tensors both fail, as does another element type.
+    #[test]
+    fn tensors_are_compared_by_shape_type_and_integers_exactly() {
+        use crate::backend::Tensor;
+        let bound = 1e-4 + 1e-5;
+        let (a, b) = (vec![100_000i64, 7], vec![100_001i64, 7]);
+        let as_f32 = |v: &[i64]| v.iter().map(|&x| x as f32).collect::<Vec<_>>();
+        assert!(
+            diff(&as_f32(&a), &as_f32(&b)).within(bound),
+            "premise: the old way passed it"
+        );
+        let (ta, tb) = (
+            Tensor::i64(vec![2], a.clone()).unwrap(),
+            Tensor::i64(vec![2], b).unwrap(),
+        );
+        let d = diff_tensors(&ta, &tb);
+        assert!(
+            !d.within(bound) && d.max_abs == 1.0 && d.scale == 1.0,
+            "{d}"
+        );
+        assert!(diff_tensors(&ta, &ta).within(0.0));
+        // 2^24 + 1 and 2^24 are one float32: exact in integers
+        let big = |x| Tensor::i64(vec![1], vec![x]).unwrap();
+        assert!(!diff_tensors(&big((1 << 24) + 1), &big(1 << 24)).within(0.5));
+        // a transposed shape with the same values in order, and another element type, fail
+        let v: Vec<f32> = (0..6).map(|x| x as f32).collect();
+        let (s23, s32) = (
+            Tensor::f32(vec![2, 3], v.clone()).unwrap(),
+            Tensor::f32(vec![3, 2], v.clone()).unwrap(),
+        );
+        assert!(diff(&v, &v).within(bound), "premise: values alone agree");
+        let d = diff_tensors(&s23, &s32);
+        assert!(
+            !d.within(f64::MAX) && d.to_string().contains("shapes or element types differ"),
+            "{d}"
+        );
+        let d = diff_tensors(&ta, &Tensor::f32(vec![2], vec![100_000.0, 7.0]).unwrap());
+        assert!(!d.within(f64::MAX), "{d}");
+        // NaN and empty still fail
+        let n = Tensor::f32(vec![1], vec![f32::NAN]).unwrap();
+        assert!(!diff_tensors(&n, &n).within(f64::MAX));
+        let e = Tensor::i64(vec![0], vec![]).unwrap();
+        assert!(!diff_tensors(&e, &e).within(f64::MAX));
     }
 }

@@ -231,3 +231,57 @@ fn info_prints_the_runtime_versions() {
         "{line}"
     );
 }
+
+/// issue 38 item 1: a requested check that compares nothing fails, naming the check and why. Before,
+/// `--checks batch` on a DiffSHEG bundle and `--against ... --checks logmel` printed "all 0
+/// comparisons PASS", exited 0 and wrote a JUnit file with `tests="0"`.
+#[test]
+fn a_check_that_compares_nothing_fails_naming_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let tiny = common::tiny_bundle();
+    let d = common::diffsheg_tiny_bundle();
+    let cases: [(Vec<&str>, &str, &str); 2] = [
+        (
+            vec!["--bundle", d.to_str().unwrap(), "--checks", "batch"],
+            "batch",
+            "does not apply to a diffsheg bundle",
+        ),
+        (
+            vec![
+                "--bundle",
+                tiny.to_str().unwrap(),
+                "--against",
+                tiny.to_str().unwrap(),
+                "--checks",
+                "logmel",
+            ],
+            "logmel",
+            "--against compares graph, rollout only",
+        ),
+    ];
+    for (k, (args, check, why)) in cases.into_iter().enumerate() {
+        let xml = tmp.path().join(format!("{k}.xml"));
+        let mut all = vec!["parity", "--backends", "tract"];
+        all.extend(args);
+        all.extend(["--junit", xml.to_str().unwrap()]);
+        let o = run(&all);
+        let t = text(&o);
+        assert_eq!(o.status.code(), Some(1), "{t}");
+        assert!(!t.contains("all 0 comparisons PASS"), "{t}");
+        assert!(
+            t.contains(&format!("FAIL {check} "))
+                && t.contains("compared nothing")
+                && t.contains(why),
+            "{t}"
+        );
+        let cases = testcases(&xml);
+        assert_eq!(cases.len(), 1, "{cases:?}");
+        assert!(
+            cases[0].2.as_deref().unwrap_or("").contains(why),
+            "{cases:?}"
+        );
+        assert!(!std::fs::read_to_string(&xml)
+            .unwrap()
+            .contains(r#"tests="0""#));
+    }
+}

@@ -12,8 +12,8 @@ use livegesture::bundle::Bundle;
 use livegesture::model::{self, MotionModel, MotionStream, StreamJob, StreamOptions};
 use livegesture::output::Frame;
 
-/// tract's batched-vs-alone bound (docs/parity.md, "approximate").
-const BOUND: f32 = 1e-4;
+/// tract's batched-vs-alone bound (docs/parity.md, "approximate"), scaled like every bound.
+const BOUND: f64 = 1e-4;
 
 fn load(dir: std::path::PathBuf) -> (Bundle, Box<dyn MotionModel>) {
     let bundle = Bundle::load(dir).expect("test bundle loads");
@@ -34,22 +34,49 @@ fn alone(m: &dyn MotionModel, opts: &StreamOptions, a: &[f32]) -> Vec<Frame> {
     out
 }
 
-fn max_diff(a: &[Frame], b: &[Frame]) -> f32 {
-    assert_eq!(a.len(), b.len(), "frame counts differ");
-    let mut worst = 0f32;
-    for (x, y) in a.iter().zip(b) {
-        assert_eq!(x.index, y.index);
-        for (p, q) in x
-            .poses
-            .iter()
-            .chain(&x.trans)
-            .chain(&x.expressions)
-            .zip(y.poses.iter().chain(&y.trans).chain(&y.expressions))
-        {
-            worst = worst.max((p - q).abs());
+/// The scaled difference of two frame sequences through the shared comparison
+/// ([`common::frames_diff`], every field incl. foot contact): infinite when a value is NaN or Inf on
+/// either side, nothing is compared, or the counts or indices differ (a plain `f32::max` fold drops
+/// NaN, so NaN frames used to pass as identical).
+fn max_diff(a: &[Frame], b: &[Frame]) -> f64 {
+    common::frames_diff(a, b).1.scaled_error()
+}
+
+/// The comparison the tests use fails on NaN on either side, where the `f32::max` fold it replaced
+/// reported 0 (issue 38 item 3: the old fold is kept here to show both outcomes).
+#[test]
+fn the_frame_comparison_fails_on_nan() {
+    fn old_max_diff(a: &[Frame], b: &[Frame]) -> f32 {
+        let mut worst = 0f32;
+        for (x, y) in a.iter().zip(b) {
+            for (p, q) in x.poses.iter().zip(&y.poses) {
+                worst = worst.max((p - q).abs());
+            }
         }
+        worst
     }
-    worst
+    let (bundle, m) = load(common::tiny_bundle());
+    let frames = alone(m.as_ref(), &opts(1, None), &audio(&bundle, 0, 16000));
+    let nan: Vec<Frame> = frames
+        .iter()
+        .map(|f| {
+            let mut f = f.clone();
+            f.poses.iter_mut().for_each(|v| *v = f32::NAN);
+            f
+        })
+        .collect();
+    assert_eq!(
+        old_max_diff(&nan, &frames),
+        0.0,
+        "premise: the old fold passed NaN frames"
+    );
+    assert!(max_diff(&nan, &frames).is_infinite());
+    assert!(max_diff(&frames, &nan).is_infinite());
+    assert_eq!(max_diff(&frames, &frames), 0.0);
+    common::assert_nan_fails_either_side("step_many comparison", &frames, &frames, |g, w| {
+        let d = max_diff(g, w);
+        assert!(d <= BOUND, "{}", common::frames_diff(g, w).1)
+    });
 }
 
 /// Steps `plans` together: every round pushes each stream's next chunk (chunk sizes differ per

@@ -1,5 +1,6 @@
 //! The committed header `include/livegesture.h` is what cbindgen generates from `src/lib.rs` now.
-//! After changing the API, regenerate it: `LIVEGESTURE_BLESS=1 cargo test -p livegesture-c --test header`.
+//! After changing the API, regenerate it: `LIVEGESTURE_BLESS=1 cargo test -p livegesture-c --test header`
+//! (which rewrites a stale header and fails; rerun without it to check the rewrite).
 
 use std::path::Path;
 
@@ -37,21 +38,55 @@ fn first_difference(committed: &str, fresh: &str) -> Option<String> {
     unreachable!()
 }
 
+/// With `bless`, a stale header is rewritten and the run still fails (so a test run with
+/// LIVEGESTURE_BLESS set cannot pass a stale header; the next run without it checks the rewrite);
+/// without, a difference fails naming the first differing line.
+fn check_or_bless(path: &Path, fresh: &str, bless: bool) -> Result<(), String> {
+    let committed = std::fs::read_to_string(path).unwrap_or_default();
+    let Some(diff) = first_difference(&committed, fresh) else {
+        return Ok(());
+    };
+    if bless {
+        std::fs::write(path, fresh).map_err(|e| format!("writing {}: {e}", path.display()))?;
+        return Err(format!(
+            "{} was stale ({diff}) and has been rewritten (LIVEGESTURE_BLESS); review and commit it, \
+             then rerun without LIVEGESTURE_BLESS",
+            path.display()
+        ));
+    }
+    Err(format!(
+        "{} is not what cbindgen generates from src/lib.rs ({diff}); regenerate it with \
+         LIVEGESTURE_BLESS=1 cargo test -p livegesture-c --test header",
+        path.display()
+    ))
+}
+
+/// issue 38 item 10: blessing a stale header used to return before any check (the test passed);
+/// now it rewrites the file and fails. A current header passes either way.
+#[test]
+fn blessing_a_stale_header_fails() {
+    let dir = std::env::temp_dir().join(format!("lg-header-bless-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("h.h");
+    std::fs::write(&path, "old\n").unwrap();
+    let e = check_or_bless(&path, "new\n", true).expect_err("a blessed stale header passed");
+    assert!(e.contains("rewritten"), "{e}");
+    assert_eq!(std::fs::read_to_string(&path).unwrap(), "new\n");
+    assert!(check_or_bless(&path, "new\n", true).is_ok());
+    assert!(check_or_bless(&path, "newer\n", false).is_err());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 #[test]
 fn committed_header_equals_a_fresh_generation() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("include/livegesture.h");
     let fresh = fresh_header();
-    if std::env::var_os("LIVEGESTURE_BLESS").is_some() {
-        std::fs::write(&path, &fresh).expect("writing the header");
-        return;
-    }
-    let committed = std::fs::read_to_string(&path).unwrap_or_default();
-    if let Some(diff) = first_difference(&committed, &fresh) {
-        panic!(
-            "{} is not what cbindgen generates from src/lib.rs ({diff}); regenerate it with \
-             LIVEGESTURE_BLESS=1 cargo test -p livegesture-c --test header",
-            path.display()
-        );
+    if let Err(e) = check_or_bless(
+        &path,
+        &fresh,
+        std::env::var_os("LIVEGESTURE_BLESS").is_some(),
+    ) {
+        panic!("{e}");
     }
     // the header declares every entry point
     for f in [

@@ -373,6 +373,9 @@ fn diffsheg_rollout(
     Ok(())
 }
 
+/// The checks `--against` runs; any other requested check is a failed row that says so.
+pub const AGAINST_CHECKS: [Check; 2] = [Check::Graph, Check::Rollout];
+
 /// Checks the bundle in `new` against the bundle in `old` (module docs) on the first of
 /// `opts.backends` (ort when it runs). Errors on bad input: a bundle that does not load, bundles of
 /// different families or with no graph in common, missing reference files of the old bundle.
@@ -433,7 +436,13 @@ pub fn against(
         o.frames_bound,
         o.token_agreement
     ));
-    let want = |c: Check| opts.checks.contains(&c);
+    // no check named: every check --against runs
+    let checks = if opts.checks.is_empty() {
+        AGAINST_CHECKS.to_vec()
+    } else {
+        opts.checks.clone()
+    };
+    let want = |c: Check| checks.contains(&c);
     if want(Check::Graph) {
         let t = Instant::now();
         let n = graph_rows_against(
@@ -486,6 +495,12 @@ pub fn against(
             t.elapsed().as_secs_f64()
         ));
     }
+    // a requested check --against does not run (logmel, chunks, batch) is a failed row saying so
+    super::report::fail_checks_without_rows(
+        &mut rows,
+        &checks,
+        super::why_no_rows(new.family(), Some(&AGAINST_CHECKS[..])),
+    );
     Ok(Report {
         bundle: new.dir().to_path_buf(),
         backends: vec![kind.to_string()],

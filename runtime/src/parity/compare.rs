@@ -171,6 +171,7 @@ impl MaxAbs {
                     nonfinite: None,
                     length_mismatch: None,
                     values: None,
+                    shape_mismatch: None,
                 };
                 for (i, (x, y)) in a.iter().zip(b).enumerate() {
                     let e = (*x as f64 - *y as f64).abs();

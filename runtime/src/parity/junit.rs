@@ -32,9 +32,12 @@ fn write(report: &Report) -> std::io::Result<String> {
     let mut w = Writer::new_with_indent(Cursor::new(Vec::new()), b' ', 2);
     let failures = report.failures().len();
     w.write_event(Event::Decl(BytesDecl::new("1.0", Some("UTF-8"), None)))?;
+    // an empty report is written as one failed case (below), never as `tests="0"`
     let (tests, fails, secs) = (
-        report.rows.len().to_string(),
-        failures.to_string(),
+        report.rows.len().max(1).to_string(),
+        failures
+            .max(usize::from(report.rows.is_empty()))
+            .to_string(),
         format!("{:.3}", report.seconds),
     );
     let bundle = xml_safe(&report.bundle.display().to_string());
@@ -47,6 +50,32 @@ fn write(report: &Report) -> std::io::Result<String> {
             ("time", secs.as_str()),
         ],
     )))?;
+    if report.rows.is_empty() {
+        // nothing compared proves nothing: one failed case says so (never `tests="0"`)
+        w.write_event(Event::Start(BytesStart::new("testsuite").with_attributes(
+            [
+                ("name", "parity"),
+                ("tests", "1"),
+                ("failures", "1"),
+                ("errors", "0"),
+                ("skipped", "0"),
+            ],
+        )))?;
+        w.write_event(Event::Start(BytesStart::new("testcase").with_attributes([
+            ("classname", "parity"),
+            ("name", "nothing compared"),
+            ("time", "0"),
+        ])))?;
+        w.write_event(Event::Empty(BytesStart::new("failure").with_attributes([
+            (
+                "message",
+                "the parity run compared nothing (0 rows): it proves nothing",
+            ),
+            ("type", "nothing compared"),
+        ])))?;
+        w.write_event(Event::End(BytesEnd::new("testcase")))?;
+        w.write_event(Event::End(BytesEnd::new("testsuite")))?;
+    }
     for check in Check::ALL {
         let rows: Vec<&Row> = report.rows.iter().filter(|r| r.check == check).collect();
         if rows.is_empty() {
@@ -232,5 +261,27 @@ mod tests {
             "{failure_text}"
         );
         assert!(!xml.contains('\u{1}'));
+    }
+
+    /// A report with nothing in it is not `tests="0"` with no failure (what it was before): it is
+    /// one failed case saying nothing was compared.
+    #[test]
+    fn an_empty_report_is_a_failed_case() {
+        let report = Report {
+            bundle: "b".into(),
+            backends: vec!["ort".into()],
+            rows: vec![],
+            notes: vec![],
+            divergences: vec![],
+            runtimes: vec![],
+            seconds: 0.0,
+        };
+        let xml = junit_xml(&report);
+        assert!(!xml.contains(r#"tests="0""#), "{xml}");
+        assert!(!xml.contains(r#"failures="0""#), "{xml}");
+        assert!(
+            xml.contains("<failure") && xml.contains("compared nothing"),
+            "{xml}"
+        );
     }
 }

@@ -55,7 +55,7 @@ mod reference;
 mod report;
 mod rollout;
 
-pub use against::{against, AgainstInputError, AgainstOptions};
+pub use against::{against, AgainstInputError, AgainstOptions, AGAINST_CHECKS};
 pub use divergence::{
     find_divergence, replay_uniform, sampling_margin, Divergence, Margin, RolloutTrace,
     SamplingParams,
@@ -189,6 +189,41 @@ impl std::str::FromStr for Check {
     }
 }
 
+/// The checks that apply to a bundle of `family` (docs/parity.md): DiffSHEG has no batched stepping.
+pub fn family_checks(family: crate::bundle::Family) -> &'static [Check] {
+    match family {
+        crate::bundle::Family::LiveGesture => &Check::ALL,
+        crate::bundle::Family::DiffSheg => {
+            &[Check::Graph, Check::Rollout, Check::Logmel, Check::Chunks]
+        }
+    }
+}
+
+/// Why a requested check of a run produced no row: it does not apply to the family (or to
+/// `--against`, whose checks are `against_checks`), or it ran and compared nothing.
+fn why_no_rows(
+    family: crate::bundle::Family,
+    against_checks: Option<&[Check]>,
+) -> impl Fn(Check) -> String + '_ {
+    move |c| {
+        let names = |cs: &[Check]| cs.iter().map(|c| c.name()).collect::<Vec<_>>().join(", ");
+        let of_family = family_checks(family);
+        if !of_family.contains(&c) {
+            format!(
+                "it does not apply to a {family} bundle (its checks: {})",
+                names(of_family)
+            )
+        } else if let Some(a) = against_checks.filter(|a| !a.contains(&c)) {
+            format!(
+                "--against compares {} only (run '{c}' without --against)",
+                names(a)
+            )
+        } else {
+            "it ran but produced no comparison".into()
+        }
+    }
+}
+
 /// What to run.
 #[derive(Debug, Clone)]
 pub struct ParityOptions {
@@ -196,7 +231,9 @@ pub struct ParityOptions {
     pub backends: Vec<BackendKind>,
     /// Settings of the ort backend (library, execution provider, threads).
     pub ort: BackendOptions,
-    /// Checks to run (all by default).
+    /// Checks to run; empty (the default): every check that applies to the bundle's family
+    /// ([`family_checks`]; with `--against`, [`AGAINST_CHECKS`]). A check named here that does not
+    /// apply, or that compares nothing, is a failed row naming it.
     pub checks: Vec<Check>,
     /// Seconds of the reference clip used by the chunk and batch checks.
     pub chunk_seconds: f64,
@@ -213,7 +250,7 @@ impl Default for ParityOptions {
                 kind: BackendKind::Ort,
                 ..Default::default()
             },
-            checks: Check::ALL.to_vec(),
+            checks: Vec::new(),
             chunk_seconds: 3.0,
             form: GraphForm::Auto,
         }
@@ -265,6 +302,17 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
     });
     kinds.dedup();
     anyhow::ensure!(!kinds.is_empty(), "no backend selected");
+    // no check named: every check of the family
+    let resolved;
+    let opts = if opts.checks.is_empty() {
+        resolved = ParityOptions {
+            checks: family_checks(bundle.family()).to_vec(),
+            ..opts.clone()
+        };
+        &resolved
+    } else {
+        opts
+    };
     let mut backends: Vec<(BackendKind, Box<dyn Backend>)> = Vec::new();
     for k in &kinds {
         let o = BackendOptions {
@@ -312,6 +360,11 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
         },
     )?;
     if other {
+        report::fail_checks_without_rows(
+            &mut rows,
+            &opts.checks,
+            why_no_rows(bundle.family(), None),
+        );
         return Ok(Report {
             bundle: bundle.dir().to_path_buf(),
             backends: kinds.iter().map(|k| k.to_string()).collect(),
@@ -509,6 +562,7 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
         }
         log(&format!("batch: {:.1} s", t.elapsed().as_secs_f64()));
     }
+    report::fail_checks_without_rows(&mut rows, &opts.checks, why_no_rows(bundle.family(), None));
     Ok(Report {
         bundle: bundle.dir().to_path_buf(),
         backends: kinds.iter().map(|k| k.to_string()).collect(),

@@ -210,9 +210,10 @@ pub struct Report {
 }
 
 impl Report {
-    /// True when every row passed.
+    /// True when there is at least one row and every row passed: a report with nothing compared
+    /// proves nothing and fails.
     pub fn passed(&self) -> bool {
-        self.rows.iter().all(|r| r.pass)
+        !self.rows.is_empty() && self.rows.iter().all(|r| r.pass)
     }
 
     /// The rows that failed.
@@ -348,7 +349,13 @@ impl Report {
             }
             s.push('\n');
         }
-        if failures.is_empty() {
+        if self.rows.is_empty() {
+            s.push_str(&format!(
+                "parity: FAIL: nothing compared (0 comparisons; {}; {:.1} s): the run proves nothing\n",
+                self.backends.join(", "),
+                self.seconds
+            ));
+        } else if failures.is_empty() {
             s.push_str(&format!(
                 "parity: all {} comparisons PASS ({}; {:.1} s)\n",
                 self.rows.len(),
@@ -365,6 +372,31 @@ impl Report {
             ));
         }
         s
+    }
+}
+
+/// Appends a failed row for every check of `requested` that produced no row: a requested check that
+/// compared nothing proves nothing, so it fails, naming the check and `why` it has nothing (a check
+/// that does not apply to the bundle's family or to `--against`, or that ran nothing).
+pub(super) fn fail_checks_without_rows(
+    rows: &mut Vec<Row>,
+    requested: &[Check],
+    why: impl Fn(Check) -> String,
+) {
+    let mut seen = Vec::new();
+    for &c in requested {
+        if seen.contains(&c) || rows.iter().any(|r| r.check == c) {
+            continue;
+        }
+        seen.push(c);
+        rows.push(Row::failed(
+            c,
+            "(none)",
+            "-",
+            "(none)",
+            0.0,
+            format!("check '{c}' compared nothing: {}", why(c)),
+        ));
     }
 }
 
@@ -394,5 +426,64 @@ mod tests {
         m.add_slices(0, &[1.0], &[1.0], |_| "x".into());
         assert!(Row::max_abs(Check::Graph, "g", "ort vs torch", "out", &m, 1e-5).pass);
         assert!(token_row(Check::Rollout, "r", "c", &[vec![1]], &[vec![1]], None).pass);
+    }
+
+    fn report(rows: Vec<Row>) -> Report {
+        Report {
+            bundle: "b".into(),
+            backends: vec!["tract".into()],
+            rows,
+            notes: vec![],
+            divergences: vec![],
+            runtimes: vec![],
+            seconds: 0.0,
+        }
+    }
+
+    /// A report with nothing in it fails (before: `all` on no rows was true, "all 0 comparisons
+    /// PASS"); a requested check without rows becomes a failed row naming the check and why.
+    #[test]
+    fn an_empty_report_and_a_check_without_rows_fail() {
+        let empty = report(vec![]);
+        assert!(
+            empty.rows.iter().all(|r| r.pass),
+            "premise: the old verdict passed it"
+        );
+        assert!(!empty.passed());
+        assert!(
+            empty.summary().contains("FAIL: nothing compared"),
+            "{}",
+            empty.summary()
+        );
+        let mut m = MaxAbs::default();
+        m.add_slices(0, &[1.0], &[1.0], |_| "x".into());
+        let mut rows = vec![Row::max_abs(
+            Check::Graph,
+            "g",
+            "ort vs torch",
+            "out",
+            &m,
+            1e-5,
+        )];
+        fail_checks_without_rows(
+            &mut rows,
+            &[Check::Graph, Check::Batch, Check::Batch],
+            |c| format!("'{c}' does not apply here"),
+        );
+        let r = report(rows);
+        assert_eq!(r.rows.len(), 2, "one failed row per check without rows");
+        assert!(!r.passed());
+        let line = r.failures()[0].failure_line();
+        assert!(
+            line.contains("batch")
+                && line.contains("compared nothing")
+                && line.contains("does not apply"),
+            "{line}"
+        );
+        // a check with rows gets none added
+        let mut rows = r.rows[..1].to_vec();
+        fail_checks_without_rows(&mut rows, &[Check::Graph], |_| unreachable!());
+        assert_eq!(rows.len(), 1);
+        assert!(report(rows).passed());
     }
 }

@@ -18,6 +18,7 @@ keys named as ARKit names them, each animated, and the key values at a few frame
 """
 import ast
 import builtins
+import math
 import sys
 import zipfile
 from array import array
@@ -78,7 +79,19 @@ def global_rotations(poses_row):
 
 
 def max_abs(a, b):
-    return max(abs(a[i][k] - b[i][k]) for i in range(3) for k in range(3))
+    """The largest entry difference of two 3x3 matrices; infinite when any entry on either side is NaN or
+    Inf (a NaN difference would otherwise be skipped by `e > worst` and pass `worst > BOUND`)."""
+    d = [abs(a[i][k] - b[i][k]) for i in range(3) for k in range(3)]
+    return max(d) if all(math.isfinite(x) for x in d) else math.inf
+
+
+def self_check():
+    """The comparison fails a non-finite matrix (issue 38: the old `max` of differences returned a
+    finite value for a NaN entry after a larger one, and `nan > BOUND` is False)."""
+    eye = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    bad = [[1.0, 0.0, 0.0], [0.0, float("nan"), 0.0], [0.0, 0.0, 1.0]]
+    assert max_abs(bad, eye) == math.inf and max_abs(eye, bad) == math.inf
+    assert max_abs(eye, eye) == 0.0
 
 
 def world_deltas(arm, frame):
@@ -120,7 +133,7 @@ def check(label, arm, poses, first_frame, failures):
         other = global_rotations(poses[(t + t_len // 2) % t_len])  # deliberately the wrong frame
         for j, name in enumerate(NAMES):
             e = max_abs(got[name], want[j])
-            if e > worst:
+            if e > worst or worst_at is None:
                 worst, worst_at = e, (t, name)
             shifted_worst = max(shifted_worst, max_abs(got[name], other[j]))
     print(f"{label}: world rotations of all 55 joints at frames {frames}: max |error| {worst:.2e} (at {worst_at}); "
@@ -178,7 +191,11 @@ def main():
         print("usage: blender -b --python check_import.py -- M.glb M.bvh M.npz", file=sys.stderr)
         sys.exit(2)
     glb, bvh, npz = argv
+    self_check()
     poses = read_poses(npz)
+    if not all(math.isfinite(x) for row in poses for x in row):
+        print(f"FAILED: {npz}: non-finite poses", file=sys.stderr)
+        sys.exit(1)
     failures = []
     scene = bpy.context.scene
     # an empty scene at the motion's 30 fps (the glTF importer turns seconds into frames with it)

@@ -8,6 +8,7 @@ import pytest
 from bvh import Bvh
 
 from livegesture import skeleton
+from livegesture.compare import diff
 
 BOUND = 1e-5  # max abs difference of rotation matrix entries (angles are written with 6 decimals in degrees)
 
@@ -24,7 +25,7 @@ def rotation_error(mocap, poses):
     """Max abs difference between the BVH's joint rotations (as the reader parses them, per the
     channel order each joint declares) and the npz axis-angle as matrices."""
     want = skeleton.axis_angle_to_matrix_np(poses.reshape(len(poses), 55, 3))
-    worst = 0.0
+    got_all = np.full_like(want, np.nan)
     for j, name in enumerate(skeleton.JOINT_NAMES):
         chans = [c for c in mocap.joint_channels(name) if c.endswith("rotation")]
         vals = np.array(mocap.frames_joint_channels(name, chans), dtype=np.float64)
@@ -35,8 +36,10 @@ def rotation_error(mocap, poses):
                 got = np.eye(3)
                 for c, a in zip(chans, vals[t]):
                     got = got @ {"X": euler_zxy(0, a, 0), "Y": euler_zxy(0, 0, a), "Z": euler_zxy(a, 0, 0)}[c[0]]
-            worst = max(worst, np.abs(got - want[t, j]).max())
-    return worst
+            got_all[t, j] = got
+    # the shared comparison: a NaN on either side (or a joint never read) is an infinite error, where
+    # `max(worst, nan)` kept `worst`; entries of rotation matrices are <= 1, so the scale is 1
+    return diff(got_all, want).max_abs
 
 
 @pytest.fixture(scope="module")
@@ -72,10 +75,30 @@ def test_rotations_and_root_translation_equal_the_npz(outputs):
     err = rotation_error(mocap, poses)
     assert err <= BOUND, err
     pos = np.array(mocap.frames_joint_channels("pelvis", ["Xposition", "Yposition", "Zposition"]), dtype=np.float64)
-    np.testing.assert_allclose(pos, (npz["trans"] + skeleton.REST_OFFSETS[0]) * 100, atol=1e-3)
+    # not assert_allclose (equal_nan=True by default): the shared comparison, absolute 1e-3 cm
+    d = diff(pos, (npz["trans"] + skeleton.REST_OFFSETS[0]) * 100)
+    assert d.max_abs <= 1e-3 and d.within(1e-3), d
     # the check fails on a broken file: one joint's channels declared in another order
     broken = text
     i = broken.index("JOINT left_elbow")
     j = broken.index("CHANNELS 3 Zrotation Xrotation Yrotation", i)
     broken = broken[:j] + "CHANNELS 3 Xrotation Yrotation Zrotation" + broken[j + 40:]
     assert rotation_error(Bvh(broken), poses) > 1e-2
+
+
+def test_a_nan_rotation_fails_the_check(outputs):
+    """issue 38 item 5: one joint's rotation written as nan in one frame. The old fold
+    (`max(worst, nan)` keeps `worst`) passed it; the shared comparison fails it."""
+    text, npz = outputs
+    poses = npz["poses"].astype(np.float64)
+    lines = text.split("\n")
+    k = lines.index("MOTION") + 4  # a frame line in the middle of the motion
+    vals = lines[k].split()
+    vals[10] = "nan"
+    lines[k] = " ".join(vals)
+    broken = Bvh("\n".join(lines))
+    worst = 0.0
+    for v in [0.0, float("nan"), 0.0]:
+        worst = max(worst, v)
+    assert worst == 0.0, "premise: max() skips a NaN that comes second"
+    assert rotation_error(broken, poses) == float("inf")

@@ -17,6 +17,7 @@ import signal
 import socket
 import ssl
 import subprocess
+import math
 import time
 import urllib.request
 import wave
@@ -28,6 +29,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[3]
 USERS = 6           # concurrent clients, each running sessions back to back
 SESSIONS_EACH = 2   # sessions a client must complete
 SECONDS = 2.0       # speech per session, sent in real time
+FRAMES = math.ceil(SECONDS * 30)  # frames of a completed session (docs/output.md: ceil(duration x 30))
 ATTEMPT_TIMEOUT = 30.0
 
 
@@ -162,6 +164,34 @@ async def attempt(url, audio, ssl_ctx):
         return ws.close_code, done, frames
 
 
+def tally(log):
+    """What is wrong with the sessions of a run, from its log of (client, close code, done, frames): every
+    session completed (1000, done, exactly FRAMES frames) or was cut (1001, at most FRAMES frames), and
+    every client completed SESSIONS_EACH sessions. An empty list when nothing is."""
+    problems = [f"client {k}: close {c}" for k, c, _, _ in log if c not in (1000, 1001)]
+    problems += [f"client {k}: completed with done={d}, {f} frames (expected {FRAMES})"
+                 for k, c, d, f in log if c == 1000 and not (d and f == FRAMES)]
+    problems += [f"client {k}: cut after {f} frames (more than {FRAMES})" for k, c, _, f in log if c == 1001 and f > FRAMES]
+    for k in range(USERS):
+        n = sum(1 for e in log if e[0] == k and e[1] == 1000 and e[2] and e[3] == FRAMES)
+        if n < SESSIONS_EACH:
+            problems.append(f"client {k}: {n} sessions completed, expected {SESSIONS_EACH}")
+    return problems
+
+
+def test_tally_fails_what_the_old_count_passed():
+    """issue 38 item 7: sessions with too few frames, and a client that completed nothing while another
+    completed extra, passed `ok >= USERS * SESSIONS_EACH` (and `frames > 0`); the tally fails them."""
+    good = [(k, 1000, True, FRAMES) for k in range(USERS) for _ in range(SESSIONS_EACH)] + [(0, 1001, False, 12)]
+    assert tally(good) == []
+    bad = [(k, 1000, True, FRAMES - 1) for k in range(USERS) for _ in range(SESSIONS_EACH)]
+    assert sum(1 for e in bad if e[1] == 1000) >= USERS * SESSIONS_EACH and all(e[3] > 0 for e in bad)  # old: passes
+    assert any("expected 60" in p for p in tally(bad)), tally(bad)
+    skewed = [(0, 1000, True, FRAMES)] * (USERS * SESSIONS_EACH)
+    assert sum(1 for e in skewed if e[1] == 1000) >= USERS * SESSIONS_EACH  # old: passes
+    assert any("client 1: 0 sessions" in p for p in tally(skewed)), tally(skewed)
+
+
 async def user(k, urls, audio, ssl_ctx, log, restarted):
     """A client that runs sessions back to back until the rolling restart is over and it has completed
     SESSIONS_EACH, reconnecting after a 1001."""
@@ -171,7 +201,7 @@ async def user(k, urls, audio, ssl_ctx, log, restarted):
         code, done, frames = await asyncio.wait_for(attempt(url, audio, ssl_ctx), ATTEMPT_TIMEOUT)
         log.append((k, code, done, frames))
         if code == 1000:
-            assert done and frames > 0, (k, code, done, frames)
+            assert done and frames == FRAMES, f"client {k}: a completed session gave {frames} frames, expected {FRAMES}"
             completed += 1
         else:
             assert code == 1001, f"client {k}: session ended with close {code} (expected 1000 or 1001)"
@@ -220,7 +250,12 @@ def test_rolling_restart_behind_haproxy_loses_no_session(binary, bundle, tmp_pat
             restarts.append(("spread", spread))
             for n, p in enumerate(ports):
                 old = replicas[p]
-                live = await asyncio.to_thread(metric, p, "livegesture_sessions_active")
+                # a replica restarted with a session live, so that its drain (/healthz 503) is exercised
+                # and asserted for every replica (before: only `if live > 0`)
+                t = time.monotonic() + 20
+                while (live := await asyncio.to_thread(metric, p, "livegesture_sessions_active")) < 1:
+                    assert time.monotonic() < t, f"replica :{p} got no session to drain within 20 s"
+                    await asyncio.sleep(0.02)
                 old.proc.send_signal(signal.SIGTERM)
                 # within the drain delay (0.5 s) /healthz turns 503 (the balancer's check takes it out)
                 status = None
@@ -232,9 +267,7 @@ def test_rolling_restart_behind_haproxy_loses_no_session(binary, bundle, tmp_pat
                     await asyncio.sleep(0.05)
                 code = await asyncio.to_thread(old.stop)
                 restarts.append((p, live, status, code))
-                # with nothing to drain a replica exits at once (the balancer sees connection refused)
-                if live > 0:
-                    assert status == 503, f"replica :{p} /healthz said {status} while draining"
+                assert status == 503, f"replica :{p} /healthz said {status} while draining {live} sessions"
                 assert code == 0, f"replica :{p} exited {code}"
                 new = Replica(binary, bundle, p, tmp_path, n + 1)
                 replicas[p] = new
@@ -260,8 +293,8 @@ def test_rolling_restart_behind_haproxy_loses_no_session(binary, bundle, tmp_pat
         cut = sum(1 for e in log if e[1] == 1001)
         ok = sum(1 for e in log if e[1] == 1000)
         print(f"haproxy rolling restart: {ok} sessions completed, {cut} cut with 1001 and reconnected; {restarts}")
-        assert ok >= USERS * SESSIONS_EACH
-        assert all(e[1] in (1000, 1001) for e in log), log
+        problems = tally(log)
+        assert not problems, "\n".join(problems)
     finally:
         if hap is not None:
             hap.terminate()

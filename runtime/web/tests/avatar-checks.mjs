@@ -13,6 +13,7 @@ import { readFileSync, writeFileSync } from 'node:fs';
 import { join, resolve } from 'node:path';
 import { Quaternion, Vector3 } from 'three';
 import { makeTestVrm } from './make-vrm.mjs';
+import { diff } from './compare.mjs';
 
 const FIXTURE = JSON.parse(readFileSync(new URL('./skeleton.json', import.meta.url)));
 
@@ -112,16 +113,19 @@ export async function avatarChecks(page, { bin, bundle, wav, outDir, fail }) {
   };
   const a = await readFile(npz), b = await readFile(glb);
   if (a.n !== b.n) fail(`the .glb holds ${b.n} frames, the .npz ${a.n}`);
-  let worst = 0;
+  // compare.mjs: a NaN or a missing value fails (Math.max and `worst < 1e-5` on NaN did not)
+  const rotErr = [], transA = [], transB = [];
   for (let k = 0; k < a.at.length; k++) {
     for (let j = 0; j < 55; j++) {
       const qa = aaQuat(...a.frames[k].poses.slice(3 * j, 3 * j + 3)), qb = aaQuat(...b.frames[k].poses.slice(3 * j, 3 * j + 3));
-      worst = Math.max(worst, 1 - Math.abs(qa.dot(qb)));
+      rotErr.push(1 - Math.abs(qa.dot(qb)));
     }
-    for (let c = 0; c < 3; c++) worst = Math.max(worst, Math.abs(a.frames[k].trans[c] - b.frames[k].trans[c]));
+    transA.push(...a.frames[k].trans); transB.push(...b.frames[k].trans);
   }
-  console.log(`glTF in the browser: GLTFLoader read ${b.n} frames from ${glb}; rotations and translation vs the npz at frames ${a.at}: worst ${worst.toExponential(2)}`);
-  if (!(worst < 1e-5)) fail(`the .glb read by GLTFLoader differs from the npz (${worst})`);
+  const dRot = diff(rotErr, rotErr.map(() => 0), { absolute: true });
+  const dTrans = diff(transB, transA);
+  console.log(`glTF in the browser: GLTFLoader read ${b.n} frames from ${glb}; vs the npz at frames ${a.at}: rotations (1 - |q.q'|) ${dRot}; translation ${dTrans}`);
+  if (!dRot.within(1e-5) || !dTrans.within(1e-5)) fail(`the .glb read by GLTFLoader differs from the npz: rotations ${dRot}; translation ${dTrans}`);
 
   // 4. a VRM 1.0 avatar made here follows a WAV played through the server
   const vrmPath = join(outDir, 'test-humanoid.vrm');
@@ -144,33 +148,36 @@ export async function avatarChecks(page, { bin, bundle, wav, outDir, fail }) {
     samples.push(await page.evaluate((names) => window.lgAvatar.pose(names), vrmBones));
     await page.waitForTimeout(250);
   }
-  let worstAngle = 0, worstAt = '', worstAa = 0;
+  // every angle and jaw error through compare.mjs: NaN fails (`ang > worstAngle` and `> 0.01` skipped it)
+  const angles = [], where = [], aaGot = [], aaWant = [];
   const dirs = [];
   for (const s of samples) {
-    if (!s || !s.frame) fail('no frame or avatar pose to compare');
+    if (!s || !s.frame) { fail('no frame or avatar pose to compare'); continue; }
     const P = fk(SK, s.frame.poses, s.frame.trans);
     const idx = Object.fromEntries(SK.names.map((n, j) => [n, j]));
     const d = [];
     for (const [p, c, bp, bc] of BONE_PAIRS) {
       const ds = P[idx[c]].clone().sub(P[idx[p]]).normalize();
       const dv = new Vector3(...s.bones[bc]).sub(new Vector3(...s.bones[bp])).normalize();
-      const ang = ds.angleTo(dv);
-      if (ang > worstAngle) { worstAngle = ang; worstAt = `${p}->${c} vs ${bp}->${bc} at frame ${s.frame.index}`; }
+      angles.push(ds.angleTo(dv));
+      where.push(`${p}->${c} vs ${bp}->${bc} at frame ${s.frame.index}`);
       d.push(dv);
     }
     dirs.push(d);
-    const wantAa = Math.min(1, Math.max(0, s.frame.poses[66] / 0.3));
-    worstAa = Math.max(worstAa, Math.abs(s.aa - wantAa));
+    aaGot.push(s.aa);
+    aaWant.push(Math.min(1, Math.max(0, s.frame.poses[66] / 0.3)));
   }
+  const dAngle = diff(angles, angles.map(() => 0), { absolute: true });
+  const dAa = diff(aaGot, aaWant, { absolute: true });
   // the avatar moves: its bone directions change between the samples
-  let moved = 0;
-  for (let k = 1; k < dirs.length; k++) for (let i = 0; i < BONE_PAIRS.length; i++) moved = Math.max(moved, dirs[k][i].angleTo(dirs[0][i]));
-  const aas = samples.map((s) => s.aa.toFixed(3));
-  console.log(`VRM follows the motion: ${samples.length} samples over frames ${samples[0].frame.index}-${samples.at(-1).frame.index}, ` +
-    `worst bone direction error ${(worstAngle * 180 / Math.PI).toFixed(3)} deg (${worstAt}), avatar bones turned up to ${(moved * 180 / Math.PI).toFixed(1)} deg, ` +
-    `aa ${aas.join(' ')} (worst error ${worstAa.toExponential(2)})`);
-  if (worstAngle > 0.01) fail(`the avatar's bones do not point where the skeleton's do: ${worstAngle} rad at ${worstAt}`);
-  if (worstAa > 1e-4) fail(`the avatar's aa does not follow the jaw (error ${worstAa})`);
-  if (moved < 0.02) fail(`the avatar did not move (bone directions changed by ${moved} rad)`);
+  const movedAll = [];
+  for (let k = 1; k < dirs.length; k++) for (let i = 0; i < BONE_PAIRS.length; i++) movedAll.push(dirs[k][i].angleTo(dirs[0][i]));
+  const moved = movedAll.length && movedAll.every(Number.isFinite) ? Math.max(...movedAll) : NaN;
+  const aas = samples.map((s) => Number(s && s.aa).toFixed(3));
+  console.log(`VRM follows the motion: ${samples.length} samples, bone direction error (rad) ${dAngle} (${where[dAngle.index] || '-'}), ` +
+    `avatar bones turned up to ${(moved * 180 / Math.PI).toFixed(1)} deg, aa ${aas.join(' ')} (error ${dAa})`);
+  if (!dAngle.within(0.01)) fail(`the avatar's bones do not point where the skeleton's do: ${dAngle} at ${where[dAngle.index]}`);
+  if (!dAa.within(1e-4)) fail(`the avatar's aa does not follow the jaw: ${dAa}`);
+  if (!(moved >= 0.02)) fail(`the avatar did not move (bone directions changed by ${moved} rad)`);
   await page.screenshot({ path: join(outDir, 'vrm.png') });
 }

@@ -11,6 +11,7 @@ import { readFileSync } from 'node:fs';
 import { Quaternion, Vector3 } from 'three';
 import { createRetarget, MAIN_CHILD, SMPLX_TO_VRM, VRM_PARENT, jawToAa, aaToQuat, JAW_OPEN_FULL } from '../src/retarget.js';
 import { TEST_VRM_REST } from './make-vrm.mjs';
+import { diff } from './compare.mjs';
 
 const SK = JSON.parse(readFileSync(new URL('./skeleton.json', import.meta.url)));
 const N = SK.names.length;
@@ -68,18 +69,21 @@ function randomPoses(seed, scale = 0.6) {
   return poses;
 }
 
-// the worst angle (radians) between SMPL-X and avatar bone directions; `turn` maps avatar frame -> project frame
+// the worst angle (radians) between SMPL-X and avatar bone directions; `turn` maps avatar frame -> project frame.
+// Every angle goes through compare.mjs (absolute): a NaN direction makes `worst` infinite (an `a > worst`
+// fold skipped it and reported the rest as the worst).
 function worstDirection(rest, result, poses, trans, turn = (v) => v) {
   const { P } = smplFK(poses, trans);
   const V = vrmFK(rest, result.rotations, result.hipsOffset);
-  let worst = 0, at = null;
+  const angles = [], names = [];
   for (const [p, c, bp, bc] of pairs(rest)) {
     const ds = P[c].clone().sub(P[p]).normalize();
     const dv = turn(V[bc].clone().sub(V[bp])).normalize();
-    const a = ds.angleTo(dv);
-    if (a > worst) { worst = a; at = `${SK.names[p]}->${SK.names[c]} / ${bp}->${bc}`; }
+    angles.push(ds.angleTo(dv));
+    names.push(`${SK.names[p]}->${SK.names[c]} / ${bp}->${bc}`);
   }
-  return { worst, at, n: pairs(rest).length };
+  const d = diff(angles, angles.map(() => 0), { absolute: true });
+  return { worst: d.maxAbs, at: `${names[d.index]} (${d})`, n: angles.length, d };
 }
 
 const smplRest = () => {
@@ -140,8 +144,21 @@ test('the check fails a naive retargeting that copies local rotations (rest-pose
   const poses = randomPoses(9);
   const naive = { rotations: {}, hipsOffset: new Vector3() };
   for (const [j, name] of SK.names.entries()) if (SMPLX_TO_VRM[name]) naive.rotations[SMPLX_TO_VRM[name]] = aaToQuat(poses[3 * j], poses[3 * j + 1], poses[3 * j + 2]);
-  const { worst } = worstDirection(TEST_VRM_REST, naive, poses, [0, 0, 0]);
-  assert.ok(worst > 0.02, `naive retargeting off by only ${worst} rad`);
+  const { worst, d } = worstDirection(TEST_VRM_REST, naive, poses, [0, 0, 0]);
+  assert.ok(d.problem === null && worst > 0.02, `naive retargeting off by only ${worst} rad`);
+});
+
+test('the check fails a retargeting with a NaN rotation (issue 38: the old `a > worst` fold passed it)', () => {
+  const rt = createRetarget(SK, TEST_VRM_REST, { metaVersion: '1.0' });
+  const poses = randomPoses(1);
+  const r = rt.apply(poses, [0, 0, 0]);
+  const bone = Object.keys(r.rotations).find((b) => b.startsWith('leftLower'));
+  r.rotations[bone] = r.rotations[bone].clone().set(NaN, NaN, NaN, NaN);
+  const { worst, d } = worstDirection(TEST_VRM_REST, r, poses, [0, 0, 0]);
+  // the old fold (`if (a > worst) worst = a`) skips NaN angles: it reported 0 for [0, NaN, 0]
+  assert.equal([0, NaN, 0].reduce((w, a) => (a > w ? a : w), 0), 0);
+  assert.ok(!(worst < 1e-4), `a NaN rotation passed: ${worst}`);
+  assert.match(String(d), /non-finite/);
 });
 
 test('VRM 0.x (facing -Z): the same motion, turned half about Y', () => {

@@ -9,18 +9,20 @@
 //
 // Checks, each failing the run with a message:
 //  1. parity of each --parity bundle in the browser: every graph vs its reference vectors, the whole
-//     reference rollout (window.livegestureTest.parity(): no FAIL line, some PASS lines);
+//     reference rollout (window.livegestureTest.parity(): every line PASS, one for every graph of the
+//     manifest and for the rollout);
 //  2. each --broken bundle (one weight perturbed, sha256 fixed up): parity fails, naming the graph;
 //  3. the microphone path in wasm mode: frames arrive, the joints move, no request leaves the host;
-//  4. the WAV through window.livegestureTest.generate: ceil(duration x 30) frames, within 1e-3 of
-//     native tract's frames (--native, `livegesture generate --backend tract --seed S`) on >= 90 %
-//     of frames; where they part, the first differing frame and token are reported;
+//  4. the WAV through window.livegestureTest.generate: ceil(duration x 30) frames, every frame within
+//     1e-4 (scaled, SPEC 7) of native tract's frames (--native, `livegesture generate --backend tract
+//     --seed S`), none non-finite (compare.mjs); where they part, the first token is reported and fails;
 //  5. with --serve BIN: `livegesture serve --web-dir SITE` and its /?engine=wasm (microphone, no WebSocket).
 import { spawn } from 'node:child_process';
 import { mkdirSync, readFileSync, writeFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { inflateRawSync } from 'node:zlib';
 import { launchChromium, openPage as openPageAt, serveStatic, wavLength } from './harness.mjs';
+import { diff } from './compare.mjs';
 
 const args = { parity: [], broken: [] };
 const argv = process.argv.slice(2);
@@ -53,7 +55,14 @@ try {
     else {
       note(`parity of ${b} in chromium (${secs} s): ${r.passed} passed, ${r.failed} failed`);
       for (const l of r.lines) if (l.startsWith('FAIL') || /rollout tokens/.test(l)) note(`  ${l}`);
-      if (r.failed !== 0 || r.passed < 3) fail(`parity of ${b}: ${r.failed} failed, ${r.passed} passed`);
+      // every row: no FAIL, every line a PASS, and a PASS line for every graph of the manifest and
+      // for the rollout (before: `passed >= 3` of ~111 rows was enough)
+      const manifest = JSON.parse(readFileSync(join(args.site, b, 'manifest.json'), 'utf8'));
+      const graphs = (manifest.graphs || []).map((g) => g.name);
+      const missing = graphs.filter((g) => !r.lines.some((l) => l.startsWith(`PASS graph ${g} `)));
+      if (!r.lines.some((l) => l.startsWith('PASS rollout'))) missing.push('rollout');
+      if (r.failed !== 0 || r.passed !== r.lines.length || r.passed === 0 || graphs.length === 0 || missing.length)
+        fail(`parity of ${b}: ${r.failed} failed, ${r.passed} passed of ${r.lines.length} lines; no PASS row for: ${missing.join(', ') || '-'}`);
     }
     await page.close();
   }
@@ -107,7 +116,7 @@ try {
     note(`generate in chromium: ${r.frames} frames for ${(samples / rate).toFixed(3)} s (ceil(duration x 30) = ${want}) in ${(r.ms / 1000).toFixed(1)} s`);
     if (r.frames !== want) fail(`generate: ${r.frames} frames, expected ${want}`);
     if (r.poses.length !== r.frames * 165 || r.trans.length !== r.frames * 3 || r.expressions.length !== r.frames * 100) fail('generate: array lengths do not match the frame count');
-    if (args.native) compareNative(r, readNpz(readFileSync(args.native)));
+    if (args.native) for (const e of compareNative(r, readNpz(readFileSync(args.native)))) fail(`generate vs native tract: ${e}`);
     await page.close();
   }
 
@@ -154,23 +163,32 @@ process.exitCode = failures ? 1 : 0;
 
 // ------------------------------------------------------------------ helpers
 
-function compareNative(got, npz) {
-  const T = npz.poses.shape[0];
-  if (T !== got.frames) { fail(`native tract has ${T} frames, the browser ${got.frames}`); return; }
-  let within = 0, firstDiff = -1, worst = 0;
-  for (let t = 0; t < T; t++) {
-    let m = 0;
-    for (const [k, w] of [['poses', 165], ['trans', 3], ['expressions', 100]]) {
-      const a = got[k], b = npz[k].data;
-      for (let i = t * w; i < (t + 1) * w; i++) m = Math.max(m, Math.abs(a[i] - b[i]));
+// SPEC 7 (targets): tract in WebAssembly vs native tract keeps every frame within 1e-4 (scaled) until
+// the first token divergence, and no value is non-finite. The page exposes neither tokens nor logits,
+// so a divergence cannot be shown to be a near-tie here: every frame must be within the bound (what
+// docs/wasm.md measured), and the first token whose frames are not is reported and fails. Each token
+// (4 frames) of each field is one comparison (compare.mjs: NaN/Inf, empty, length mismatch fail).
+const WASM_FRAMES_BOUND = 1e-4;
+function compareNative(got, npz, frames = 4) {
+  const T = npz.poses?.shape?.[0];
+  if (T !== got.frames) return [`native tract has ${T} frames, the browser ${got.frames}`];
+  const errs = [];
+  let firstBad = -1, worst = 0, worstAt = '';
+  for (const [k, w] of [['poses', 165], ['trans', 3], ['expressions', 100]]) {
+    const a = got[k], b = npz[k].data;
+    const whole = diff(a, b, { shape: [got.frames, w], refShape: npz[k].shape });
+    if (whole.problem) { errs.push(`${k}: ${whole}`); continue; }
+    for (let t0 = 0; t0 < T; t0 += frames) {
+      const d = diff(a.slice(t0 * w, Math.min(T, t0 + frames) * w), b.slice(t0 * w, Math.min(T, t0 + frames) * w));
+      if (d.scaledError > worst) { worst = d.scaledError; worstAt = `${k}, token ${t0 / frames}`; }
+      if (!d.within(WASM_FRAMES_BOUND) && (firstBad < 0 || t0 / frames < firstBad)) firstBad = t0 / frames;
     }
-    worst = Math.max(worst, m);
-    if (m <= 1e-3) within++; else if (firstDiff < 0) firstDiff = t;
   }
-  const share = within / T;
-  note(`browser vs native tract (seed ${seed}): ${within}/${T} frames within 1e-3 (${(100 * share).toFixed(1)} %), largest difference ${worst.toExponential(2)}` +
-    (firstDiff >= 0 ? `; first differing frame ${firstDiff} (token ${Math.floor(firstDiff / 4)})` : '; no frame differs'));
-  if (share < 0.9) fail(`only ${(100 * share).toFixed(1)} % of frames within 1e-3 of native tract`);
+  if (errs.length) return errs;
+  note(`browser vs native tract (seed ${seed}): ${T} frames, largest scaled difference ${worst.toExponential(2)} (${worstAt}), bound ${WASM_FRAMES_BOUND} (scaled)` +
+    (firstBad >= 0 ? `; first token over the bound ${firstBad} (frame ${firstBad * frames})` : '; every frame within the bound'));
+  if (firstBad >= 0) return [`frames of token ${firstBad} (frame ${firstBad * frames}) onwards differ from native tract by more than ${WASM_FRAMES_BOUND} (scaled); the page exposes no tokens or logits to show a near-tie`];
+  return [];
 }
 
 function readNpz(buf) {
