@@ -42,7 +42,10 @@ fn main() {
                         PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").unwrap()).join(common)
                     };
                     println!("cargo:rerun-if-changed={}", common.join(&r).display());
-                    println!("cargo:rerun-if-changed={}", common.join("packed-refs").display());
+                    println!(
+                        "cargo:rerun-if-changed={}",
+                        common.join("packed-refs").display()
+                    );
                 }
             }
             git(&["rev-parse", "--short=12", "HEAD"]).unwrap_or_else(|| "unknown".into())

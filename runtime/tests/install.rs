@@ -98,12 +98,7 @@ fn version_names_the_commit_and_the_target() {
         }
     }
     // the target triple: this test's architecture and OS
-    let triple = v
-        .trim()
-        .rsplit(", ")
-        .next()
-        .unwrap()
-        .trim_end_matches(')');
+    let triple = v.trim().rsplit(", ").next().unwrap().trim_end_matches(')');
     assert!(
         triple.starts_with(std::env::consts::ARCH) && triple.contains(std::env::consts::OS),
         "target '{triple}' in {v}"

@@ -95,7 +95,11 @@ fn site_dirs(prefix: &Path) -> Vec<PathBuf> {
 
 /// `libonnxruntime.so*` in `<exe dir>/../lib` or `<exe dir>` (how the release archives ship it).
 fn beside_executable() -> Option<PathBuf> {
-    let exe = std::env::current_exe().ok()?.canonicalize().ok()?;
+    let exe = std::env::current_exe().ok()?;
+    // through symlinks (a link in /usr/local/bin to an unpacked archive); not on Windows, whose canonical
+    // form (`\\?\C:\...`) takes neither `..` nor `/` in the paths joined to it
+    #[cfg(not(windows))]
+    let exe = exe.canonicalize().ok()?;
     let dir = exe.parent()?;
     [dir.join("../lib"), dir.to_path_buf()]
         .into_iter()

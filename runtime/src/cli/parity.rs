@@ -292,8 +292,8 @@ fn target_report(name: &str, report: &parity::Report) -> serde_json::Value {
 /// ONNX Runtime's MLAS dispatches on (it picks its kernels from CPUID at start and does not report
 /// them; under `qemu-x86_64 -cpu MODEL` CPUID is the model's).
 fn cpu_report() -> serde_json::Value {
-    use tract_onnx::tract_core::tract_linalg as linalg;
     use serde_json::json;
+    use tract_onnx::tract_core::tract_linalg as linalg;
     let isa = linalg::isa::native();
     let mmm: Vec<String> = linalg::mmm_routines::runnable_for(&isa)
         .iter()
@@ -314,8 +314,10 @@ fn cpu_report() -> serde_json::Value {
     .map(|(n, f)| {
         (
             n.to_string(),
-            json!(linalg::routines::best_for(f, tract_onnx::prelude::DatumType::F32, &isa)
-                .map(|r| r.name())),
+            json!(
+                linalg::routines::best_for(f, tract_onnx::prelude::DatumType::F32, &isa)
+                    .map(|r| r.name())
+            ),
         )
     })
     .collect();
@@ -340,7 +342,10 @@ fn cpu_report() -> serde_json::Value {
         for (n, on) in [
             ("neon", std::arch::is_aarch64_feature_detected!("neon")),
             ("fp16", std::arch::is_aarch64_feature_detected!("fp16")),
-            ("dotprod", std::arch::is_aarch64_feature_detected!("dotprod")),
+            (
+                "dotprod",
+                std::arch::is_aarch64_feature_detected!("dotprod"),
+            ),
             ("i8mm", std::arch::is_aarch64_feature_detected!("i8mm")),
             ("sve", std::arch::is_aarch64_feature_detected!("sve")),
         ] {

@@ -649,12 +649,23 @@ mod tests {
         let x = Tensor::f32(vec![2], vec![0.5, 1.0]).unwrap();
         let y = Tensor::f32(vec![2], vec![0.5, 1.0 + 1.05e-4]).unwrap();
         m.add(0, &x, &y);
-        let tract = Row::max_abs(Check::Graph, "g", "tract vs torch", "out", &m, TRACT_VS_TORCH);
+        let tract = Row::max_abs(
+            Check::Graph,
+            "g",
+            "tract vs torch",
+            "out",
+            &m,
+            TRACT_VS_TORCH,
+        );
         let ort = Row::max_abs(Check::Graph, "g", "ort vs torch", "out", &m, ORT_VS_TORCH);
         assert!(tract.pass && !ort.pass);
         let mut rows = vec![tract, ort];
         target_graph_bounds(&mut rows);
-        assert!(!rows[0].pass, "1.05e-4 is over the target's 1e-4: {:?}", rows[0]);
+        assert!(
+            !rows[0].pass,
+            "1.05e-4 is over the target's 1e-4: {:?}",
+            rows[0]
+        );
         assert_eq!(rows[0].bound, TRACT_VS_ORT);
         assert_eq!(rows[1].bound, ORT_VS_TORCH);
     }
