@@ -94,6 +94,7 @@ install_deps() {
       fi
       [ $try = 6 ] && { echo "cross.sh: apt-get install ${missing[*]} failed" >&2; exit 1; }
       sleep 20
+      $_sudo apt-get update -qq || true
     done
   fi
   if [ "$TRIPLE" != x86_64-unknown-linux-gnu ] && ! rustup target list --installed | grep -qx "$TRIPLE"; then

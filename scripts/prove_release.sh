@@ -15,7 +15,9 @@ source scripts/env.sh >/dev/null
 repo="$PWD"
 dist="$repo/target/dist"
 VERSION="$(sed -n 's/^version = "\(.*\)"/\1/p' runtime/Cargo.toml | head -n1)"
-[ -x target/release/livegesture ] || { echo "prove_release.sh: target/release/livegesture is missing (cargo build --release -p livegesture)" >&2; exit 2; }
+# the native reference build (x86-64 gnu, this checkout's target/release unless LIVEGESTURE_NATIVE_BIN names another)
+native="${LIVEGESTURE_NATIVE_BIN:-$repo/target/release/livegesture}"
+[ -x "$native" ] || { echo "prove_release.sh: $native is missing (cargo build --release -p livegesture)" >&2; exit 2; }
 work="$(mktemp -d /tmp/livegesture-prove.XXXXXX)"
 trap 'rm -rf "$work"' EXIT
 
@@ -26,14 +28,15 @@ with wave.open(sys.argv[1], "rb") as r, wave.open(sys.argv[2], "wb") as w:
     w.setparams(r.getparams())
     w.writeframes(r.readframes(int(5.23 * r.getframerate())))
 PY
-./target/release/livegesture generate "$work/speech.wav" -o "$work/native.npz" --backend tract --seed 3 \
+"$native" generate "$work/speech.wav" -o "$work/native.npz" --backend tract --seed 3 \
   --bundle models/default 2>/dev/null
 
 failed=()
 for triple in "$@"; do
   case "$triple" in c-sdk|web) continue ;; esac
   name="livegesture-$VERSION-$triple"
-  archive="$(cd "$dist" && ls "$name.tar.gz" "$name.zip" 2>/dev/null | head -n1)"
+  archive=""
+  for a in "$name.tar.gz" "$name.zip"; do [ -f "$dist/$a" ] && archive="$a"; done
   echo "=== prove $triple"
   if [ -z "$archive" ]; then failed+=("$triple (no archive in target/dist)"); continue; fi
   (cd "$dist" && grep " $archive\$" SHA256SUMS | sha256sum -c --quiet) || { failed+=("$triple (checksum)"); continue; }

@@ -51,6 +51,13 @@ cargo fmt --all -- --check
 stage "rust build (release)"
 cargo build --release --workspace --all-targets
 
+# The cross build of the targets stage below (scripts/cross.sh aarch64-unknown-linux-musl: static, tract; compiled
+# once, profile dist, for the matrix and the release archive) starts now in the background, niced, and is waited
+# for at that stage
+mkdir -p target/cross
+CROSS_NICE=10 scripts/cross.sh aarch64-unknown-linux-musl > target/cross/build.log 2>&1 &
+cross_pid=$!
+
 # every parity run also writes its JUnit report (target/parity/*.xml) for CI systems to read
 mkdir -p target/parity
 ORT_OLDEST="$("$LIVEGESTURE_PY" -c 'import onnxruntime; print(onnxruntime.__version__)')"
@@ -175,5 +182,26 @@ timeout 1500 node runtime/web/tests/wasm.mjs --site target/web-static --out targ
   --wav models/default/reference/clip.wav --native target/browser-wasm/native.npz --seed 7 \
   --parity bundle/ --parity bundles/diffsheg/ --broken bundles/broken/:expert_hands \
   --serve target/release/livegesture
+
+stage "targets: the parity matrix (docs/targets.md) and the aarch64 release archive proven from the archive alone"
+wait "$cross_pid" || { tail -n 40 target/cross/build.log; echo "the cross build failed (target/cross/build.log)" >&2; exit 1; }
+grep "built in" target/cross/build.log
+# tiny bundles: x86-64 with AVX-512 (native), without it / without AVX (qemu-x86_64 -cpu), aarch64 (qemu-aarch64)
+for b in tiny diffsheg-tiny; do
+  scripts/targets.sh --bundle "target/test-bundles/$b" --out "target/targets/$b" x86-64-v4 x86-64-v3 x86-64-v2 aarch64-musl
+done
+# must fail: one weight perturbed by 0.02 (relative), named by the report on each target
+"$LIVEGESTURE_PY" parity-tests/tools/break_bundle.py target/test-bundles/tiny target/targets/broken-tiny \
+  --graph expert_hands --perturb-weight --delta 0.02 --relative
+if scripts/targets.sh --bundle target/targets/broken-tiny --out target/targets/broken --checks graph \
+    x86-64-v2 aarch64-musl > target/targets/broken.txt 2>&1; then
+  cat target/targets/broken.txt; echo "targets.sh passed a bundle with a perturbed weight" >&2; exit 1
+fi
+for t in x86-64-v2 aarch64-musl; do
+  grep -q "^FAIL graph expert_hands" "target/targets/broken/$t.txt" || {
+    cat target/targets/broken.txt; echo "targets.sh on $t did not name expert_hands" >&2; exit 1; }
+done
+# the release archive for aarch64 Linux (static), proven from the archive alone under qemu-aarch64
+scripts/release.sh --prove aarch64-unknown-linux-musl
 
 stage "all tests passed"
