@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Parity on every target (docs/targets.md, SPEC 7 "Targets"): one bundle, the torch references made at export,
+# Parity on every target (docs/targets.md, docs/targets.md): one bundle, the torch references made at export,
 # judged on each named target.
 #
 #   scripts/targets.sh [--bundle DIR] [--checks LIST] [--out DIR] TARGET...

@@ -61,7 +61,7 @@ pub struct Args {
     /// With --against: the fraction of rollout steps whose tokens must be identical (0..1).
     #[arg(long, value_name = "F", default_value_t = AgainstOptions::default().token_agreement, requires = "against")]
     pub against_token_agreement: f64,
-    /// Judge the run as this deployment target (SPEC 7 "Targets", docs/targets.md), e.g. `aarch64`:
+    /// Judge the run as this deployment target (docs/targets.md), e.g. `aarch64`:
     /// tract within 1e-4 (scaled) of the torch references, a rollout divergence passes only as a
     /// near-tie with every frame before it within bound; the JSON report gains a `target` object
     /// naming the target and the instruction set and kernels tract chose (scripts/targets.sh).

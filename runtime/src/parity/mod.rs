@@ -209,7 +209,7 @@ pub struct ParityOptions {
     /// The form of the region eXperts and decoders the pipeline checks run (auto: the bundle's form
     /// per backend).
     pub form: FormChoice,
-    /// Judge the run as a deployment target (SPEC 7 "Targets", docs/targets.md): tract's graph
+    /// Judge the run as a deployment target (docs/targets.md): tract's graph
     /// rows against the torch references within [`TRACT_VS_ORT`] (1e-4, scaled) instead of
     /// [`TRACT_VS_TORCH`]; a rollout whose tokens diverge passes when its first divergence is a
     /// near-tie ([`Divergence::near_tie`]), with every frame before it within [`ROLLOUT_FRAMES`];
@@ -540,7 +540,7 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
     })
 }
 
-/// SPEC 7 "Targets": tract on any instruction set within 1e-4 (scaled) of the torch references.
+/// docs/targets.md: tract on any instruction set within 1e-4 (scaled) of the torch references.
 /// The suite's own tract-vs-torch bound is [`TRACT_VS_TORCH`] (ort's bound plus tract's against
 /// ort); a target run tightens those rows to [`TRACT_VS_ORT`] and judges them again.
 fn target_graph_bounds(rows: &mut [Row]) {
@@ -618,7 +618,7 @@ mod tests {
         }
     }
 
-    /// SPEC 7 "Targets": a divergence passes a target run only when it is a near-tie.
+    /// docs/targets.md: a divergence passes a target run only when it is a near-tie.
     #[test]
     fn target_rule_accepts_only_near_tie_divergences() {
         let a: Vec<Vec<i64>> = (0..30).map(|t| vec![t, 1, 2, 3]).collect();
@@ -642,7 +642,7 @@ mod tests {
         assert!(!rollout::target_token_row(row(), None, true, true).pass);
     }
 
-    /// SPEC 7 "Targets": tract within 1e-4 (scaled) of torch, tighter than the suite's 1.1e-4.
+    /// docs/targets.md: tract within 1e-4 (scaled) of torch, tighter than the suite's 1.1e-4.
     #[test]
     fn target_rule_tightens_tract_vs_torch_graph_rows() {
         let mut m = MaxAbs::default();

@@ -110,7 +110,7 @@ pub(super) fn token_row(
     }
 }
 
-/// SPEC 7 "Targets" ([`ParityOptions::target`]): a token row that failed only because the two
+/// docs/targets.md ([`ParityOptions::target`]): a token row that failed only because the two
 /// rollouts diverge passes when the first divergence is a near-tie from every side whose logits are
 /// known (the frames before it are compared by their own rows). A divergence of unknown margin, one
 /// that is not a near-tie, or rollouts of different lengths still fail.
@@ -127,7 +127,7 @@ pub(super) fn target_token_row(
         if same_length && d.near_tie() == Some(true) {
             row.pass = true;
             row.detail = Some(format!(
-                "{}; passes as a target (SPEC 7): the first divergence is a near-tie",
+                "{}; passes as a target (docs/targets.md): the first divergence is a near-tie",
                 row.detail.unwrap_or_default()
             ));
         }
