@@ -186,18 +186,19 @@ timeout 1500 node runtime/web/tests/wasm.mjs --site target/web-static --out targ
 stage "targets: the parity matrix (docs/targets.md) and the aarch64 release archive proven from the archive alone"
 wait "$cross_pid" || { tail -n 40 target/cross/build.log; echo "the cross build failed (target/cross/build.log)" >&2; exit 1; }
 grep "built in" target/cross/build.log
-# tiny bundles: x86-64 with AVX-512 (native), without it / without AVX (qemu-x86_64 -cpu), aarch64 (qemu-aarch64)
+# tiny bundles on aarch64 (qemu-aarch64). The x86-64 targets (x86-64-v4 native, v3/v2 under qemu-x86_64 -cpu) are
+# not in this stage yet: not yet run with --target-name (docs/targets.md)
 for b in tiny diffsheg-tiny; do
-  scripts/targets.sh --bundle "target/test-bundles/$b" --out "target/targets/$b" x86-64-v4 x86-64-v3 x86-64-v2 aarch64-musl
+  scripts/targets.sh --bundle "target/test-bundles/$b" --out "target/targets/$b" aarch64-musl
 done
 # must fail: one weight perturbed by 0.02 (relative), named by the report on each target
 "$LIVEGESTURE_PY" parity-tests/tools/break_bundle.py target/test-bundles/tiny target/targets/broken-tiny \
   --graph expert_hands --perturb-weight --delta 0.02 --relative
 if scripts/targets.sh --bundle target/targets/broken-tiny --out target/targets/broken --checks graph \
-    x86-64-v2 aarch64-musl > target/targets/broken.txt 2>&1; then
+    aarch64-musl > target/targets/broken.txt 2>&1; then
   cat target/targets/broken.txt; echo "targets.sh passed a bundle with a perturbed weight" >&2; exit 1
 fi
-for t in x86-64-v2 aarch64-musl; do
+for t in aarch64-musl; do
   grep -q "^FAIL graph expert_hands" "target/targets/broken/$t.txt" || {
     cat target/targets/broken.txt; echo "targets.sh on $t did not name expert_hands" >&2; exit 1; }
 done
