@@ -1,13 +1,14 @@
 #!/usr/bin/env python
 """Copy a LiveGesture bundle and break ONE graph in the copy, for the parity suite's negative tests.
 
-    break_bundle.py SRC DST --graph expert_hands --perturb-weight [--delta 0.01]
+    break_bundle.py SRC DST --graph expert_hands --perturb-weight [--delta 0.01] [--relative]
     break_bundle.py SRC DST --graph expert_hands --freeze-cache layer0.xattn.k
     break_bundle.py SRC DST --graph all --magnify 40 --ulps 3
 
 --perturb-weight   adds --delta to one element (the first) of the weight initializer of the graph's first
                    MatMul/Gemm whose weight is an initializer (float32, or float16 behind a Cast as
-                   export/quantize.py --precision f16 writes it).
+                   export/quantize.py --precision f16 writes it). With --relative the element is multiplied by
+                   1 + delta instead (docs/targets.md's must-fail case: --delta 0.02 --relative).
 --freeze-cache N   makes the graph return its input cache `cache.N` unchanged as `new_cache.N` (the node
                    that computed `new_cache.N` keeps computing it under another name for its other
                    consumers; an Identity node now produces the graph output from the input).
@@ -38,7 +39,7 @@ import onnx
 from onnx import helper, numpy_helper
 
 
-def perturb_weight(model: onnx.ModelProto, delta: float) -> dict:
+def perturb_weight(model: onnx.ModelProto, delta: float, relative: bool = False) -> dict:
     inits = {t.name: t for t in model.graph.initializer}
     # a float16 bundle (export/quantize.py --precision f16) stores the weight as a float16 initializer + Cast
     cast_from = {n.output[0]: n.input[0] for n in model.graph.node if n.op_type == "Cast" and n.input[0] in inits}
@@ -50,7 +51,9 @@ def perturb_weight(model: onnx.ModelProto, delta: float) -> dict:
             if w.dtype not in (np.float32, np.float16) or w.size == 0:
                 continue
             before = float(w.flat[0])
-            w.flat[0] += w.dtype.type(delta)
+            if relative and before == 0.0:
+                continue
+            w.flat[0] += w.dtype.type(before * delta if relative else delta)
             t.CopyFrom(numpy_helper.from_array(w, t.name))
             return {"change": "perturb-weight", "node": node.name, "op": node.op_type, "initializer": t.name,
                     "shape": list(w.shape), "index": 0, "before": before, "after": float(w.flat[0])}
@@ -125,6 +128,7 @@ def main(argv=None) -> int:
     how.add_argument("--freeze-cache", metavar="NAME")
     how.add_argument("--magnify", type=float, metavar="M")
     ap.add_argument("--delta", type=float, default=0.01)
+    ap.add_argument("--relative", action="store_true", help="with --perturb-weight: multiply by 1 + delta")
     ap.add_argument("--ulps", type=int, default=3, help="with --magnify: float32 spacings added to the reference")
     a = ap.parse_args(argv)
     src, dst = Path(a.src), Path(a.dst)
@@ -161,7 +165,7 @@ def main(argv=None) -> int:
     file = graphs[a.graph]["file"]
     path = dst / file
     model = onnx.load(str(path))
-    info = perturb_weight(model, a.delta) if a.perturb_weight else freeze_cache(model, a.freeze_cache)
+    info = perturb_weight(model, a.delta, a.relative) if a.perturb_weight else freeze_cache(model, a.freeze_cache)
     onnx.checker.check_model(model)
     onnx.save(model, str(path))
     manifest["files"][file] = {"sha256": sha256(path), "bytes": path.stat().st_size}

@@ -11,12 +11,7 @@ use std::process::ExitCode;
 use clap::Parser;
 
 fn main() -> ExitCode {
-    // Behave like other Unix filters when the reader goes away (`livegesture info | head`): exit quietly
-    // on SIGPIPE instead of panicking on a failed write to stdout.
-    // SAFETY: restoring the default disposition of one signal before any thread is started.
-    unsafe {
-        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
-    }
+    restore_sigpipe();
     let args = cli::Cli::parse();
     match cli::run(args) {
         Ok(()) => ExitCode::SUCCESS,
@@ -26,3 +21,16 @@ fn main() -> ExitCode {
         }
     }
 }
+
+/// Behave like other Unix filters when the reader goes away (`livegesture info | head`): exit quietly
+/// on SIGPIPE instead of panicking on a failed write to stdout. (Windows has no SIGPIPE.)
+#[cfg(unix)]
+fn restore_sigpipe() {
+    // SAFETY: restoring the default disposition of one signal before any thread is started.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
+#[cfg(not(unix))]
+fn restore_sigpipe() {}

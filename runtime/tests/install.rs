@@ -73,3 +73,34 @@ fn a_copied_binary_finds_the_bundle_installed_beside_it() {
         "{out}"
     );
 }
+
+/// `livegesture --version` names the version, the commit it was built from and its target triple
+/// (runtime/build.rs), as the release archives' proof checks (scripts/prove_release.sh).
+#[test]
+fn version_names_the_commit_and_the_target() {
+    let o = Command::new(env!("CARGO_BIN_EXE_livegesture"))
+        .arg("--version")
+        .output()
+        .unwrap();
+    assert!(o.status.success());
+    let v = String::from_utf8_lossy(&o.stdout);
+    let want_prefix = format!("livegesture {} (commit ", env!("CARGO_PKG_VERSION"));
+    assert!(v.starts_with(&want_prefix), "{v}");
+    // the commit: HEAD of this checkout when built from git (a new commit rebuilds the crate)
+    if let Ok(g) = Command::new("git")
+        .args(["rev-parse", "--short=12", "HEAD"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+    {
+        if g.status.success() {
+            let head = String::from_utf8_lossy(&g.stdout).trim().to_string();
+            assert!(v.contains(&format!("commit {head},")), "HEAD {head}: {v}");
+        }
+    }
+    // the target triple: this test's architecture and OS
+    let triple = v.trim().rsplit(", ").next().unwrap().trim_end_matches(')');
+    assert!(
+        triple.starts_with(std::env::consts::ARCH) && triple.contains(std::env::consts::OS),
+        "target '{triple}' in {v}"
+    );
+}

@@ -4,7 +4,9 @@
 //!
 //! 1. an explicit path ([`BackendOptions::ort_library`], the CLI's `--ort-lib`);
 //! 2. the environment variable `ORT_DYLIB_PATH` (`scripts/env.sh` sets it);
-//! 3. the `onnxruntime` Python package of the project's virtual environment (`$LIVEGESTURE_VENV`,
+//! 3. a library installed beside the executable (the release archives, docs/install.md):
+//!    `<exe dir>/../lib/libonnxruntime.so*` or `<exe dir>/libonnxruntime.so*`;
+//! 4. the `onnxruntime` Python package of the project's virtual environment (`$LIVEGESTURE_VENV`,
 //!    `$VIRTUAL_ENV`, `~/.cache/livegesture/venv-*`), then of common system and user
 //!    `site-packages` / `dist-packages` folders: `onnxruntime/capi/libonnxruntime.so*`.
 //!
@@ -91,6 +93,31 @@ fn site_dirs(prefix: &Path) -> Vec<PathBuf> {
     out
 }
 
+/// `libonnxruntime.so*` in `<exe dir>/../lib` or `<exe dir>` (how the release archives ship it).
+fn beside_executable() -> Option<PathBuf> {
+    let exe = std::env::current_exe().ok()?;
+    // through symlinks (a link in /usr/local/bin to an unpacked archive); not on Windows, whose canonical
+    // form (`\\?\C:\...`) takes neither `..` nor `/` in the paths joined to it
+    #[cfg(not(windows))]
+    let exe = exe.canonicalize().ok()?;
+    let dir = exe.parent()?;
+    [dir.join("../lib"), dir.to_path_buf()]
+        .into_iter()
+        .find_map(|d| {
+            let mut libs: Vec<PathBuf> = std::fs::read_dir(&d)
+                .ok()?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| {
+                    p.file_name()
+                        .and_then(|n| n.to_str())
+                        .is_some_and(|n| n.starts_with("libonnxruntime.so"))
+                })
+                .collect();
+            libs.sort();
+            libs.pop()
+        })
+}
+
 /// Finds the ONNX Runtime shared library (see the module docs for the search order).
 pub fn find_library(explicit: Option<&Path>) -> Result<PathBuf> {
     if let Some(p) = explicit {
@@ -108,6 +135,9 @@ pub fn find_library(explicit: Option<&Path>) -> Result<PathBuf> {
             "ort: {ORT_DYLIB_ENV}={} does not exist; point it at libonnxruntime.so (e.g. `source scripts/env.sh`)",
             p.display()
         );
+        return Ok(p);
+    }
+    if let Some(p) = beside_executable() {
         return Ok(p);
     }
     let mut prefixes: Vec<PathBuf> = Vec::new();

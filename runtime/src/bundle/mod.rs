@@ -94,13 +94,24 @@ pub fn default_bundle_dir(explicit: Option<&Path>) -> PathBuf {
 /// A default bundle installed beside the executable: `<exe_dir>/../share/livegesture/models/default`
 /// or `<exe_dir>/models/default`, the first that holds a `manifest.json`.
 pub fn installed_default_bundle() -> Option<PathBuf> {
-    let exe = std::env::current_exe().ok()?.canonicalize().ok()?;
+    let exe = std::env::current_exe().ok()?;
+    // through symlinks (a link in /usr/local/bin to an unpacked archive); not on Windows, whose canonical
+    // form (`\\?\C:\...`) takes neither `..` nor `/` in the paths joined to it
+    #[cfg(not(windows))]
+    let exe = exe.canonicalize().ok()?;
     let dir = exe.parent()?;
+    // the parent folder by name, not `..`: Windows' canonical paths (`\\?\C:\...`) do not resolve `..`
     [
-        dir.join("../share/livegesture/models/default"),
-        dir.join("models/default"),
+        dir.parent().map(|p| {
+            p.join("share")
+                .join("livegesture")
+                .join("models")
+                .join("default")
+        }),
+        Some(dir.join("models").join("default")),
     ]
     .into_iter()
+    .flatten()
     .find(|p| p.join("manifest.json").is_file())
 }
 

@@ -27,6 +27,17 @@ pub mod stream;
 
 pub use common::{error_text, exit_code};
 
+/// `livegesture --version`: the crate version, the commit it was built from and the target triple
+/// (set by runtime/build.rs), e.g. `0.1.0 (commit a6aad43f1c2e, x86_64-unknown-linux-musl)`.
+pub const VERSION: &str = concat!(
+    env!("CARGO_PKG_VERSION"),
+    " (commit ",
+    env!("LIVEGESTURE_COMMIT"),
+    ", ",
+    env!("LIVEGESTURE_TARGET"),
+    ")"
+);
+
 /// Streaming speech-driven full-body gesture generation (ONNX bundles, tract or ONNX Runtime).
 ///
 /// Audio goes in (a WAV file or raw PCM on stdin); SMPL-X motion at 30 fps comes out, covering the
@@ -37,7 +48,7 @@ pub use common::{error_text, exit_code};
 #[derive(Debug, Parser)]
 #[command(
     name = "livegesture",
-    version,
+    version = VERSION,
     about,
     long_about,
     propagate_version = true

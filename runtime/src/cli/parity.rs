@@ -62,6 +62,12 @@ pub struct Args {
     /// With --against: the fraction of rollout steps whose tokens must be identical (0..1).
     #[arg(long, value_name = "F", default_value_t = AgainstOptions::default().token_agreement, requires = "against")]
     pub against_token_agreement: f64,
+    /// Judge the run as this deployment target (docs/targets.md), e.g. `aarch64`:
+    /// tract within 1e-4 (scaled) of the torch references, a rollout divergence passes only as a
+    /// near-tie with every frame before it within bound; the JSON report gains a `target` object
+    /// naming the target and the instruction set and kernels tract chose (scripts/targets.sh).
+    #[arg(long, value_name = "NAME")]
+    pub target_name: Option<String>,
     /// Show every output's row, not only the worst of each passing group.
     #[arg(long)]
     pub all: bool,
@@ -158,6 +164,7 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
         checks: a.checks.clone(),
         chunk_seconds: a.chunk_seconds,
         form,
+        target: a.target_name.is_some(),
     };
     if form != GraphForm::Auto {
         super::common::check_form(&livegesture::bundle::Bundle::load(&dir)?, form)?;
@@ -204,10 +211,18 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
     print!("{}", report.table(a.all));
     println!();
     print!("{}", report.summary());
+    let target = a.target_name.as_ref().map(|name| {
+        let t = target_report(name, &report);
+        println!("target {name}: {}", t["cpu"]);
+        t
+    });
     if let Some(path) = &a.json {
         let mut value = serde_json::to_value(&report)?;
         if let Some(obj) = value.as_object_mut() {
             obj.insert("passed".into(), report.passed().into());
+            if let Some(t) = target {
+                obj.insert("target".into(), t);
+            }
         }
         let text = serde_json::to_string_pretty(&value)?;
         std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
@@ -225,4 +240,132 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
         }
         .into())
     }
+}
+
+/// The `target` object of a `--target-name` report: the target's name, the instruction set the
+/// process sees and what tract chose on it, and the per-target summary docs/targets.md tabulates
+/// (comparisons, worst scaled error per graph, tokens identical before the first divergence).
+fn target_report(name: &str, report: &parity::Report) -> serde_json::Value {
+    use livegesture::parity::Metric;
+    use serde_json::json;
+    let mut worst: std::collections::BTreeMap<String, f64> = Default::default();
+    for r in report.rows.iter().filter(|r| {
+        r.check == Check::Graph && r.metric == Metric::MaxAbs && r.comparison.contains(" vs ")
+    }) {
+        let key = format!("{} {}", r.what, r.comparison);
+        let e = if r.error.is_finite() {
+            r.error / r.scale.max(f64::MIN_POSITIVE)
+        } else {
+            f64::INFINITY
+        };
+        let w = worst.entry(key).or_insert(0.0);
+        *w = w.max(e);
+    }
+    let tokens: Vec<serde_json::Value> = report
+        .rows
+        .iter()
+        .filter(|r| r.metric == Metric::DifferingSteps)
+        .map(|r| {
+            json!({
+                "what": r.what, "comparison": r.comparison, "steps": r.compared,
+                "identical_before_divergence": r.step.unwrap_or(r.compared),
+                "differing_steps": r.error, "pass": r.pass,
+            })
+        })
+        .collect();
+    json!({
+        "name": name,
+        "build_target": env!("LIVEGESTURE_TARGET"),
+        "cpu": cpu_report(),
+        "comparisons": report.rows.len(),
+        "failed": report.failures().len(),
+        "worst_scaled_error_per_graph": worst.into_iter()
+            .map(|(k, v)| (k, if v.is_finite() { json!(v) } else { json!(null) }))
+            .collect::<serde_json::Map<_, _>>(),
+        "tokens": tokens,
+        "divergences": report.divergences.iter().map(|d| json!({
+            "between": format!("{} vs {}", d.first, d.second), "step": d.step, "region": d.region,
+            "near_tie": d.near_tie(),
+            "cdf_margin": d.margins.iter().map(|m| m.cdf_margin).fold(f64::INFINITY, f64::min),
+        })).collect::<Vec<_>>(),
+    })
+}
+
+/// The instruction set this process sees and what tract's linear algebra chose on it (its ISA
+/// ladder rung, matrix-multiply tiers and f32 kernels, element-wise kernels), and the CPU features
+/// ONNX Runtime's MLAS dispatches on (it picks its kernels from CPUID at start and does not report
+/// them; under `qemu-x86_64 -cpu MODEL` CPUID is the model's).
+fn cpu_report() -> serde_json::Value {
+    use serde_json::json;
+    use tract_onnx::tract_core::tract_linalg as linalg;
+    let isa = linalg::isa::native();
+    let mmm: Vec<String> = linalg::mmm_routines::runnable_for(&isa)
+        .iter()
+        .filter(|k| {
+            k.internal_type() == tract_onnx::prelude::DatumType::F32 && !k.isa().needs.is_empty()
+        })
+        .map(|k| k.name().to_string())
+        .collect();
+    let routines: serde_json::Map<String, serde_json::Value> = [
+        ("sigmoid", linalg::Func::Sigmoid),
+        ("tanh", linalg::Func::Tanh),
+        ("exp", linalg::Func::Exp),
+        ("erf", linalg::Func::Erf),
+        ("softmax_rows", linalg::Func::SoftmaxRows),
+        ("reduce_sum", linalg::Func::ReduceSum),
+    ]
+    .into_iter()
+    .map(|(n, f)| {
+        (
+            n.to_string(),
+            json!(
+                linalg::routines::best_for(f, tract_onnx::prelude::DatumType::F32, &isa)
+                    .map(|r| r.name())
+            ),
+        )
+    })
+    .collect();
+    #[allow(unused_mut)]
+    let mut features: Vec<&str> = Vec::new();
+    #[cfg(target_arch = "x86_64")]
+    {
+        for (n, on) in [
+            ("sse4.2", std::arch::is_x86_feature_detected!("sse4.2")),
+            ("avx", std::arch::is_x86_feature_detected!("avx")),
+            ("avx2", std::arch::is_x86_feature_detected!("avx2")),
+            ("fma", std::arch::is_x86_feature_detected!("fma")),
+            ("avx512f", std::arch::is_x86_feature_detected!("avx512f")),
+        ] {
+            if on {
+                features.push(n);
+            }
+        }
+    }
+    #[cfg(target_arch = "aarch64")]
+    {
+        for (n, on) in [
+            ("neon", std::arch::is_aarch64_feature_detected!("neon")),
+            ("fp16", std::arch::is_aarch64_feature_detected!("fp16")),
+            (
+                "dotprod",
+                std::arch::is_aarch64_feature_detected!("dotprod"),
+            ),
+            ("i8mm", std::arch::is_aarch64_feature_detected!("i8mm")),
+            ("sve", std::arch::is_aarch64_feature_detected!("sve")),
+        ] {
+            if on {
+                features.push(n);
+            }
+        }
+    }
+    json!({
+        "arch": std::env::consts::ARCH,
+        "cpu_features": features,
+        "tract_isa": format!("{isa:?}"),
+        "tract_rung": isa.nickname(),
+        "tract_mmm_tiers": linalg::mmm_tiers::for_isa(&isa).iter().map(|t| t.name).collect::<Vec<_>>(),
+        "tract_f32_mmm_kernels": mmm,
+        "tract_f32_routines": routines,
+        "ort": "MLAS dispatches on cpu_features (CPUID); it does not report its kernels",
+    })
 }

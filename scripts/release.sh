@@ -1,0 +1,190 @@
+#!/usr/bin/env bash
+# The downloadable release (docs/install.md): writes target/dist/
+#
+#   scripts/release.sh [--prove] [TARGET...]
+#
+# TARGET: a Rust triple that scripts/cross.sh builds (x86_64-unknown-linux-musl, aarch64-unknown-linux-musl,
+# armv7-unknown-linux-gnueabihf, x86_64-unknown-linux-gnu, aarch64-unknown-linux-gnu, x86_64-pc-windows-gnu),
+# `c-sdk` (the C SDK for x86-64 Linux), `web` (the static web build, scripts/build_web_static.sh), or none: all.
+# For each CLI target: livegesture-VERSION-TARGET.tar.gz (.zip for Windows) holding
+#   bin/livegesture[.exe]                     the CLI (profile dist: no debug info, stripped)
+#   share/livegesture/models/{default,diffsheg}  the shipped bundles (default found next to the executable)
+#   lib/libonnxruntime.so.*                   (gnu targets) ONNX Runtime from PyPI's wheel, found next to the exe
+#   README.md                                 the quick start
+#   LICENSES/                                 every linked crate's licence text (cargo metadata of that build),
+#                                             the project's, ONNX Runtime's, the bundles' and data's
+# and SHA256SUMS over every archive. --prove then proves each archive from the archive alone
+# (scripts/prove_release.sh): extracted in an empty folder outside the repository, `generate` on a WAV natively,
+# under qemu-user or wine, ceil(duration x 30) valid frames, equal to the native x86-64 build.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+source scripts/env.sh >/dev/null
+
+ALL="x86_64-unknown-linux-musl aarch64-unknown-linux-musl armv7-unknown-linux-gnueabihf x86_64-unknown-linux-gnu aarch64-unknown-linux-gnu x86_64-pc-windows-gnu c-sdk web"
+prove=0
+targets=()
+for a in "$@"; do
+  case "$a" in
+    --prove) prove=1 ;;
+    -h|--help) sed -n '2,20p' "$0"; exit 0 ;;
+    -*) echo "release.sh: unknown option $a" >&2; exit 2 ;;
+    *) targets+=("$a") ;;
+  esac
+done
+[ ${#targets[@]} -gt 0 ] || targets=($ALL)
+VERSION="$(sed -n 's/^version = "\(.*\)"/\1/p' runtime/Cargo.toml | head -n1)"
+COMMIT="$(git rev-parse --short=12 HEAD)"
+dist="$PWD/target/dist"
+mkdir -p "$dist"
+t0=$SECONDS
+
+# every crate linked into one build, with its licence texts (from cargo's registry sources), as one file
+licences() {  # TRIPLE FEATURES PACKAGE OUT
+  "$LIVEGESTURE_PY" scripts/licences.py "$3" "$1" "$2" "$4"
+}
+
+ort_lib_for() {  # TRIPLE -> path of libonnxruntime for it (gnu targets)
+  case "$1" in
+    x86_64-unknown-linux-gnu) echo "$ORT_DYLIB_PATH" ;;
+    aarch64-unknown-linux-gnu) scripts/cross.sh --ort-lib aarch64-unknown-linux-gnu ;;
+  esac
+}
+
+common_files() {  # STAGE_DIR
+  local s="$1"
+  mkdir -p "$s/share/livegesture/models" "$s/LICENSES"
+  for b in default diffsheg; do
+    scripts/copy_bundle.py "models/$b" "$s/share/livegesture/models/$b" >/dev/null
+  done
+  cp models/README.md "$s/share/livegesture/models/README.md"
+  cp /work/shared/data/real-speech/SOURCES.md "$s/LICENSES/real-speech-SOURCES.md" 2>/dev/null || true
+  [ -f LICENSE ] && cp LICENSE "$s/LICENSES/livegesture-LICENSE"
+  cat > "$s/LICENSES/README.md" <<EOF
+Licences of livegesture $VERSION (commit $COMMIT)
+
+- livegesture itself: Apache-2.0 (Cargo.toml).
+- crates.txt: every Rust crate linked into this build, with the licence texts each crate ships
+  (collected from \`cargo metadata\` of this exact build by scripts/release.sh).
+- The bundles in share/livegesture/models: trained by this project on synthetic motion and speech; the
+  training data and its licences are described in share/livegesture/models/README.md and each bundle's
+  manifest.json (training_data); real-speech-SOURCES.md (where present) lists the real recordings used in
+  training and their licences.
+- onnxruntime-LICENSE (gnu archives only): ONNX Runtime (MIT), shipped in lib/.
+EOF
+}
+
+quick_start() {  # STAGE_DIR EXE RUN
+  cat > "$1/README.md" <<EOF
+# livegesture $VERSION for $2
+
+Streaming speech-to-gesture generation (SMPL-X motion at 30 fps) from a WAV file or live audio.
+Built from commit $COMMIT. Docs: https://github.com/ (the project's docs/install.md).
+
+Quick start (no Rust, no Python needed):
+
+    $3 --version
+    $3 generate speech.wav -o motion.npz          # BEAT2 .npz, ceil(duration x 30) frames
+    $3 generate speech.wav -o motion.bvh          # or .bvh / .glb / .gltf
+    $3 info                                       # the shipped bundle, found next to the executable
+    $3 generate speech.wav -o face.npz --bundle share/livegesture/models/diffsheg   # the DiffSHEG model
+
+The default bundle is share/livegesture/models/default, found relative to the executable (no --bundle needed).
+Backends: tract (pure Rust, every build)$4.
+Verify the download first: \`sha256sum -c SHA256SUMS --ignore-missing\`.
+EOF
+}
+
+build_cli() {  # TRIPLE
+  local triple="$1" bin exe name stage features run ort=""
+  bin="$(scripts/cross.sh "$triple")"
+  exe="$(basename "$bin")"
+  name="livegesture-$VERSION-$triple"
+  stage="$dist/stage/$name"
+  rm -rf "$stage"; mkdir -p "$stage/bin"
+  cp "$bin" "$stage/bin/$exe"
+  common_files "$stage"
+  features="$(scripts/cross.sh --features "$triple")"
+  licences "$triple" "$features" livegesture "$stage/LICENSES/crates.txt"
+  run="bin/$exe"; [[ $triple == *windows* ]] && run='bin\livegesture.exe'
+  if [[ $features == *ort* ]]; then
+    local lib; lib="$(ort_lib_for "$triple")"
+    mkdir -p "$stage/lib"; cp "$lib" "$stage/lib/"
+    local lic; lic="$(ls -d "$(dirname "$lib")"/../../onnxruntime-*.dist-info 2>/dev/null | head -n1)"
+    if [ -n "$lic" ]; then cat "$lic"/LICENSE* "$lic"/licenses/* 2>/dev/null > "$stage/LICENSES/onnxruntime-LICENSE" || true; fi
+    ort=", and ort (ONNX Runtime $(basename "$lib" | sed 's/libonnxruntime.so.//'), in lib/, loaded at run time: --backend ort)"
+  fi
+  quick_start "$stage" "$triple" "$run" "$ort"
+  rm -f "$dist/$name.tar.gz" "$dist/$name.zip"
+  if [[ $triple == *windows* ]]; then
+    (cd "$dist/stage" && zip -qr -X "$dist/$name.zip" "$name")
+  else
+    tar -C "$dist/stage" --owner=0 --group=0 --sort=name -czf "$dist/$name.tar.gz" "$name"
+  fi
+  echo "release.sh: $name: $(du -h "$dist/$name".* | cut -f1) (binary $(du -h "$bin" | cut -f1))" >&2
+}
+
+build_c_sdk() {  # the C SDK for x86-64 Linux (gnu): header, stripped shared and static library, pkg-config, CMake
+  local name="livegesture-c-$VERSION-x86_64-unknown-linux-gnu" stage
+  stage="$dist/stage/$name"
+  cargo build --profile dist -p livegesture-c >&2
+  rm -rf "$stage"; mkdir -p "$stage/include" "$stage/lib/pkgconfig" "$stage/lib/cmake/livegesture" "$stage/share/livegesture/examples" "$stage/LICENSES"
+  cp bindings/c/include/*.h "$stage/include/"
+  cp target/dist/liblivegesture_c.so target/dist/liblivegesture_c.a "$stage/lib/"
+  strip --strip-unneeded "$stage/lib/liblivegesture_c.so"
+  strip --strip-debug "$stage/lib/liblivegesture_c.a"
+  cp examples/c/generate.c "$stage/share/livegesture/examples/"
+  cat > "$stage/lib/pkgconfig/livegesture.pc" <<EOF
+prefix=\${pcfiledir}/../..
+libdir=\${prefix}/lib
+includedir=\${prefix}/include
+Name: livegesture
+Description: Streaming speech-to-gesture runtime (C API)
+Version: $VERSION
+Libs: -L\${libdir} -llivegesture_c
+Libs.private: -lgcc_s -lutil -lrt -lpthread -lm -ldl -lc
+Cflags: -I\${includedir}
+EOF
+  cat > "$stage/lib/cmake/livegesture/livegestureConfig.cmake" <<'EOF'
+# find_package(livegesture): imported targets livegesture::livegesture (shared) and livegesture::static
+get_filename_component(_lg_prefix "${CMAKE_CURRENT_LIST_DIR}/../../.." ABSOLUTE)
+add_library(livegesture::livegesture SHARED IMPORTED)
+set_target_properties(livegesture::livegesture PROPERTIES
+  IMPORTED_LOCATION "${_lg_prefix}/lib/liblivegesture_c.so"
+  INTERFACE_INCLUDE_DIRECTORIES "${_lg_prefix}/include")
+add_library(livegesture::static STATIC IMPORTED)
+set_target_properties(livegesture::static PROPERTIES
+  IMPORTED_LOCATION "${_lg_prefix}/lib/liblivegesture_c.a"
+  INTERFACE_INCLUDE_DIRECTORIES "${_lg_prefix}/include"
+  INTERFACE_LINK_LIBRARIES "gcc_s;util;rt;pthread;m;dl;c")
+set(livegesture_FOUND TRUE)
+EOF
+  echo "set(PACKAGE_VERSION \"$VERSION\")" > "$stage/lib/cmake/livegesture/livegestureConfigVersion.cmake"
+  licences x86_64-unknown-linux-gnu "" livegesture-c "$stage/LICENSES/crates.txt"
+  tar -C "$dist/stage" --owner=0 --group=0 --sort=name -czf "$dist/$name.tar.gz" "$name"
+  echo "release.sh: $name: static library $(du -h "$stage/lib/liblivegesture_c.a" | cut -f1), shared $(du -h "$stage/lib/liblivegesture_c.so" | cut -f1)" >&2
+}
+
+build_web() {  # the static web build (page, wasm, bundles) as one archive
+  [ -f target/web-static/index.html ] || scripts/build_web_static.sh models/default >&2
+  local name="livegesture-web-$VERSION"
+  rm -rf "$dist/stage/$name"; mkdir -p "$dist/stage"
+  cp -r target/web-static "$dist/stage/$name"
+  rm -rf "$dist/stage/$name/bundles/broken"   # the test command's negative case, not a release file
+  tar -C "$dist/stage" --owner=0 --group=0 --sort=name -czf "$dist/$name.tar.gz" "$name"
+  echo "release.sh: $name: $(du -h "$dist/$name.tar.gz" | cut -f1)" >&2
+}
+
+for t in "${targets[@]}"; do
+  case "$t" in
+    c-sdk) build_c_sdk ;;
+    web) build_web ;;
+    *) build_cli "$t" ;;
+  esac
+done
+(cd "$dist" && shopt -s nullglob && sha256sum livegesture-*.tar.gz livegesture-*.zip > SHA256SUMS)
+rm -rf "$dist/stage"
+echo "release.sh: target/dist/ written in $(( SECONDS - t0 )) s:"
+cat "$dist/SHA256SUMS"
+if [ $prove = 1 ]; then
+  scripts/prove_release.sh "${targets[@]}"
+fi
