@@ -15,7 +15,8 @@ use std::process::{Command, Output};
 use livegesture::audio::read_wav_16k_mono;
 use livegesture::backend::{self, BackendKind, BackendOptions};
 use livegesture::bundle::Bundle;
-use livegesture::model::livegesture::{GraphForm, LiveGestureGraphs, StreamOptions, TokenStep};
+use livegesture::model::livegesture::{LiveGestureGraphs, StreamOptions, TokenStep};
+use livegesture::model::GraphForm;
 use livegesture::parity::{batch_bound, Check};
 
 fn pipeline(bundle: &Bundle, kind: BackendKind, form: GraphForm) -> LiveGestureGraphs {
