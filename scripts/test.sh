@@ -93,7 +93,7 @@ for ort in "$ORT_OLDEST:$ORT_DYLIB_PATH" "$ORT_NEWEST:$ORT_NEWEST_LIB"; do
       echo "parity did not run ONNX Runtime $version ($lib)" >&2; exit 1; }
   done
 done
-# SPEC 7: a JUnit report in which nothing was compared fails (issue 38); each must hold test cases
+# docs/parity.md: a JUnit report in which nothing was compared fails (issue 38); each must hold test cases
 for x in target/parity/*.xml; do
   if ! grep -q '<testcase' "$x" || grep -q 'tests="0"' "$x"; then
     echo "$x: a JUnit report with no test case" >&2; exit 1

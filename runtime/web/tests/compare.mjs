@@ -1,7 +1,7 @@
 // The one comparison of the web tests (issue 38): the JavaScript equivalent of the shared helpers
 // (runtime/src/compare.rs, python/livegesture/compare.py). A comparison fails, whatever the bound, when
 // a value is NaN or Inf on either side, nothing is compared, the lengths or the shapes differ; otherwise
-// it passes when max|got - ref| <= bound x scale, scale = max(1, max|ref|) over the reference (SPEC 7).
+// it passes when max|got - ref| <= bound x scale, scale = max(1, max|ref|) over the reference (docs/parity.md).
 // `{ absolute: true }` judges at scale 1 (angles, unit-free errors).
 //
 //   import { diff, assertWithin } from './compare.mjs';

@@ -14,7 +14,7 @@
 //  2. each --broken bundle (one weight perturbed, sha256 fixed up): parity fails, naming the graph;
 //  3. the microphone path in wasm mode: frames arrive, the joints move, no request leaves the host;
 //  4. the WAV through window.livegestureTest.generate: ceil(duration x 30) frames, every frame within
-//     1e-4 (scaled, SPEC 7) of native tract's frames (--native, `livegesture generate --backend tract
+//     1e-4 (scaled, docs/parity.md) of native tract's frames (--native, `livegesture generate --backend tract
 //     --seed S`), none non-finite (compare.mjs); where they part, the first token is reported and fails;
 //  5. with --serve BIN: `livegesture serve --web-dir SITE` and its /?engine=wasm (microphone, no WebSocket).
 import { spawn } from 'node:child_process';
@@ -163,7 +163,7 @@ process.exitCode = failures ? 1 : 0;
 
 // ------------------------------------------------------------------ helpers
 
-// SPEC 7 (targets): tract in WebAssembly vs native tract keeps every frame within 1e-4 (scaled) until
+// docs/targets.md (targets): tract in WebAssembly vs native tract keeps every frame within 1e-4 (scaled) until
 // the first token divergence, and no value is non-finite. The page exposes neither tokens nor logits,
 // so a divergence cannot be shown to be a near-tie here: every frame must be within the bound (what
 // docs/wasm.md measured), and the first token whose frames are not is reported and fails. Each token
