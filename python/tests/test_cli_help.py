@@ -9,7 +9,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 MODULES = ["livegesture.train", "livegesture.eval", "livegesture.eval.generalise", "livegesture.data.synth",
-           "livegesture.bench", "livegesture.bench_train", "livegesture.interpolate"]
+           "livegesture.bench", "livegesture.bench_train", "livegesture.interpolate",
+           "livegesture.face.train", "livegesture.face.evaluate", "livegesture.face.export", "livegesture.face.mesh"]
 SCRIPTS = sorted(str(p.relative_to(ROOT)) for d in ("export", "bench") for p in (ROOT / d).glob("*.py")
                  if "argparse" in p.read_text())
 
