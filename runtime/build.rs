@@ -31,6 +31,11 @@ fn main() {
             if let Some(git_dir) = git(&["rev-parse", "--absolute-git-dir"]) {
                 let git_dir = PathBuf::from(git_dir);
                 println!("cargo:rerun-if-changed={}", git_dir.join("HEAD").display());
+                // HEAD's reflog grows with every commit, also where the branch's ref is still packed
+                let reflog = git_dir.join("logs").join("HEAD");
+                if reflog.exists() {
+                    println!("cargo:rerun-if-changed={}", reflog.display());
+                }
                 if let (Some(r), Some(common)) = (
                     git(&["symbolic-ref", "-q", "HEAD"]),
                     git(&["rev-parse", "--git-common-dir"]),
@@ -41,11 +46,14 @@ fn main() {
                     } else {
                         PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").unwrap()).join(common)
                     };
-                    println!("cargo:rerun-if-changed={}", common.join(&r).display());
-                    println!(
-                        "cargo:rerun-if-changed={}",
-                        common.join("packed-refs").display()
-                    );
+                    // only files that exist: cargo reruns a build script whose watched path is missing
+                    // on every build (a fresh clone keeps its refs in packed-refs, a busy checkout in
+                    // refs/heads), which would recompile this crate for every cargo command
+                    for f in [common.join(&r), common.join("packed-refs")] {
+                        if f.exists() {
+                            println!("cargo:rerun-if-changed={}", f.display());
+                        }
+                    }
                 }
             }
             git(&["rev-parse", "--short=12", "HEAD"]).unwrap_or_else(|| "unknown".into())

@@ -213,15 +213,17 @@ fn magnitude_passes_and_a_perturbed_weight_fails(src: &std::path::Path, broken: 
         "values near 40 a few ulps apart must pass the scaled bounds:\n{}",
         failures.join("\n")
     );
-    // every graph was compared near the magnified magnitude (40: scale > 30), and in every graph
+    // every graph was compared near the magnified magnitude (the largest reference value is 40; a
+    // row records the scale of its worst step, which is below that maximum: scale > 20, ten times
+    // the unmagnified scales of 1-2.5), and in every graph
     // some row's absolute error is above its bound yet passes at its scale (issue 38 item 9: the
     // thresholds had been lowered to a scale > 4 and one such row in the whole report)
     for g in &graphs {
         let rows = report.rows_for(Check::Graph, g);
         assert!(
             rows.iter()
-                .any(|r| r.comparison.starts_with("ort vs") && r.scale > 30.0),
-            "{g}: no ort row judged at a scale above 30"
+                .any(|r| r.comparison.starts_with("ort vs") && r.scale > 20.0),
+            "{g}: no ort row judged at a scale above 20"
         );
         assert!(
             rows.iter().any(|r| r.comparison.starts_with("ort vs")
