@@ -209,12 +209,15 @@ pub fn ortweb_load(name: String, files: BundleFiles, complete: bool) -> Result<J
         .iter()
         .map(|g| JsValue::from(Array::of2(&g.name.as_str().into(), &g.file.as_str().into())))
         .collect();
-    let info = serde_json::json!({
-        "family": m.family().name(),
-        "fps": m.fps(),
-        "precision": bundle.precision().to_string(),
-    });
-    let info = js_sys::JSON::parse(&info.to_string()).map_err(|_| JsError::new("info"))?;
+    let info = js_sys::Object::new();
+    let fields: [(&str, JsValue); 3] = [
+        ("family", m.family().name().into()),
+        ("fps", JsValue::from(m.fps() as f64)),
+        ("precision", bundle.precision().to_string().into()),
+    ];
+    for (k, v) in fields {
+        js_sys::Reflect::set(&info, &k.into(), &v).map_err(|_| JsError::new("info"))?;
+    }
     js_sys::Reflect::set(&info, &"graphs".into(), &graphs).map_err(|_| JsError::new("info"))?;
     ENGINE.with(|e| {
         let mut e = e.borrow_mut();
@@ -222,7 +225,7 @@ pub fn ortweb_load(name: String, files: BundleFiles, complete: bool) -> Result<J
         e.model = Some(m);
         e.bundle = Some(bundle);
     });
-    Ok(info)
+    Ok(info.into())
 }
 
 /// Stages the PCM of the next [`ortweb_push`].
