@@ -24,6 +24,9 @@ import { inflateRawSync } from 'node:zlib';
 import { launchChromium, openPage as openPageAt, serveStatic, wavLength } from './harness.mjs';
 import { diff } from './compare.mjs';
 
+// tract in WebAssembly vs native tract, every frame (scaled; see compareNative below)
+const WASM_FRAMES_BOUND = 1e-4;
+
 const args = { parity: [], broken: [] };
 const argv = process.argv.slice(2);
 for (let i = 0; i < argv.length; i += 2) {
@@ -168,7 +171,6 @@ process.exitCode = failures ? 1 : 0;
 // so a divergence cannot be shown to be a near-tie here: every frame must be within the bound (what
 // docs/wasm.md measured), and the first token whose frames are not is reported and fails. Each token
 // (4 frames) of each field is one comparison (compare.mjs: NaN/Inf, empty, length mismatch fail).
-const WASM_FRAMES_BOUND = 1e-4;
 function compareNative(got, npz, frames = 4) {
   const T = npz.poses?.shape?.[0];
   if (T !== got.frames) return [`native tract has ${T} frames, the browser ${got.frames}`];
