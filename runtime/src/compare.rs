@@ -111,25 +111,30 @@ pub fn diff_tensors(got: &crate::backend::Tensor, reference: &crate::backend::Te
     }
     match (&got.data, &reference.data) {
         (TensorData::F32(a), TensorData::F32(b)) => diff(a, b),
-        (TensorData::I64(a), TensorData::I64(b)) => {
-            let mut d = diff(&[], &[]);
-            d.compared = a.len().min(b.len());
-            d.max_abs = 0.0;
-            for (i, (x, y)) in a.iter().zip(b).enumerate() {
-                let e = x.abs_diff(*y) as f64;
-                if d.index.is_none() || e > d.max_abs {
-                    d.max_abs = e;
-                    d.index = Some(i);
-                    d.values = Some((*x as f32, *y as f32));
-                }
-            }
-            if d.compared == 0 {
-                d.max_abs = f64::INFINITY;
-            }
-            d
-        }
+        (TensorData::I64(a), TensorData::I64(b)) => diff_i64(a, b),
         _ => unreachable!("element types checked above"),
     }
+}
+
+/// Integers (step counters, tokens) compared exactly: the largest difference, at scale 1, so any
+/// difference fails every bound below 1. Nothing compared, or unequal lengths, fails as in [`diff`].
+pub fn diff_i64(got: &[i64], reference: &[i64]) -> Diff {
+    let mut d = diff(&[], &[]);
+    d.compared = got.len().min(reference.len());
+    d.max_abs = 0.0;
+    d.length_mismatch = (got.len() != reference.len()).then_some((got.len(), reference.len()));
+    for (i, (x, y)) in got.iter().zip(reference).enumerate() {
+        let e = x.abs_diff(*y) as f64;
+        if d.index.is_none() || e > d.max_abs {
+            d.max_abs = e;
+            d.index = Some(i);
+            d.values = Some((*x as f32, *y as f32));
+        }
+    }
+    if d.compared == 0 {
+        d.max_abs = f64::INFINITY;
+    }
+    d
 }
 
 impl Diff {

@@ -162,28 +162,8 @@ impl MaxAbs {
         match (&got.data, &want.data) {
             (TensorData::F32(a), TensorData::F32(b)) => self.add_slices(step, a, b, locate),
             (TensorData::I64(a), TensorData::I64(b)) => {
-                // integers (step counters, tokens): exact; the difference as a float, scale 1
-                let mut d = Diff {
-                    max_abs: 0.0,
-                    index: None,
-                    scale: 1.0,
-                    compared: a.len().min(b.len()),
-                    nonfinite: None,
-                    length_mismatch: None,
-                    values: None,
-                    shape_mismatch: None,
-                };
-                for (i, (x, y)) in a.iter().zip(b).enumerate() {
-                    let e = (*x as f64 - *y as f64).abs();
-                    if d.index.is_none() || e > d.max_abs {
-                        d.max_abs = e;
-                        d.index = Some(i);
-                        d.values = Some((*x as f32, *y as f32));
-                    }
-                }
-                if d.compared == 0 {
-                    d.max_abs = f64::INFINITY;
-                }
+                // integers (step counters, tokens): exact, at scale 1
+                let d = crate::compare::diff_i64(a, b);
                 let abs = std::mem::replace(&mut self.absolute, true);
                 self.fold(step, &d, locate);
                 self.absolute = abs;
