@@ -191,6 +191,18 @@ fn stream(e: &mut Engine, id: u32) -> Result<&mut Stream> {
         .ok_or_else(|| anyhow!("ort-web: no stream {id}"))
 }
 
+/// A stream's options from JavaScript's arguments (`guidance` NaN: the bundle's default); the same
+/// seed rule as the tract engine's [`seed_from`].
+fn options(seed: f64, guidance: f64) -> Result<model::StreamOptions> {
+    let seed = seed_from(seed)
+        .map_err(|_| anyhow!("seed is {seed}; expected an integer from 0 to 2^53"))?;
+    Ok(model::StreamOptions {
+        seed,
+        guidance: (!guidance.is_nan()).then_some(guidance),
+        ..Default::default()
+    })
+}
+
 fn frames(f: &[livegesture::output::Frame]) -> JsValue {
     let mut out = Frames::default();
     out.extend(f);
@@ -254,13 +266,7 @@ pub fn ortweb_take() -> Result<JsValue, JsError> {
 #[wasm_bindgen]
 pub fn ortweb_stream(seed: f64, guidance: f64) -> u32 {
     call(|e| {
-        let seed = seed_from(seed)
-            .map_err(|_| anyhow!("seed is {seed}; expected an integer from 0 to 2^53"))?;
-        let opts = model::StreamOptions {
-            seed,
-            guidance: (!guidance.is_nan()).then_some(guidance),
-            ..Default::default()
-        };
+        let opts = options(seed, guidance)?;
         let inner = PcmStream::new(generate::new_stream(model(e)?, &opts)?, "stream");
         e.next += 1;
         let id = e.next;
@@ -313,13 +319,7 @@ pub fn ortweb_close(id: u32) {
 pub fn ortweb_generate(seed: f64, guidance: f64) -> u32 {
     call(|e| {
         let wav = std::mem::take(&mut e.wav);
-        let seed = seed_from(seed)
-            .map_err(|_| anyhow!("seed is {seed}; expected an integer from 0 to 2^53"))?;
-        let opts = model::StreamOptions {
-            seed,
-            guidance: (!guidance.is_nan()).then_some(guidance),
-            ..Default::default()
-        };
+        let opts = options(seed, guidance)?;
         let g = generate::generate_wav_bytes(model(e)?, &opts, &wav, "wav")?;
         let mut out = Frames::default();
         out.extend(&g.frames);
