@@ -212,7 +212,7 @@ fn graph(
         ("call", n)
     };
     anyhow::ensure!(n > 0, "{}: no reference steps", refv.name);
-    let mut runner = backend.load_from(bundle, spec)?;
+    let runner = backend.load_from(bundle, spec)?;
     let batch = refv.get(&format!("{prefix}0.input.{first}"))?.batch();
     let mut caches: Vec<Tensor> = spec.caches.iter().map(|c| c.zeros(batch)).collect();
     let mut worst: Vec<Option<(Diff, usize)>> = vec![None; spec.outputs.len()];
@@ -331,7 +331,7 @@ fn livegesture_rollout(
     let want_tokens = refv.get("tokens")?;
     let regions = want_tokens.shape.get(1).copied().unwrap_or(1);
     let want_tokens = want_tokens.as_i64("tokens")?.to_vec();
-    let mut p = LiveGestureGraphs::new(bundle, backend)?;
+    let p = LiveGestureGraphs::new(bundle, backend)?;
     let opts = StreamOptions {
         seed,
         ..Default::default()

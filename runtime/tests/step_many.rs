@@ -314,3 +314,93 @@ fn livegesture_streams_changing_company_keep_their_frames() {
     // the comparison can fail: another stream's audio gives other motion
     assert!(max_diff(&out[0], &alone(m.as_ref(), &os[0], &audios[1])) > BOUND);
 }
+
+/// Streams of **one** model stepped on two threads at the same time (issue 37 item 4: the graphs are
+/// shared, each run has its own plan state or session) give exactly the frames each gives alone:
+/// same seed, same frames, whatever the interleaving. Both families, both backends; every push on
+/// both threads starts together (a barrier per chunk), so their graph runs overlap. The comparison
+/// is shown to fail for a stream with another seed.
+fn check_two_threads(
+    bundle: &Bundle,
+    kind: backend::BackendKind,
+    extra: impl Fn(StreamOptions) -> StreamOptions + Sync,
+) {
+    let be = backend::create(&BackendOptions {
+        kind,
+        ..Default::default()
+    })
+    .expect("backend");
+    let m = model::load(bundle, be.as_ref()).expect("model");
+    let plans = [
+        (extra(opts(11, None)), audio(bundle, 0, 16000 * 3 + 77)),
+        (extra(opts(12, Some(1.0))), audio(bundle, 9000, 16000 * 3)),
+    ];
+    let chunk = 2133;
+    let rounds = plans
+        .iter()
+        .map(|(_, a)| a.len().div_ceil(chunk))
+        .max()
+        .unwrap_or(0);
+    let both = std::sync::Barrier::new(plans.len());
+    let m = m.as_ref();
+    let threaded: Vec<Vec<Frame>> = std::thread::scope(|sc| {
+        let hs: Vec<_> = plans
+            .iter()
+            .map(|(o, a)| {
+                let both = &both;
+                sc.spawn(move || {
+                    let mut s = m.new_stream(o).unwrap();
+                    let mut out = Vec::new();
+                    let mut chunks = a.chunks(chunk);
+                    for _ in 0..rounds {
+                        both.wait();
+                        if let Some(c) = chunks.next() {
+                            out.extend(s.push_audio(c).unwrap());
+                        }
+                    }
+                    out.extend(s.finish(AudioSpan::at_16k(a.len() as u64)).unwrap());
+                    out
+                })
+            })
+            .collect();
+        hs.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    for ((o, a), got) in plans.iter().zip(&threaded) {
+        let want = alone(m, o, a);
+        assert_eq!(
+            got.len() as u64,
+            AudioSpan::at_16k(a.len() as u64).frames(30),
+            "{kind}, seed {}: frames cover the input",
+            o.seed
+        );
+        assert_eq!(
+            max_diff(got, &want),
+            0.0,
+            "{kind}, seed {}: the stream on its thread differs from the stream alone",
+            o.seed
+        );
+    }
+    // the comparison can fail: another seed gives other motion
+    let other = alone(m, &extra(opts(9, None)), &plans[0].1);
+    assert!(max_diff(&threaded[0], &other) > 0.0);
+}
+
+#[test]
+fn livegesture_streams_on_two_threads_equal_each_alone() {
+    let bundle = Bundle::load(common::tiny_bundle()).expect("test bundle loads");
+    check_two_threads(&bundle, backend::BackendKind::Tract, |o| o);
+    common::require_ort();
+    check_two_threads(&bundle, backend::BackendKind::Ort, |o| o);
+}
+
+#[test]
+fn diffsheg_streams_on_two_threads_equal_each_alone() {
+    let bundle = Bundle::load(common::diffsheg_tiny_bundle()).expect("test bundle loads");
+    let few = |o: StreamOptions| StreamOptions {
+        ddim_steps: Some(4),
+        ..o
+    };
+    check_two_threads(&bundle, backend::BackendKind::Tract, few);
+    common::require_ort();
+    check_two_threads(&bundle, backend::BackendKind::Ort, few);
+}

@@ -118,7 +118,7 @@ impl GraphRunner for OrtWebRunner {
         &self.spec
     }
 
-    fn run(&mut self, inputs: &[Tensor]) -> Result<Vec<Tensor>> {
+    fn run(&self, inputs: &[Tensor]) -> Result<Vec<Tensor>> {
         check_inputs(&self.spec, inputs)?;
         let names = self.spec.input_names();
         let args: Array = names

@@ -24,25 +24,31 @@ use crate::bundle::{shape_fits, shape_string, Bundle, GraphSpec};
 
 #[cfg(feature = "ort")]
 pub mod ort;
+mod pool;
 pub mod tract;
 
 pub use crate::tensor::{DType, Tensor, TensorData};
 
 /// A loaded step graph, ready to run.
-pub trait GraphRunner: Send {
+///
+/// Runs take `&self`: one runner is shared by every stream of a model, and streams on different
+/// threads run it at the same time, each run with its own per-run state (tract: a plan state from a
+/// pool per plan; ort: a session from a small pool per graph, `ort::OrtGraph`). A run's result
+/// depends only on its inputs, never on which pooled state or session ran it.
+pub trait GraphRunner: Send + Sync {
     /// The graph's manifest entry.
     fn spec(&self) -> &GraphSpec;
 
     /// Runs one step. `inputs` are in the graph's input order (data inputs, then caches); the
     /// outputs come back in the graph's output order (data outputs, then new caches).
-    fn run(&mut self, inputs: &[Tensor]) -> Result<Vec<Tensor>>;
+    fn run(&self, inputs: &[Tensor]) -> Result<Vec<Tensor>>;
 
     /// Like [`GraphRunner::run`], writing the outputs into `outputs`: it is resized to the graph's
     /// output count and each tensor reshaped for this run, keeping its buffer when it is large
     /// enough, so a caller that passes the same tensors again (e.g. last step's input caches as this
     /// step's output caches) saves allocations. Backends that can write outputs in place (ort) also
     /// save a copy per output; the default runs [`GraphRunner::run`] and replaces `outputs`.
-    fn run_into(&mut self, inputs: &[Tensor], outputs: &mut Vec<Tensor>) -> Result<()> {
+    fn run_into(&self, inputs: &[Tensor], outputs: &mut Vec<Tensor>) -> Result<()> {
         *outputs = self.run(inputs)?;
         Ok(())
     }
@@ -51,13 +57,13 @@ pub trait GraphRunner: Send {
     /// one-time preparation later (a server calls it before its first session). tract builds the
     /// plans of these sizes and one with the batch left symbolic for every other size (no plan is
     /// optimised after this call). Default: nothing to prepare.
-    fn prepare_batches(&mut self, sizes: &[usize]) -> Result<()> {
+    fn prepare_batches(&self, sizes: &[usize]) -> Result<()> {
         let _ = sizes;
         Ok(())
     }
 
     /// Runs one step with inputs given by name (any order); returns `(name, tensor)` in graph order.
-    fn run_named(&mut self, inputs: &[(&str, &Tensor)]) -> Result<Vec<(String, Tensor)>> {
+    fn run_named(&self, inputs: &[(&str, &Tensor)]) -> Result<Vec<(String, Tensor)>> {
         let names: Vec<String> = self
             .spec()
             .input_names()

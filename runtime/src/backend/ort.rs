@@ -36,6 +36,7 @@ use ort::session::Session;
 use ort::value::{DynValueRef, DynValueRefMut, TensorRef, TensorRefMut};
 use ort::AsPointer;
 
+use super::pool::Pool;
 use super::{
     check_inputs, check_outputs, Backend, BackendOptions, DType, GraphRunner, Tensor, TensorData,
 };
@@ -408,6 +409,36 @@ impl Backend for OrtBackend {
     }
 
     fn load(&self, spec: &GraphSpec, path: &Path) -> Result<Box<dyn GraphRunner>> {
+        let maker = SessionMaker {
+            env: self.env,
+            provider: self.provider,
+            intra_threads: self.intra_threads,
+            path: path.to_path_buf(),
+        };
+        let session = maker.make(spec)?;
+        let names: Vec<&str> = session.inputs().iter().map(|o| o.name()).collect();
+        ensure!(
+            names == spec.input_names(),
+            "ort: graph '{}' has inputs {names:?}, the manifest lists {:?}",
+            spec.name,
+            spec.input_names()
+        );
+        Ok(Box::new(OrtGraph::new(spec, session, maker)?))
+    }
+}
+
+/// How a graph's sessions are made (the first at load time, more when threads run it at once).
+#[derive(Clone)]
+struct SessionMaker {
+    env: &'static OrtEnv,
+    provider: Option<&'static Provider>,
+    intra_threads: usize,
+    path: PathBuf,
+}
+
+impl SessionMaker {
+    fn make(&self, spec: &GraphSpec) -> Result<Session> {
+        let path = &self.path;
         let what = || format!("ort: loading graph '{}' from {}", spec.name, path.display());
         let e = |err: ort::Error<ort::session::builder::SessionBuilder>| anyhow!("{err}");
         let mut builder = Session::builder(&self.env.env)
@@ -432,19 +463,20 @@ impl Backend for OrtBackend {
                 .map_err(e)
                 .with_context(what)?;
         }
-        let session = builder
+        builder
             .commit_from_file(path)
             .map_err(|err| anyhow!("{err}"))
-            .with_context(what)?;
-        let names: Vec<&str> = session.inputs().iter().map(|o| o.name()).collect();
-        ensure!(
-            names == spec.input_names(),
-            "ort: graph '{}' has inputs {names:?}, the manifest lists {:?}",
-            spec.name,
-            spec.input_names()
-        );
-        Ok(Box::new(OrtGraph::new(spec, session)?))
+            .with_context(what)
     }
+}
+
+/// How many sessions a graph may have: one per run that can make progress at the same time, i.e.
+/// the cores this process may use ([`std::thread::available_parallelism`]) divided by the intra-op
+/// threads of each run (at least one). Sessions are made only when runs overlap, so a process that
+/// steps one stream at a time keeps one session per graph.
+pub fn sessions_cap(intra_threads: usize) -> usize {
+    let cores = std::thread::available_parallelism().map_or(1, usize::from);
+    (cores / intra_threads.max(1)).max(1)
 }
 
 /// A graph loaded into an ONNX Runtime session.
@@ -454,15 +486,23 @@ impl Backend for OrtBackend {
 /// results straight into it, with no output allocation by the session and no copy out of it. This
 /// is the mechanism of ort's `OutputSelector::preallocate`, which only accepts values that own their
 /// data. Inputs are borrowed the same way (`TensorRef`, no copy).
+///
+/// A session runs one call at a time (ort's `Session::run` takes `&mut self`: its authors hold
+/// ONNX Runtime's concurrent `Run` on one session unsafe), so the graph keeps a small pool of
+/// sessions: a run takes an idle one, or makes one while fewer than [`sessions_cap`] exist, or
+/// waits. Each session holds its own copy of the graph's weights and kernels' prepacked buffers:
+/// the memory of a loaded model grows by one copy per extra thread that ever stepped at the same
+/// moment (docs/python.md gives the measured figure).
 pub struct OrtGraph {
     spec: GraphSpec,
     input_names: Vec<CString>,
     output_names: Vec<CString>,
-    session: Session,
+    sessions: Pool<Session>,
+    maker: SessionMaker,
 }
 
 impl OrtGraph {
-    fn new(spec: &GraphSpec, session: Session) -> Result<Self> {
+    fn new(spec: &GraphSpec, session: Session, maker: SessionMaker) -> Result<Self> {
         let c = |names: Vec<&str>| -> Result<Vec<CString>> {
             names
                 .into_iter()
@@ -475,8 +515,14 @@ impl OrtGraph {
             spec: spec.clone(),
             input_names: c(spec.input_names())?,
             output_names: c(spec.output_names())?,
-            session,
+            sessions: Pool::with_first(session, sessions_cap(maker.intra_threads)),
+            maker,
         })
+    }
+
+    /// Sessions made so far (idle or running).
+    pub fn sessions(&self) -> usize {
+        self.sessions.live()
     }
 }
 
@@ -484,7 +530,7 @@ impl OrtGraph {
     /// Runs with outputs allocated by ONNX Runtime (ort's safe `Session::run`) and copies them into
     /// `outputs`: the path for graphs whose output sizes are not known before the run.
     fn run_allocated(
-        &mut self,
+        &self,
         values: Vec<DynValueRef<'_>>,
         outputs: &mut Vec<Tensor>,
         batch: usize,
@@ -498,11 +544,30 @@ impl OrtGraph {
             .into_iter()
             .map(|(n, d, _)| (n.to_string(), d))
             .collect();
-        let session = &mut self.session;
-        let result = super::flush_denormals(|| session.run(named));
-        let got = result.map_err(|err| anyhow!("ort: running graph '{name}': {err}"))?;
+        self.sessions.with(
+            || self.maker.make(&self.spec),
+            |session| {
+                let result = super::flush_denormals(|| session.run(named));
+                let got = result.map_err(|err| anyhow!("ort: running graph '{name}': {err}"))?;
+                copy_outputs(&name, &specs, &got, outputs)
+            },
+        )?;
+        check_outputs(&self.spec, outputs, batch)
+            .with_context(|| format!("ort: graph '{name}'"))?;
+        Ok(())
+    }
+}
+
+/// Copies the outputs `specs` of a run (allocated by ONNX Runtime) into `outputs`.
+fn copy_outputs(
+    name: &str,
+    specs: &[(String, DType)],
+    got: &ort::session::SessionOutputs<'_>,
+    outputs: &mut Vec<Tensor>,
+) -> Result<()> {
+    {
         outputs.clear();
-        for (out_name, dtype) in &specs {
+        for (out_name, dtype) in specs {
             let v = got
                 .get(out_name.as_str())
                 .with_context(|| format!("ort: graph '{name}' returned no output '{out_name}'"))?;
@@ -522,8 +587,6 @@ impl OrtGraph {
             };
             outputs.push(t);
         }
-        check_outputs(&self.spec, outputs, batch)
-            .with_context(|| format!("ort: graph '{name}'"))?;
         Ok(())
     }
 }
@@ -533,13 +596,13 @@ impl GraphRunner for OrtGraph {
         &self.spec
     }
 
-    fn run(&mut self, inputs: &[Tensor]) -> Result<Vec<Tensor>> {
+    fn run(&self, inputs: &[Tensor]) -> Result<Vec<Tensor>> {
         let mut out = Vec::new();
         self.run_into(inputs, &mut out)?;
         Ok(out)
     }
 
-    fn run_into(&mut self, inputs: &[Tensor], outputs: &mut Vec<Tensor>) -> Result<()> {
+    fn run_into(&self, inputs: &[Tensor], outputs: &mut Vec<Tensor>) -> Result<()> {
         let batch = check_inputs(&self.spec, inputs)?;
         let name = &self.spec.name;
         let mut values: Vec<DynValueRef<'_>> = Vec::with_capacity(inputs.len());
@@ -594,25 +657,31 @@ impl GraphRunner for OrtGraph {
             in_names.len(),
             out_names.len()
         );
-        // SAFETY: the session pointer is live and used by this thread only (`&mut self`); the name
-        // arrays hold NUL-terminated strings owned by `self`; every input and output pointer is a
-        // live OrtValue over a buffer that outlives the call (`values` borrows `inputs`,
-        // `out_values` borrows `outputs` mutably, both dropped after it). Non-null outputs are
-        // preallocated: ONNX Runtime writes into them (shape mismatches are reported as errors) and
-        // does not replace or release them.
-        let status = super::flush_denormals(|| unsafe {
-            (ort::api().Run)(
-                self.session.ptr().cast_mut(),
-                std::ptr::null(),
-                in_names.as_ptr(),
-                in_ptrs.as_ptr(),
-                in_ptrs.len(),
-                out_names.as_ptr(),
-                out_ptrs.len(),
-                out_ptrs.as_mut_ptr(),
-            )
-        });
-        check_status(status, &format!("running graph '{name}' (batch {batch})"))?;
+        self.sessions.with(
+            || self.maker.make(&self.spec),
+            |session| {
+                // SAFETY: the session pointer is live and used by this thread only (taken out of
+                // the pool for this run, `&mut`); the name arrays hold NUL-terminated strings owned
+                // by `self`; every input and output pointer is a live OrtValue over a buffer that
+                // outlives the call (`values` borrows `inputs`, `out_values` borrows `outputs`
+                // mutably, both dropped after it). Non-null outputs are preallocated: ONNX Runtime
+                // writes into them (shape mismatches are reported as errors) and does not replace
+                // or release them.
+                let status = super::flush_denormals(|| unsafe {
+                    (ort::api().Run)(
+                        session.ptr_mut(),
+                        std::ptr::null(),
+                        in_names.as_ptr(),
+                        in_ptrs.as_ptr(),
+                        in_ptrs.len(),
+                        out_names.as_ptr(),
+                        out_ptrs.len(),
+                        out_ptrs.as_mut_ptr(),
+                    )
+                });
+                check_status(status, &format!("running graph '{name}' (batch {batch})"))
+            },
+        )?;
         drop(out_values);
         drop(values);
         check_outputs(&self.spec, outputs, batch)

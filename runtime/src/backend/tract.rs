@@ -3,16 +3,23 @@
 //! A graph is parsed once into a decluttered typed model with symbolic dimensions (the ONNX dim
 //! parameters: `batch`, and DiffSHEG's window length `frames`). The first run with a given set of
 //! sizes (batch, and `frames` where the graph has it) specialises the model to them (`set_symbols`),
-//! optimises it (`into_optimized`) and keeps the runnable plan and its state in a cache keyed by those
-//! sizes, so streaming with a fixed batch optimises once (a DiffSHEG stream sees at most two window
-//! lengths, so at most two plans per batch size).
+//! optimises it (`into_optimized`) and keeps the runnable plan in a cache keyed by those sizes, so
+//! streaming with a fixed batch optimises once (a DiffSHEG stream sees at most two window lengths, so
+//! at most two plans per batch size).
+//!
+//! A plan is immutable and shared; each run takes a run state (`TypedSimpleState`: the plan's
+//! per-run buffers) from the plan's pool, so threads run the same graph at the same time, each with
+//! a state of its own. A state is made when a run finds none idle: as many exist per plan as runs of
+//! that plan ever overlapped (one per thread that steps at the same moment).
 
 use std::collections::HashMap;
 use std::path::Path;
+use std::sync::{Arc, Mutex, MutexGuard};
 
-use anyhow::{anyhow, ensure, Context, Result};
+use anyhow::{ensure, Context, Result};
 use tract_onnx::prelude::*;
 
+use super::pool::Pool;
 use super::{
     check_inputs, check_outputs, Backend, DType, GraphRunner, Tensor as LgTensor, TensorData,
 };
@@ -68,17 +75,38 @@ pub struct TractGraph {
     /// Every symbol of the inputs' shapes, with the first (input, axis) where it appears.
     symbols: Vec<(Symbol, usize, usize)>,
     /// Plans per size of each symbol (in `symbols` order).
-    plans: HashMap<Vec<usize>, TypedSimpleState>,
+    plans: Mutex<HashMap<Vec<usize>, Arc<Plan>>>,
     /// After [`GraphRunner::prepare_batches`]: one plan with every symbol left symbolic (sizes
     /// resolved at run time), for the sizes without a plan of their own: no new plan is built.
-    symbolic: Option<TypedSimpleState>,
+    symbolic: Mutex<Option<Arc<Plan>>>,
+}
+
+/// An optimised plan (immutable, shared by every run) and its idle run states.
+struct Plan {
+    plan: Arc<TypedSimplePlan>,
+    states: Pool<TypedSimpleState>,
+}
+
+impl Plan {
+    fn new(plan: Arc<TypedSimplePlan>) -> Self {
+        // states are small (the plan's per-run buffers): one per overlapping run, no cap
+        Self {
+            plan,
+            states: Pool::new(usize::MAX),
+        }
+    }
+}
+
+/// Locks a plan table (a table is consistent after any panic: one insert is its only change).
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 impl std::fmt::Debug for TractGraph {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("TractGraph")
             .field("graph", &self.spec.name)
-            .field("plans", &self.plans.keys().collect::<Vec<_>>())
+            .field("plans", &lock(&self.plans).keys().collect::<Vec<_>>())
             .finish()
     }
 }
@@ -141,8 +169,8 @@ impl TractGraph {
             path: path.display().to_string(),
             typed,
             symbols,
-            plans: HashMap::new(),
-            symbolic: None,
+            plans: Mutex::default(),
+            symbolic: Mutex::default(),
         })
     }
 
@@ -160,8 +188,8 @@ impl TractGraph {
             .collect()
     }
 
-    /// Optimises the model for the symbol sizes `key` and spawns its state.
-    fn build(&self, key: &[usize]) -> Result<TypedSimpleState> {
+    /// Optimises the model for the symbol sizes `key`.
+    fn build(&self, key: &[usize]) -> Result<Plan> {
         let what = || {
             format!(
                 "tract: optimising graph '{}' ({}) for sizes {key:?}",
@@ -183,24 +211,21 @@ impl TractGraph {
             .into_optimized()
             .and_then(|m| m.into_runnable())
             .with_context(what)?;
-        plan.spawn().with_context(what)
+        Ok(Plan::new(plan))
     }
 
-    fn state_for(&mut self, inputs: &[LgTensor]) -> Result<&mut TypedSimpleState> {
+    /// The plan for the sizes of `inputs`: its own, else the symbolic one once prepared, else one
+    /// optimised now (outside the table's lock; a plan built by two threads at once is kept once).
+    fn plan_for(&self, inputs: &[LgTensor]) -> Result<Arc<Plan>> {
         let key = self.key_of(inputs);
-        if !self.plans.contains_key(&key) {
-            if self.symbolic.is_some() {
-                return self
-                    .symbolic
-                    .as_mut()
-                    .ok_or_else(|| anyhow!("tract: no symbolic plan"));
-            }
-            let state = self.build(&key)?;
-            self.plans.insert(key.clone(), state);
+        if let Some(p) = lock(&self.plans).get(&key) {
+            return Ok(Arc::clone(p));
         }
-        self.plans
-            .get_mut(&key)
-            .ok_or_else(|| anyhow!("tract: no plan for sizes {key:?}"))
+        if let Some(p) = lock(&self.symbolic).as_ref() {
+            return Ok(Arc::clone(p));
+        }
+        let built = Arc::new(self.build(&key)?);
+        Ok(Arc::clone(lock(&self.plans).entry(key).or_insert(built)))
     }
 }
 
@@ -245,16 +270,16 @@ impl GraphRunner for TractGraph {
     /// Builds the plans of the batch sizes in `sizes` up to [`TRACT_PREPARED_ROWS`] (a graph whose
     /// only symbol is the batch), and one plan with the symbols left symbolic that every other size
     /// runs on from now on: no run afterwards optimises a plan (0.1-0.2 s on a new batch size).
-    fn prepare_batches(&mut self, sizes: &[usize]) -> Result<()> {
+    fn prepare_batches(&self, sizes: &[usize]) -> Result<()> {
         if self.symbols.len() == 1 {
             for &b in sizes.iter().filter(|&&b| b <= TRACT_PREPARED_ROWS) {
-                if !self.plans.contains_key(&vec![b]) {
-                    let state = self.build(&[b])?;
-                    self.plans.insert(vec![b], state);
+                if !lock(&self.plans).contains_key(&vec![b]) {
+                    let plan = Arc::new(self.build(&[b])?);
+                    lock(&self.plans).entry(vec![b]).or_insert(plan);
                 }
             }
         }
-        if self.symbolic.is_none() && !self.symbols.is_empty() {
+        if lock(&self.symbolic).is_none() && !self.symbols.is_empty() {
             let what = || {
                 format!(
                     "tract: optimising graph '{}' ({}) with symbolic sizes",
@@ -267,17 +292,26 @@ impl GraphRunner for TractGraph {
                 .into_optimized()
                 .and_then(|m| m.into_runnable())
                 .with_context(what)?;
-            self.symbolic = Some(plan.spawn().with_context(what)?);
+            lock(&self.symbolic).get_or_insert_with(|| Arc::new(Plan::new(plan)));
         }
         Ok(())
     }
 
-    fn run(&mut self, inputs: &[LgTensor]) -> Result<Vec<LgTensor>> {
+    fn run(&self, inputs: &[LgTensor]) -> Result<Vec<LgTensor>> {
         let batch = check_inputs(&self.spec, inputs)?;
         let tv: TVec<TValue> = inputs.iter().map(to_tract).collect::<Result<_>>()?;
-        let name = self.spec.name.clone();
-        let state = self.state_for(inputs)?;
-        let outs = super::flush_denormals(|| state.run(tv))
+        let name = &self.spec.name;
+        let plan = self.plan_for(inputs)?;
+        let outs = plan
+            .states
+            .with(
+                || {
+                    plan.plan.spawn().with_context(|| {
+                        format!("tract: a run state for graph '{name}' ({})", self.path)
+                    })
+                },
+                |state| Ok(super::flush_denormals(|| state.run(tv))?),
+            )
             .with_context(|| format!("tract: running graph '{name}' (batch {batch})"))?;
         let specs = self.spec.all_outputs();
         ensure!(

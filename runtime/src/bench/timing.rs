@@ -66,14 +66,14 @@ impl GraphRunner for TimedRunner {
         self.inner.spec()
     }
 
-    fn run(&mut self, inputs: &[Tensor]) -> Result<Vec<Tensor>> {
+    fn run(&self, inputs: &[Tensor]) -> Result<Vec<Tensor>> {
         let t0 = Instant::now();
         let out = self.inner.run(inputs);
         self.rec.record(self.id, t0.elapsed().as_secs_f64());
         out
     }
 
-    fn run_into(&mut self, inputs: &[Tensor], outputs: &mut Vec<Tensor>) -> Result<()> {
+    fn run_into(&self, inputs: &[Tensor], outputs: &mut Vec<Tensor>) -> Result<()> {
         let t0 = Instant::now();
         let out = self.inner.run_into(inputs, outputs);
         self.rec.record(self.id, t0.elapsed().as_secs_f64());

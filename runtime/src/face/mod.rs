@@ -308,7 +308,7 @@ impl FaceGraph {
         let mut inputs = vec![Tensor::f32(vec![1, m, n_mels], mel)?];
         inputs.append(caches);
         let out = {
-            let mut r = self
+            let r = self
                 .runner
                 .lock()
                 .map_err(|_| anyhow!("face graph: a previous call panicked"))?;

@@ -64,7 +64,7 @@ fn run_on_reference(
         let n = usize::try_from(n).unwrap_or(0);
         return Ok((graphs::chain_graph(backend, bundle, spec, refv, n)?, "step"));
     }
-    let mut runner = backend.load(spec, &bundle.graph_path(spec))?;
+    let runner = backend.load(spec, &bundle.graph_path(spec))?;
     let mut all = Vec::new();
     for c in 0.. {
         let key = |name: &str| format!("call{c}.input.{name}");

@@ -569,7 +569,7 @@ fn graph_calls(
     let mut outs: Vec<(BackendKind, Result<Vec<Vec<Tensor>>>)> = Vec::new();
     for (k, be) in backends {
         let res = (|| -> Result<Vec<Vec<Tensor>>> {
-            let mut runner = be.load(spec, &bundle.graph_path(spec))?;
+            let runner = be.load(spec, &bundle.graph_path(spec))?;
             (0..calls)
                 .map(|c| {
                     let inputs: Vec<Tensor> = spec

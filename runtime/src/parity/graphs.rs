@@ -12,7 +12,7 @@ pub(super) fn chain_graph(
     refv: &ReferenceVectors,
     n_steps: usize,
 ) -> Result<StepOutputs> {
-    let mut runner = backend.load(spec, &bundle.graph_path(spec))?;
+    let runner = backend.load(spec, &bundle.graph_path(spec))?;
     let batch = refv
         .get(&format!("step0.input.{}", spec.inputs[0].name))?
         .batch();

@@ -8,7 +8,8 @@ use super::foppas::MOTION_DIM;
 use super::stream::WindowGraphs;
 use crate::backend::{GraphRunner, Tensor};
 
-/// The two loaded graphs of a DiffSHEG bundle.
+/// The two loaded graphs of a DiffSHEG bundle, shared by the streams of every thread (runs take
+/// `&self`, each with a run state or session of its own).
 pub struct DiffshegGraphs {
     /// `speech_encoder`.
     pub encoder: Box<dyn GraphRunner>,
@@ -31,7 +32,7 @@ impl std::fmt::Debug for DiffshegGraphs {
 
 impl DiffshegGraphs {
     /// `speech_encoder` on a batch of windows of `n` frames: mel (B, 2n, n_mels) -> (B, n, audio_dim).
-    pub fn encode_batch(&mut self, mel: Vec<f32>, batch: usize, n: usize) -> Result<Vec<f32>> {
+    pub fn encode_batch(&self, mel: Vec<f32>, batch: usize, n: usize) -> Result<Vec<f32>> {
         let t = Tensor::f32(vec![batch, 2 * n, self.n_mels], mel)?;
         let out = self.encoder.run(&[t])?;
         let a = out
@@ -50,7 +51,7 @@ impl DiffshegGraphs {
     /// `denoiser` on B rows: x (B, n, D), t (B), audio (B, n, audio_dim), speaker (B), cond (B).
     #[allow(clippy::too_many_arguments)]
     pub fn denoise_batch(
-        &mut self,
+        &self,
         x: Vec<f32>,
         t: Vec<i64>,
         audio: Vec<f32>,
@@ -83,12 +84,12 @@ impl DiffshegGraphs {
 }
 
 impl WindowGraphs for DiffshegGraphs {
-    fn encode(&mut self, mel: &[f32], n: usize) -> Result<Vec<f32>> {
+    fn encode(&self, mel: &[f32], n: usize) -> Result<Vec<f32>> {
         self.encode_batch(mel.to_vec(), 1, n)
     }
 
     fn denoise(
-        &mut self,
+        &self,
         x: &[f32],
         n: usize,
         t: i64,

@@ -6,9 +6,9 @@
 //! overlap, noise position). Emitted rows are de-normalised (`x * std + mean` in f32) and assembled into
 //! frames by the shared region code ([`crate::model::regions`]).
 
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::Arc;
 
-use anyhow::{anyhow, bail, ensure, Context, Result};
+use anyhow::{bail, ensure, Context, Result};
 
 use super::foppas::{SamplerOptions, MOTION_DIM};
 use super::graphs::DiffshegGraphs;
@@ -131,15 +131,9 @@ impl Shared {
 /// A loaded DiffSHEG bundle ([`MotionModel`] of the `diffsheg` family).
 #[derive(Debug, Clone)]
 pub struct DiffshegModel {
-    pub(super) graphs: Arc<Mutex<DiffshegGraphs>>,
+    pub(super) graphs: Arc<DiffshegGraphs>,
     pub(super) shared: Arc<Shared>,
     backend: String,
-}
-
-pub(super) fn lock(g: &Mutex<DiffshegGraphs>) -> Result<MutexGuard<'_, DiffshegGraphs>> {
-    g.lock().map_err(|_| {
-        anyhow!("the model's graphs were left inconsistent by a panic in another stream")
-    })
 }
 
 impl DiffshegModel {
@@ -183,14 +177,14 @@ impl DiffshegModel {
             audio_dim,
         };
         Ok(Self {
-            graphs: Arc::new(Mutex::new(graphs)),
+            graphs: Arc::new(graphs),
             shared: Arc::new(shared),
             backend: backend.name().to_string(),
         })
     }
 
     /// The shared graphs (for parity and bench tools that run them directly).
-    pub fn graphs(&self) -> &Arc<Mutex<DiffshegGraphs>> {
+    pub fn graphs(&self) -> &Arc<DiffshegGraphs> {
         &self.graphs
     }
 
@@ -248,7 +242,7 @@ impl MotionModel for DiffshegModel {
 /// One DiffSHEG stream ([`MotionStream`]).
 #[derive(Debug)]
 pub struct DiffshegStream {
-    pub(super) graphs: Arc<Mutex<DiffshegGraphs>>,
+    pub(super) graphs: Arc<DiffshegGraphs>,
     pub(super) shared: Arc<Shared>,
     pub(super) inner: FoppasStream,
     pub(super) poisoned: bool,
@@ -262,14 +256,13 @@ impl DiffshegStream {
 
     fn guarded(
         &mut self,
-        f: impl FnOnce(&mut FoppasStream, &mut DiffshegGraphs) -> Result<Vec<Emitted>>,
+        f: impl FnOnce(&mut FoppasStream, &DiffshegGraphs) -> Result<Vec<Emitted>>,
     ) -> Result<Vec<Frame>> {
         ensure!(
             !self.poisoned,
             "the stream failed earlier; reset it before pushing more audio"
         );
-        let mut g = lock(&self.graphs)?;
-        match f(&mut self.inner, &mut g) {
+        match f(&mut self.inner, &self.graphs) {
             Ok(em) => Ok(em.iter().flat_map(|e| self.shared.frames(e)).collect()),
             Err(e) => {
                 self.poisoned = true;

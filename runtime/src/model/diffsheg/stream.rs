@@ -19,12 +19,12 @@ use crate::frontend::{FrontendConfig, LogMelAnalyzer};
 /// The two graphs of a window.
 pub trait WindowGraphs {
     /// `speech_encoder`: raw log-mel frames (2n x n_mels, row-major) -> audio features (n x audio_dim).
-    fn encode(&mut self, mel: &[f32], n: usize) -> Result<Vec<f32>>;
+    fn encode(&self, mel: &[f32], n: usize) -> Result<Vec<f32>>;
 
     /// `denoiser` on `conds.len()` rows sharing `x` (n x D), `t`, `audio` and `speaker`; row r has
     /// `cond = conds[r]`. Returns eps of every row (rows x n x D, row-major).
     fn denoise(
-        &mut self,
+        &self,
         x: &[f32],
         n: usize,
         t: i64,
@@ -225,7 +225,7 @@ impl FoppasStream {
     }
 
     /// Pushes samples (any chunk size) and runs every window whose audio is complete.
-    pub fn push(&mut self, graphs: &mut dyn WindowGraphs, samples: &[f32]) -> Result<Vec<Emitted>> {
+    pub fn push(&mut self, graphs: &dyn WindowGraphs, samples: &[f32]) -> Result<Vec<Emitted>> {
         self.accept(samples)?;
         let mut out = Vec::new();
         while let Some((n, last)) = self.next_window() {
@@ -283,7 +283,7 @@ impl FoppasStream {
     /// `ceil(n_samples * 30 / 16000)`): pads with silence and runs the remaining windows.
     pub fn finish(
         &mut self,
-        graphs: &mut dyn WindowGraphs,
+        graphs: &dyn WindowGraphs,
         total_frames: usize,
     ) -> Result<Vec<Emitted>> {
         if self.finished {
@@ -371,12 +371,7 @@ impl FoppasStream {
         Ok(out)
     }
 
-    fn run_window(
-        &mut self,
-        graphs: &mut dyn WindowGraphs,
-        n: usize,
-        last: bool,
-    ) -> Result<Emitted> {
+    fn run_window(&mut self, graphs: &dyn WindowGraphs, n: usize, last: bool) -> Result<Emitted> {
         let w = self.start_window(n, last)?;
         let s = w.start;
         let d = MOTION_DIM;

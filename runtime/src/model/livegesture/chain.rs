@@ -64,15 +64,15 @@ impl Stage {
         })
     }
 
-    pub(super) fn runner_mut(&mut self) -> &mut dyn GraphRunner {
-        self.runner.as_mut()
+    pub(super) fn runner(&self) -> &dyn GraphRunner {
+        self.runner.as_ref()
     }
 
     /// Runs with data inputs built by `data(role)` and the stacked `caches`, writing the new caches
     /// into the buffers of `spare` where the backend can (empty: fresh buffers). Returns (data
     /// outputs, new caches, the input caches: spare buffers for the next run).
     fn run(
-        &mut self,
+        &self,
         mut data: impl FnMut(Role) -> Result<Tensor>,
         caches: Vec<Tensor>,
         spare: Vec<Tensor>,
@@ -98,7 +98,7 @@ impl Stage {
     /// Runs as `slot` of the chain: takes the slot's caches from `store`, runs with data inputs from
     /// `data`, puts the new caches back, and returns the graph's (single) data output.
     fn run_slot(
-        &mut self,
+        &self,
         slot: Slot,
         store: &mut impl CacheStore,
         data: impl FnMut(Role) -> Result<Tensor>,
@@ -190,7 +190,7 @@ impl LiveGestureGraphs {
     /// module docs. Shared by [`LiveGestureGraphs::step_batch`] and [`LiveGestureGraphs::step_stream_batch`], which
     /// differ only in where the caches live (`store`). On error the caches in `store` are incomplete.
     pub(super) fn step_inner(
-        &mut self,
+        &self,
         streams: &mut [&mut StreamState],
         store: &mut impl CacheStore,
         mels: &[Array2<f32>],
@@ -219,11 +219,7 @@ impl LiveGestureGraphs {
 
     /// Steps 1-2: the audio encoder on every stream's mel block (one row per stream); returns the
     /// audio tokens `(streams, d_audio)`.
-    fn encode_audio(
-        &mut self,
-        store: &mut impl CacheStore,
-        mels: &[Array2<f32>],
-    ) -> Result<Tensor> {
+    fn encode_audio(&self, store: &mut impl CacheStore, mels: &[Array2<f32>]) -> Result<Tensor> {
         let (mpt, n_mels) = (
             self.frontend.mel_frames_per_token as usize,
             self.frontend.n_mels,
@@ -243,7 +239,7 @@ impl LiveGestureGraphs {
     /// Step 3: every region's expert on both guidance branches; returns the hidden states in region
     /// order. The fused form runs one graph for all regions and splits its `hidden` by region.
     fn run_experts(
-        &mut self,
+        &self,
         streams: &[&mut StreamState],
         store: &mut impl CacheStore,
         b: &Branches,
@@ -257,7 +253,7 @@ impl LiveGestureGraphs {
                 }
             }
             let prev = Tensor::i64(vec![b.total, n_regions], prev)?;
-            let stage = &mut self.experts[0];
+            let stage = &self.experts[0];
             let name = stage.spec.name.clone();
             let hidden = stage.run_slot(Slot::Expert(0), store, |role| match role {
                 Role::PrevToken => Ok(prev.clone()),
@@ -287,7 +283,7 @@ impl LiveGestureGraphs {
                 .collect();
         }
         let mut hidden = Vec::with_capacity(self.experts.len());
-        for (ri, stage) in self.experts.iter_mut().enumerate() {
+        for (ri, stage) in self.experts.iter().enumerate() {
             let mut prev = Vec::with_capacity(b.total);
             for (s, &r) in streams.iter().zip(&b.rows) {
                 prev.extend(std::iter::repeat_n(s.prev[ri], r));
@@ -306,7 +302,7 @@ impl LiveGestureGraphs {
     /// Step 4: fusion of the regions' hidden states; returns the logits
     /// `(branch rows, regions, codebook)`.
     fn run_fusion(
-        &mut self,
+        &self,
         store: &mut impl CacheStore,
         b: &Branches,
         hidden: Vec<Tensor>,
@@ -378,7 +374,7 @@ impl LiveGestureGraphs {
     /// output of `decoders_fused`, `(streams, frames_per_token, sum of the dims)` with the regions
     /// side by side (see [`LiveGestureGraphs::assemble_frames`]).
     fn run_decoders(
-        &mut self,
+        &self,
         store: &mut impl CacheStore,
         tokens: &[Vec<i64>],
     ) -> Result<Vec<Tensor>> {
@@ -389,7 +385,7 @@ impl LiveGestureGraphs {
                 tok.extend_from_slice(&t[..n_regions]);
             }
             let tok = Tensor::i64(vec![tokens.len(), n_regions], tok)?;
-            let stage = &mut self.decoders[0];
+            let stage = &self.decoders[0];
             let name = stage.spec.name.clone();
             let motion = stage.run_slot(Slot::Decoder(0), store, |role| match role {
                 Role::Token => Ok(tok.clone()),
@@ -406,7 +402,7 @@ impl LiveGestureGraphs {
             return Ok(vec![motion]);
         }
         let mut feats = Vec::with_capacity(self.decoders.len());
-        for (ri, stage) in self.decoders.iter_mut().enumerate() {
+        for (ri, stage) in self.decoders.iter().enumerate() {
             let tok = Tensor::i64(vec![tokens.len()], tokens.iter().map(|t| t[ri]).collect())?;
             feats.push(stage.run_slot(Slot::Decoder(ri), store, |role| match role {
                 Role::Token => Ok(tok.clone()),

@@ -188,7 +188,7 @@ impl Cohorts {
     /// members are poisoned and their cohort dropped.
     pub(super) fn step(
         &mut self,
-        graphs: &mut LiveGestureGraphs,
+        graphs: &LiveGestureGraphs,
         members: &mut [Member<'_>],
         mels: &[Array2<f32>],
     ) -> Result<Vec<TokenStep>> {

@@ -114,8 +114,9 @@ pub struct LiveGestureGraphs {
     /// The region SVQ decoders: one stage per region (canonical form, and the fused form of a bundle
     /// without `decoders_fused`) or one for all (`decoders_fused`).
     decoders: Vec<Stage>,
-    /// Buffers of [`LiveGestureGraphs::step_batch`] reused from step to step.
-    scratch: caches::Scratch,
+    /// Buffers of [`LiveGestureGraphs::step_batch`] reused from step to step (taken by one step at
+    /// a time; a step that finds them taken uses fresh ones).
+    scratch: std::sync::Mutex<caches::Scratch>,
 }
 
 impl std::fmt::Debug for LiveGestureGraphs {
@@ -287,18 +288,18 @@ impl LiveGestureGraphs {
     /// expert and fusion graphs carry two rows per guided stream): tract optimises the plans of the
     /// smallest sizes and one with the batch left symbolic for all others, so that no later step
     /// optimises a plan; ort prepares nothing.
-    pub fn prepare_batches(&mut self, max_streams: usize) -> Result<()> {
+    pub fn prepare_batches(&self, max_streams: usize) -> Result<()> {
         let (one, two): (Vec<usize>, Vec<usize>) = (
             (1..=max_streams.max(1)).collect(),
             (1..=2 * max_streams.max(1)).collect(),
         );
-        self.audio_encoder.runner_mut().prepare_batches(&one)?;
-        for e in &mut self.experts {
-            e.runner_mut().prepare_batches(&two)?;
+        self.audio_encoder.runner().prepare_batches(&one)?;
+        for e in &self.experts {
+            e.runner().prepare_batches(&two)?;
         }
-        self.fusion.runner_mut().prepare_batches(&two)?;
-        for d in &mut self.decoders {
-            d.runner_mut().prepare_batches(&one)?;
+        self.fusion.runner().prepare_batches(&two)?;
+        for d in &self.decoders {
+            d.runner().prepare_batches(&one)?;
         }
         Ok(())
     }
@@ -320,7 +321,7 @@ impl LiveGestureGraphs {
     }
 
     /// Pushes audio (16 kHz mono, any chunk size) and returns the frames of every token it completes.
-    pub fn push(&mut self, stream: &mut Stream, chunk: &[f32]) -> Result<Vec<Frame>> {
+    pub fn push(&self, stream: &mut Stream, chunk: &[f32]) -> Result<Vec<Frame>> {
         Ok(self
             .push_steps(stream, chunk)?
             .into_iter()
@@ -329,7 +330,7 @@ impl LiveGestureGraphs {
     }
 
     /// Like [`LiveGestureGraphs::push`], returning each token step (tokens, optional logits, frames).
-    pub fn push_steps(&mut self, stream: &mut Stream, chunk: &[f32]) -> Result<Vec<TokenStep>> {
+    pub fn push_steps(&self, stream: &mut Stream, chunk: &[f32]) -> Result<Vec<TokenStep>> {
         ensure!(
             !stream.poisoned,
             "the stream failed earlier; reset it before pushing more audio"
@@ -343,7 +344,7 @@ impl LiveGestureGraphs {
     /// that the stream has emitted exactly [`AudioSpan::frames`] frames. The stream then refuses more
     /// audio until [`LiveGestureGraphs::reset`]. Errors when `input` does not match the audio pushed (see
     /// [`Stream::finish_audio`]).
-    pub fn finish(&mut self, stream: &mut Stream, input: AudioSpan) -> Result<Vec<Frame>> {
+    pub fn finish(&self, stream: &mut Stream, input: AudioSpan) -> Result<Vec<Frame>> {
         Ok(self
             .finish_steps(stream, input)?
             .into_iter()
@@ -352,11 +353,7 @@ impl LiveGestureGraphs {
     }
 
     /// Like [`LiveGestureGraphs::finish`], returning the token steps (their frames already cut).
-    pub fn finish_steps(
-        &mut self,
-        stream: &mut Stream,
-        input: AudioSpan,
-    ) -> Result<Vec<TokenStep>> {
+    pub fn finish_steps(&self, stream: &mut Stream, input: AudioSpan) -> Result<Vec<TokenStep>> {
         ensure!(
             !stream.poisoned,
             "the stream failed earlier; reset it before finishing it"
@@ -371,7 +368,7 @@ impl LiveGestureGraphs {
     }
 
     /// One token step of one stream from its mel frames `(mel_frames_per_token, n_mels)`.
-    pub fn step(&mut self, stream: &mut Stream, mel: &Array2<f32>) -> Result<TokenStep> {
+    pub fn step(&self, stream: &mut Stream, mel: &Array2<f32>) -> Result<TokenStep> {
         let mut v = self.step_batch(&mut [stream], std::slice::from_ref(mel))?;
         v.pop().context("step_batch returned no result")
     }
@@ -395,7 +392,7 @@ impl LiveGestureGraphs {
     /// split back after it. Streams may differ in guidance. For a set of streams stepped together
     /// again and again, a [`StreamBatch`] ([`LiveGestureGraphs::step_stream_batch`]) avoids the stacking.
     pub fn step_batch(
-        &mut self,
+        &self,
         streams: &mut [&mut Stream],
         mels: &[Array2<f32>],
     ) -> Result<Vec<TokenStep>> {
@@ -413,7 +410,12 @@ impl LiveGestureGraphs {
             s.poisoned = true;
         }
         let mut states = Vec::with_capacity(streams.len());
-        let mut scratch = std::mem::take(&mut self.scratch);
+        // the buffers of the last step, unless another thread's step holds them now
+        let mut scratch = self
+            .scratch
+            .try_lock()
+            .map(|mut s| std::mem::take(&mut *s))
+            .unwrap_or_default();
         let mut store = SeparateCaches {
             caches: Vec::with_capacity(streams.len()),
             branch_rows: Vec::with_capacity(streams.len()),
@@ -429,7 +431,9 @@ impl LiveGestureGraphs {
         drop(store);
         // after a failed run the scratch buffers may be partial: they are rebuilt on the next step
         if out.is_ok() {
-            self.scratch = scratch;
+            if let Ok(mut s) = self.scratch.try_lock() {
+                *s = scratch;
+            }
         }
         let out = out?;
         for s in streams.iter_mut() {
@@ -443,7 +447,7 @@ impl LiveGestureGraphs {
     /// place (moved, not copied). Returns the token steps in the same order. The tokens and frames of
     /// each stream are those it would get stepped alone.
     pub fn step_stream_batch(
-        &mut self,
+        &self,
         batch: &mut StreamBatch,
         mels: &[Array2<f32>],
     ) -> Result<Vec<TokenStep>> {
@@ -476,10 +480,14 @@ mod tests {
 
     fn assert_send<T: Send>() {}
 
+    fn assert_sync<T: Sync>() {}
+
     #[test]
     fn streams_and_graphs_move_between_threads() {
         assert_send::<Stream>();
         assert_send::<LiveGestureGraphs>();
         assert_send::<StreamBatch>();
+        // shared by the streams of every thread (steps take `&self`)
+        assert_sync::<LiveGestureGraphs>();
     }
 }

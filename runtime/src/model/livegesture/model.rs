@@ -1,12 +1,12 @@
 //! The LiveGesture family behind the family-independent traits ([`MotionModel`], [`MotionStream`]).
 //!
-//! [`LiveGestureModel`] shares one [`LiveGestureGraphs`] (the loaded graphs) between its streams behind a
-//! mutex: a graph run needs the runner exclusively (tract caches a plan per batch size, ort binds
-//! its outputs), and a stream steps only while it holds the lock, so streams on other threads wait
-//! for each other's token steps. To run many streams in parallel, load one model per thread; to
-//! step many streams in one graph run per graph per token, use [`MotionModel::step_many`] (the
-//! caches of streams stepped together stay stacked between calls, in the model's cohorts: see
-//! `cohorts`), or a [`super::StreamBatch`] directly (caches kept stacked between steps).
+//! [`LiveGestureModel`] shares one [`LiveGestureGraphs`] (the loaded graphs, immutable once loaded)
+//! between its streams: each stream owns its state (frontend, caches, sampler) and a token step
+//! takes the graphs by `&self`, so streams on different threads step at the same time (each graph
+//! run with a run state or session of its own, `crate::backend::GraphRunner`). To step many
+//! streams in one graph run per graph per token, use [`MotionModel::step_many`] (the caches of
+//! streams stepped together stay stacked between calls, in the model's cohorts: see `cohorts`;
+//! `step_many` calls of one model run one at a time), or a [`super::StreamBatch`] directly.
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -25,9 +25,8 @@ use crate::output::Frame;
 /// A loaded LiveGesture bundle ([`MotionModel`] of the `livegesture` family).
 #[derive(Debug, Clone)]
 pub struct LiveGestureModel {
-    graphs: Arc<Mutex<LiveGestureGraphs>>,
-    /// Where the streams' caches stay stacked between [`MotionModel::step_many`] calls; locked
-    /// after `graphs`, never the other way round.
+    graphs: Arc<LiveGestureGraphs>,
+    /// Where the streams' caches stay stacked between [`MotionModel::step_many`] calls.
     cohorts: Arc<Mutex<Cohorts>>,
     backend: String,
     fps: u64,
@@ -36,7 +35,7 @@ pub struct LiveGestureModel {
 
 fn lock<T>(p: &Mutex<T>) -> Result<MutexGuard<'_, T>> {
     p.lock().map_err(|_| {
-        anyhow!("the model's graphs were left inconsistent by a panic in another stream")
+        anyhow!("the model's stacked caches were left inconsistent by a panic in another stream")
     })
 }
 
@@ -54,7 +53,7 @@ impl LiveGestureModel {
     }
 
     /// The shared graphs (for LiveGesture-specific work: token steps, batches).
-    pub fn graphs(&self) -> &Arc<Mutex<LiveGestureGraphs>> {
+    pub fn graphs(&self) -> &Arc<LiveGestureGraphs> {
         &self.graphs
     }
 }
@@ -68,7 +67,7 @@ impl From<LiveGestureGraphs> for LiveGestureModel {
             fps: f.fps,
             frames_per_token: f.frames_per_token,
             cohorts: Arc::new(Mutex::new(Cohorts::new(graphs.empty_caches()))),
-            graphs: Arc::new(Mutex::new(graphs)),
+            graphs: Arc::new(graphs),
         }
     }
 }
@@ -101,7 +100,7 @@ impl MotionModel for LiveGestureModel {
             )
             .into());
         }
-        let stream = lock(&self.graphs)?.new_stream(opts)?;
+        let stream = self.graphs.new_stream(opts)?;
         let key = lock(&self.cohorts)?.key();
         Ok(Box::new(LiveGestureStream {
             graphs: Arc::clone(&self.graphs),
@@ -116,7 +115,7 @@ impl MotionModel for LiveGestureModel {
     /// Every graph's backend prepares batch sizes up to `max_streams` streams
     /// ([`LiveGestureGraphs::prepare_batches`]).
     fn prepare_batches(&self, max_streams: usize) -> Result<()> {
-        lock(&self.graphs)?.prepare_batches(max_streams)
+        self.graphs.prepare_batches(max_streams)
     }
 
     /// Pushes every job's audio into its stream's frontend, then steps token by token: each round
@@ -157,8 +156,8 @@ impl MotionModel for LiveGestureModel {
             }
         }
         if !mine.is_empty() {
-            match lock(&self.graphs).and_then(|p| Ok((p, lock(&self.cohorts)?))) {
-                Ok((mut p, mut c)) => step_rounds(&mut p, &mut c, &mut mine),
+            match lock(&self.cohorts) {
+                Ok(mut c) => step_rounds(&self.graphs, &mut c, &mut mine),
                 Err(e) => {
                     for m in &mut mine {
                         m.failed = Some(format!("{e:#}"));
@@ -229,7 +228,7 @@ fn prepare(
 }
 
 /// Steps the streams' tokens in rounds, one token of every stream that has one per round.
-fn step_rounds(p: &mut LiveGestureGraphs, c: &mut Cohorts, mine: &mut [Pending<'_>]) {
+fn step_rounds(p: &LiveGestureGraphs, c: &mut Cohorts, mine: &mut [Pending<'_>]) {
     loop {
         let mut owners = Vec::new();
         let mut blocks = Vec::new();
@@ -272,7 +271,7 @@ fn step_rounds(p: &mut LiveGestureGraphs, c: &mut Cohorts, mine: &mut [Pending<'
 /// One LiveGesture stream ([`MotionStream`]): a [`Stream`] and the model it steps on.
 #[derive(Debug)]
 pub struct LiveGestureStream {
-    graphs: Arc<Mutex<LiveGestureGraphs>>,
+    graphs: Arc<LiveGestureGraphs>,
     cohorts: Arc<Mutex<Cohorts>>,
     /// The stream's key in `cohorts`.
     key: u64,
@@ -303,7 +302,7 @@ impl MotionStream for LiveGestureStream {
     /// Audio that completes no token only fills the frontend (the caches may stay in their
     /// cohort); a token is stepped on the stream alone, its caches called home first.
     fn push_audio(&mut self, samples: &[f32]) -> Result<Vec<Frame>> {
-        let mut g = lock(&self.graphs)?;
+        let g = &self.graphs;
         ensure!(
             !self.stream.is_poisoned(),
             "the stream failed earlier; reset it before pushing more audio"
@@ -321,15 +320,13 @@ impl MotionStream for LiveGestureStream {
     }
 
     fn finish(&mut self, input: AudioSpan) -> Result<Vec<Frame>> {
-        let mut g = lock(&self.graphs)?;
         lock(&self.cohorts)?.recall(self.key, &mut self.away, &mut self.stream)?;
-        g.finish(&mut self.stream, input)
+        self.graphs.finish(&mut self.stream, input)
     }
 
     fn reset(&mut self) -> Result<()> {
-        let g = lock(&self.graphs)?;
         lock(&self.cohorts)?.forget(self.key, &mut self.away);
-        g.reset(&mut self.stream)
+        self.graphs.reset(&mut self.stream)
     }
 
     fn frames_emitted(&self) -> u64 {

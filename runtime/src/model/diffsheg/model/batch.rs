@@ -18,7 +18,7 @@ use std::sync::Arc;
 
 use anyhow::{anyhow, Result};
 
-use super::{lock, DiffshegModel, DiffshegStream};
+use super::{DiffshegModel, DiffshegStream};
 use crate::model::diffsheg::foppas::{guided_eps, MOTION_DIM};
 use crate::model::diffsheg::graphs::DiffshegGraphs;
 use crate::model::diffsheg::stream::{Emitted, WindowStart};
@@ -81,30 +81,22 @@ pub(super) fn step_many(
         }
     }
     if !members.is_empty() {
-        match lock(&model.graphs) {
-            Ok(mut g) => {
-                // the windows due by audio, then the ends and their last windows
-                run_due_windows(&mut g, &mut members);
-                for m in members.iter_mut().filter(|m| m.failed.is_none()) {
-                    if let Some(t) = m.end {
-                        if m.stream.inner.is_finished() {
-                            continue;
-                        }
-                        match m.stream.inner.begin_finish(t) {
-                            Ok(Some(e)) => m.emitted.push(e),
-                            Ok(None) => {}
-                            Err(e) => m.failed = Some(format!("{e:#}")),
-                        }
-                    }
+        let g: &DiffshegGraphs = &model.graphs;
+        // the windows due by audio, then the ends and their last windows
+        run_due_windows(g, &mut members);
+        for m in members.iter_mut().filter(|m| m.failed.is_none()) {
+            if let Some(t) = m.end {
+                if m.stream.inner.is_finished() {
+                    continue;
                 }
-                run_due_windows(&mut g, &mut members);
-            }
-            Err(e) => {
-                for m in &mut members {
-                    m.failed = Some(format!("{e:#}"));
+                match m.stream.inner.begin_finish(t) {
+                    Ok(Some(e)) => m.emitted.push(e),
+                    Ok(None) => {}
+                    Err(e) => m.failed = Some(format!("{e:#}")),
                 }
             }
         }
+        run_due_windows(g, &mut members);
     }
     for m in members {
         results[m.job] = Some(match m.failed {
@@ -133,7 +125,7 @@ fn fail_all(members: &mut [Member<'_>], started: &[(usize, WindowStart)], msg: S
 }
 
 /// Runs rounds of due windows until no stream has one.
-fn run_due_windows(g: &mut DiffshegGraphs, members: &mut [Member<'_>]) {
+fn run_due_windows(g: &DiffshegGraphs, members: &mut [Member<'_>]) {
     loop {
         let mut groups: BTreeMap<usize, Vec<(usize, bool)>> = BTreeMap::new();
         for (k, m) in members.iter().enumerate() {
@@ -154,12 +146,7 @@ fn run_due_windows(g: &mut DiffshegGraphs, members: &mut [Member<'_>]) {
 }
 
 /// One window of `n` frames in each of `group`'s streams, sharing every graph call.
-fn run_group(
-    g: &mut DiffshegGraphs,
-    members: &mut [Member<'_>],
-    n: usize,
-    group: &[(usize, bool)],
-) {
+fn run_group(g: &DiffshegGraphs, members: &mut [Member<'_>], n: usize, group: &[(usize, bool)]) {
     let d = MOTION_DIM;
     let mut started: Vec<(usize, WindowStart)> = Vec::new();
     for &(k, last) in group {
