@@ -22,7 +22,7 @@ fn main() -> anyhow::Result<()> {
         kind,
         ..Default::default()
     })?;
-    let mut g = be.load(&spec, &bundle.graph_path(&spec))?;
+    let g = be.load(&spec, &bundle.graph_path(&spec))?;
     let mut inputs: Vec<Tensor> = spec
         .all_inputs()
         .iter()

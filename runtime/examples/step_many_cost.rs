@@ -34,7 +34,7 @@ fn main() -> anyhow::Result<()> {
     })?;
     let audio = read_wav_16k_mono(bundle.dir().join("reference/clip.wav"))?;
     let tok = bundle.frontend().token_end(0) as usize;
-    let mut graphs = LiveGestureGraphs::new(&bundle, be.as_ref())?;
+    let graphs = LiveGestureGraphs::new(&bundle, be.as_ref())?;
     // mel blocks of the clip, one per token
     let mut s0 = graphs.new_stream(&StreamOptions::default())?;
     let mels = s0.push_audio(&audio)?;

@@ -155,7 +155,7 @@ fn the_trait_stream_equals_the_pipeline() {
     let m = load_model(&b);
     assert_eq!(m.family(), livegesture::bundle::Family::LiveGesture);
     let be = backend::create(&BackendOptions::default()).unwrap();
-    let mut p = LiveGestureGraphs::new(&b, be.as_ref()).unwrap();
+    let p = LiveGestureGraphs::new(&b, be.as_ref()).unwrap();
     let audio = signal(b.frontend().token_end(6) + 777, 16_000);
     let opts = StreamOptions {
         seed: 7,

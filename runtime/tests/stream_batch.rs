@@ -151,7 +151,7 @@ fn assert_step_agrees(kind: BackendKind, what: &str, a: &TokenStep, b: &TokenSte
 /// The batch-vs-alone comparison fails when a NaN is on either side, in a frame or in the logits.
 #[test]
 fn the_batch_comparison_fails_on_nan_either_side() {
-    let (bundle, mut p) = pipeline(BackendKind::Tract);
+    let (bundle, p) = pipeline(BackendKind::Tract);
     let mut s = p.new_stream(&opts(12, None, None, None)).unwrap();
     let steps = p.push_steps(&mut s, &audio(&bundle, 0, 8000)).unwrap();
     let a = steps[1].clone();
@@ -186,7 +186,7 @@ fn the_batch_comparison_fails_on_nan_either_side() {
 /// separately owned Streams stepped with `step_batch` in exactly the batch's composition and order
 /// at every step (`twins`).
 fn check_scenario(kind: BackendKind) {
-    let (bundle, mut p) = pipeline(kind);
+    let (bundle, p) = pipeline(kind);
     let steps = 24usize;
     let n_samples = p.frontend().token_end(steps as u64) as usize + 1;
     let a = |i: usize| audio(&bundle, 3217 * i, n_samples);
@@ -364,7 +364,7 @@ fn ort_stream_batch_equals_streams_stepped_alone() {
 /// streams; the StreamBatch keeps its order until a stream leaves.
 #[test]
 fn stream_batch_equals_step_batch() {
-    let (bundle, mut p) = pipeline(BackendKind::Tract);
+    let (bundle, p) = pipeline(BackendKind::Tract);
     let a = audio(&bundle, 0, 16000 * 2);
     let opts: Vec<StreamOptions> = (0..4)
         .map(|i| StreamOptions {
@@ -394,7 +394,7 @@ fn stream_batch_equals_step_batch() {
 
 #[test]
 fn stream_batch_bookkeeping_and_errors() {
-    let (bundle, mut p) = pipeline(BackendKind::Tract);
+    let (bundle, p) = pipeline(BackendKind::Tract);
     let guided = StreamOptions {
         seed: 1,
         ..Default::default()
@@ -476,7 +476,7 @@ fn check_run_into(kind: BackendKind) {
     .unwrap();
     for name in ["expert_upper", "fusion", "decoder_face"] {
         let spec = bundle.graph(name).unwrap().clone();
-        let mut g = be.load(&spec, &bundle.graph_path(&spec)).unwrap();
+        let g = be.load(&spec, &bundle.graph_path(&spec)).unwrap();
         let batch = 3;
         let mut inputs: Vec<Tensor> = spec
             .all_inputs()

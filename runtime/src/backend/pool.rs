@@ -95,24 +95,30 @@ impl<T> Pool<T> {
         make: impl FnOnce() -> Result<T>,
         f: impl FnOnce(&mut T) -> Result<R>,
     ) -> Result<R> {
-        let mut s = self.lock();
-        let item = loop {
-            if let Some(t) = s.idle.pop() {
-                break t;
-            }
-            if s.live < self.cap {
-                s.live += 1;
-                drop(s);
-                match make() {
-                    Ok(t) => break t,
-                    Err(e) => {
-                        self.lock().live -= 1;
-                        self.returned.notify_one();
-                        return Err(e);
-                    }
+        // an idle object, or a free slot to make one in (None); the lock is released before the run
+        let idle = {
+            let mut s = self.lock();
+            loop {
+                if let Some(t) = s.idle.pop() {
+                    break Some(t);
                 }
+                if s.live < self.cap {
+                    s.live += 1;
+                    break None;
+                }
+                s = self.returned.wait(s).unwrap_or_else(|e| e.into_inner());
             }
-            s = self.returned.wait(s).unwrap_or_else(|e| e.into_inner());
+        };
+        let item = match idle {
+            Some(t) => t,
+            None => match make() {
+                Ok(t) => t,
+                Err(e) => {
+                    self.lock().live -= 1;
+                    self.returned.notify_one();
+                    return Err(e);
+                }
+            },
         };
         let mut lease = Lease {
             pool: self,
