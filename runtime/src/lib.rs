@@ -13,6 +13,8 @@
 //!   family's implementation) and the families ([`model::livegesture`], [`model::diffsheg`]);
 //! - [`diffusion`]: DiffSHEG's sampler settings and noise schedule (read from the manifest, used by
 //!   the model);
+//! - [`error`]: [`error::InputError`] (bad input and the options it concerns) and the error kinds
+//!   every door maps ([`error::classify`]);
 //! - [`generate`]: the whole-input path (`livegesture generate` and every binding's `generate`) and
 //!   [`generate::PcmStream`], a stream fed with PCM at any sample rate (the bindings' streams);
 //! - [`audio`]: WAV and raw PCM input, converted to 16 kHz mono, and [`audio::AudioSpan`] (how many
@@ -42,6 +44,7 @@ pub mod bundle;
 pub mod bvh;
 pub mod compare;
 pub mod diffusion;
+pub mod error;
 pub mod face;
 pub mod frontend;
 pub mod generate;
