@@ -103,6 +103,7 @@ fn runtimes(a: &Args) -> Vec<String> {
     livegesture::backend::runtime_versions()
 }
 
+// long: the report printed section by section (bundle, graphs, forms, face, runtimes), text or JSON
 pub fn run(a: Args) -> Result<()> {
     let b: Bundle = a.model.bundle()?;
     let runtimes = runtimes(&a);

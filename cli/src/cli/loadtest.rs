@@ -85,6 +85,7 @@ pub struct Args {
     pub quiet: bool,
 }
 
+// long: the command's steps in order (options, audio, the ramp or soak, the report files, the bound)
 pub fn run(a: Args) -> Result<()> {
     let bad = |m: String| anyhow::Error::new(InputError::new(m));
     if a.levels.is_empty() || a.levels.contains(&0) || a.levels.windows(2).any(|w| w[0] >= w[1]) {

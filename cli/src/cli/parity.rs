@@ -92,6 +92,7 @@ pub struct ParityFailed {
     pub total: usize,
 }
 
+// long: the command's steps in order (options, the suite, the report as text, JSON and JUnit, the exit)
 pub fn run(a: Args, form: GraphForm) -> Result<()> {
     if !(a.chunk_seconds.is_finite() && a.chunk_seconds > 0.0) {
         return Err(InputError::new(format!(

@@ -194,6 +194,7 @@ fn run_windows(
 }
 
 /// Runs the DiffSHEG benchmark.
+// long: the benchmark's measurements in the order the report prints them (each a short block); being reworked onto step_many (issue 37 item 3)
 pub fn run(
     bundle: &Bundle,
     backend: &dyn Backend,

@@ -257,6 +257,7 @@ fn first_frame_once(
 }
 
 /// Runs the whole benchmark for `bundle` on `backend` (one thread).
+// long: the benchmark's measurements in the order the report prints them (each a short block); being reworked onto step_many (issue 37 item 3)
 pub fn run(
     bundle: &Bundle,
     backend: &dyn Backend,

@@ -379,6 +379,7 @@ pub const AGAINST_CHECKS: [Check; 2] = [Check::Graph, Check::Rollout];
 /// Checks the bundle in `new` against the bundle in `old` (module docs) on the first of
 /// `opts.backends` (ort when it runs). Errors on bad input: a bundle that does not load, bundles of
 /// different families or with no graph in common, missing reference files of the old bundle.
+// long: the checks of export against export in the order of the report's rows (load, graphs, rollout)
 pub fn against(
     new_dir: &Path,
     old_dir: &Path,

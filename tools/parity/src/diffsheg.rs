@@ -193,6 +193,7 @@ fn frames_vs(frames: &[Frame], want: &[(&'static str, Vec<f32>)]) -> Vec<(&'stat
 }
 
 /// The DiffSHEG checks (module docs); rows and notes are appended.
+// long: the DiffSHEG checks in the order of docs/parity.md, each a short block adding its rows; to split into one function per check
 pub(super) fn run(
     bundle: &Bundle,
     backends: &[(BackendKind, Box<dyn Backend>)],

@@ -48,6 +48,7 @@ pub(super) fn graph_reference(
     Ok((path, refv))
 }
 
+// long: one row per graph and backend, the inputs built per graph kind in one match; to split per graph kind
 pub(super) fn graph_rows(
     bundle: &Bundle,
     spec: &GraphSpec,

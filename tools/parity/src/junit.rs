@@ -28,6 +28,7 @@ pub fn junit_xml(report: &Report) -> String {
     write(report).expect("writing XML into memory cannot fail")
 }
 
+// long: one XML document written element by element (suites, cases, failures, properties)
 fn write(report: &Report) -> std::io::Result<String> {
     let mut w = Writer::new_with_indent(Cursor::new(Vec::new()), b' ', 2);
     let failures = report.failures().len();

@@ -1,3 +1,4 @@
+// long: the suite's table of checks and bounds (module doc, 40 lines), its report types and `run`; `run` is to be split per check
 //! The parity suite (docs/parity.md): proves that torch, ONNX Runtime and tract agree on a bundle.
 //!
 //! [`run`] checks any bundle against the torch reference vectors that travel with it
@@ -301,6 +302,7 @@ impl livegesture::model::FamilyTool for OtherFamilyChecks<'_, '_> {
 /// Errors when the bundle is invalid ([`livegesture::bundle::BundleError`]), a reference file is missing
 /// or malformed ([`ReferenceError`]), or a backend cannot start; a graph that a backend cannot load
 /// or run becomes a failed row instead.
+// long: the suite's checks in the order of docs/parity.md, each a short block adding its rows; to split into one function per check
 pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Result<Report> {
     let t0 = Instant::now();
     let bundle = Bundle::load(dir)?;

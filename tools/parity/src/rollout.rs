@@ -161,6 +161,7 @@ impl BackendRollout {
 }
 
 #[allow(clippy::too_many_arguments)]
+// long: the rollout compared token by token with its divergence analysis and the frame bounds; to split into replay and comparison
 pub(super) fn rollout_rows(
     bundle: &Bundle,
     pipelines: &mut [(BackendKind, LiveGestureGraphs)],

@@ -168,6 +168,7 @@ impl Report {
     }
 
     /// An SVG plot: p50 / p99 latency (with the bound) and server CPU against sessions.
+    // long: one SVG plot drawn element by element (axes, ticks, two curves, the bound, the legend)
     pub fn svg(&self, title: &str) -> String {
         let (w, h) = (720.0, 520.0);
         let (left, right) = (70.0, 690.0);

@@ -110,6 +110,7 @@ pub async fn run(plan: SessionPlan) -> SessionResult {
     }
 }
 
+// long: one session's async life in order: connect, send audio on its schedule, read frames, close
 async fn run_inner(plan: SessionPlan) -> SessionResult {
     tokio::time::sleep(plan.delay).await;
     let mut r = SessionResult::default();
