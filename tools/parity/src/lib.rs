@@ -1,4 +1,3 @@
-// long: the suite's table of checks and bounds (module doc, 40 lines), its report types and `run`; `run` is to be split per check
 //! The parity suite (docs/parity.md): proves that torch, ONNX Runtime and tract agree on a bundle.
 //!
 //! [`run`] checks any bundle against the torch reference vectors that travel with it
@@ -42,7 +41,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use ndarray::{Array2, ArrayD, IxDyn};
-use ndarray_npy::{NpzReader, ReadNpyExt};
+use ndarray_npy::NpzReader;
 use serde::Serialize;
 
 mod against;
@@ -52,6 +51,7 @@ mod divergence;
 mod graphs;
 mod invariance;
 mod junit;
+mod livegesture_checks;
 mod reference;
 mod report;
 mod rollout;
@@ -66,14 +66,11 @@ pub use reference::{ReferenceRollout, ReferenceVectors};
 pub use report::{Metric, Report, Row};
 
 use compare::MaxAbs;
-use graphs::graph_rows;
-use invariance::{batch_rows, chunk_rows};
-use rollout::{frame_rows_steps, rollout_rows, run_stream, token_row};
+use rollout::{frame_rows_steps, run_stream, token_row};
 
 use livegesture::audio::{read_wav_16k_mono, AudioSpan};
 use livegesture::backend::{self, Backend, BackendKind, BackendOptions, Tensor, TensorData};
 use livegesture::bundle::{Bundle, GraphSpec};
-use livegesture::frontend::logmel;
 use livegesture::model::livegesture::{LiveGestureGraphs, StepLogits, StreamOptions, TokenStep};
 use livegesture::model::GraphForm;
 use livegesture::output::Frame;
@@ -269,22 +266,32 @@ impl Default for ParityOptions {
 
 // ------------------------------------------------------------------------------------------- run
 
-/// The checks of a family other than LiveGesture (whose checks are [`run`]'s own body): returns true
-/// when they ran.
-struct OtherFamilyChecks<'a, 'l> {
+/// The checks of the bundle's family: each family's own module appends its rows, notes and
+/// divergences (`livegesture_checks`, `diffsheg`).
+struct FamilyChecks<'a, 'l> {
     backends: &'a [(BackendKind, Box<dyn Backend>)],
     opts: &'a ParityOptions,
     rows: &'a mut Vec<Row>,
     notes: &'a mut Vec<String>,
+    divergences: &'a mut Vec<Divergence>,
     log: &'a mut (dyn FnMut(&str) + 'l),
 }
 
-impl livegesture::model::FamilyTool for OtherFamilyChecks<'_, '_> {
-    type Output = Result<bool>;
-    fn livegesture(self, _: &Bundle) -> Result<bool> {
-        Ok(false)
+impl livegesture::model::FamilyTool for FamilyChecks<'_, '_> {
+    type Output = Result<()>;
+    fn livegesture(self, bundle: &Bundle) -> Result<()> {
+        livegesture_checks::run(
+            bundle,
+            self.backends,
+            self.opts,
+            self.rows,
+            self.notes,
+            self.divergences,
+            self.log,
+        )
     }
-    fn diffsheg(self, bundle: &Bundle) -> Result<bool> {
+    fn diffsheg(self, bundle: &Bundle) -> Result<()> {
+        // DiffSHEG's rollout is compared frame by frame (no sampled tokens): it reports no divergences
         diffsheg::run(
             bundle,
             self.backends,
@@ -292,8 +299,7 @@ impl livegesture::model::FamilyTool for OtherFamilyChecks<'_, '_> {
             self.rows,
             self.notes,
             self.log,
-        )?;
-        Ok(true)
+        )
     }
 }
 
@@ -302,7 +308,6 @@ impl livegesture::model::FamilyTool for OtherFamilyChecks<'_, '_> {
 /// Errors when the bundle is invalid ([`livegesture::bundle::BundleError`]), a reference file is missing
 /// or malformed ([`ReferenceError`]), or a backend cannot start; a graph that a backend cannot load
 /// or run becomes a failed row instead.
-// long: the suite's checks in the order of docs/parity.md, each a short block adding its rows; to split into one function per check
 pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Result<Report> {
     let t0 = Instant::now();
     let bundle = Bundle::load(dir)?;
@@ -344,7 +349,6 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
     let mut rows = Vec::new();
     let mut notes = Vec::new();
     let mut divergences = Vec::new();
-    let want = |c: Check| opts.checks.contains(&c);
     if let Some(p) = &bundle.manifest().precision {
         if bundle.is_reduced_precision() {
             // docs/bundle.md#forms-and-precision: a reduced-precision bundle's graphs are checked against the
@@ -359,224 +363,17 @@ pub fn run(dir: &Path, opts: &ParityOptions, log: &mut dyn FnMut(&str)) -> Resul
         }
     }
 
-    // the checks below are the LiveGesture family's; another family's run in its own module
-    let other = livegesture::model::for_family(
+    livegesture::model::for_family(
         &bundle,
-        OtherFamilyChecks {
+        FamilyChecks {
             backends: &backends,
             opts,
             rows: &mut rows,
             notes: &mut notes,
+            divergences: &mut divergences,
             log: &mut *log,
         },
     )?;
-    if other {
-        if opts.target {
-            target_graph_bounds(&mut rows);
-        }
-        report::fail_checks_without_rows(
-            &mut rows,
-            &opts.checks,
-            why_no_rows(bundle.family(), None),
-        );
-        return Ok(Report {
-            bundle: bundle.dir().to_path_buf(),
-            backends: kinds.iter().map(|k| k.to_string()).collect(),
-            rows,
-            notes,
-            divergences,
-            runtimes: backend::runtime_versions(),
-            seconds: t0.elapsed().as_secs_f64(),
-        });
-    }
-
-    let clip_rel = bundle.reference_clip();
-    let clip_path = bundle.path(&clip_rel);
-    let need_clip = [Check::Rollout, Check::Logmel, Check::Chunks, Check::Batch]
-        .into_iter()
-        .any(want);
-    let clip = if need_clip {
-        read_wav_16k_mono(&clip_path).map_err(|e| ref_err(&clip_path, e))?
-    } else {
-        Vec::new()
-    };
-
-    if want(Check::Graph) {
-        let t = Instant::now();
-        for g in bundle.graphs() {
-            graph_rows(&bundle, g, &backends, &mut rows)?;
-        }
-        log(&format!(
-            "graphs: {} graphs on {} in {:.1} s",
-            bundle.graphs().len(),
-            kinds
-                .iter()
-                .map(|k| k.to_string())
-                .collect::<Vec<_>>()
-                .join(", "),
-            t.elapsed().as_secs_f64()
-        ));
-    }
-
-    if want(Check::Logmel) {
-        let rel = "reference/logmel.npy";
-        let path = bundle.path(rel);
-        let f = File::open(&path).map_err(|e| ref_err(&path, format!("cannot open: {e}")))?;
-        let want_mel = Array2::<f32>::read_npy(f).map_err(|e| ref_err(&path, e))?;
-        match logmel(&clip, bundle.frontend()) {
-            Ok(got) => {
-                // docs/parity.md: the frontend's bound is absolute (max abs 1e-4), judged at scale 1
-                let mut m = MaxAbs::absolute();
-                if got.dim() != want_mel.dim() {
-                    m.problem = Some(format!(
-                        "{} frames x {} mels vs Python {} x {}",
-                        got.nrows(),
-                        got.ncols(),
-                        want_mel.nrows(),
-                        want_mel.ncols()
-                    ));
-                    m.err = f64::INFINITY;
-                } else {
-                    // one comparison per token's mel frames
-                    let mpt = (bundle.frontend().mel_frames_per_token as usize).max(1);
-                    let bands = got.ncols().max(1);
-                    let (g, w) = (got.as_standard_layout(), want_mel.as_standard_layout());
-                    let (g, w) = (g.as_slice().unwrap_or(&[]), w.as_slice().unwrap_or(&[]));
-                    for (t, (a, b)) in g.chunks(mpt * bands).zip(w.chunks(mpt * bands)).enumerate()
-                    {
-                        m.add_slices(t as u64, a, b, |i| {
-                            format!("mel frame {}, band {}", t * mpt + i / bands, i % bands)
-                        });
-                    }
-                }
-                rows.push(Row::max_abs(
-                    Check::Logmel,
-                    "clip.wav",
-                    "rust vs python",
-                    "log-mel",
-                    &m,
-                    LOGMEL,
-                ));
-            }
-            Err(e) => rows.push(Row::failed(
-                Check::Logmel,
-                "clip.wav",
-                "rust vs python",
-                "log-mel",
-                LOGMEL,
-                format!("{e:#}"),
-            )),
-        }
-    }
-
-    let need_pipeline = [Check::Rollout, Check::Chunks, Check::Batch]
-        .into_iter()
-        .any(want);
-    let mut pipelines: Vec<(BackendKind, LiveGestureGraphs)> = Vec::new();
-    if need_pipeline {
-        for (k, be) in &backends {
-            match LiveGestureGraphs::with_form(&bundle, be.as_ref(), opts.form) {
-                Ok(p) => pipelines.push((*k, p)),
-                Err(e) => rows.push(Row::failed(
-                    Check::Rollout,
-                    "pipeline",
-                    k.to_string(),
-                    "(all)",
-                    0.0,
-                    format!("{k} could not load the pipeline: {e:#}"),
-                )),
-            }
-        }
-    }
-    // docs/bundle.md#forms-and-precision: a backend that runs a form other than canonical (the bundle's `backend_forms`, or
-    // `--form`) is checked against the canonical form on the rollout, on that backend. A backend that
-    // runs the canonical form is checked by the other rows; the other forms are checked on it only
-    // when `--form` makes it run them.
-    let mut other_forms: Vec<(BackendKind, LiveGestureGraphs)> = Vec::new();
-    if want(Check::Rollout) {
-        let forms = bundle.livegesture()?.expert_forms();
-        for (k, be) in &backends {
-            let Some(main) = pipelines
-                .iter()
-                .find(|(x, _)| x == k)
-                .map(|(_, p)| p.form())
-            else {
-                continue;
-            };
-            if main == "canonical" {
-                if forms.len() > 1 {
-                    notes.push(format!(
-                        "forms: {k} runs the canonical form; the bundle's other forms ({}) are not run on {k} (`--form` chooses one)",
-                        forms
-                            .keys()
-                            .filter(|f| f.as_str() != "canonical")
-                            .cloned()
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    ));
-                }
-                continue;
-            }
-            for f in forms.keys().filter(|f| f.as_str() == "canonical") {
-                let choice: GraphForm = f.parse().map_err(|e: String| anyhow::anyhow!(e))?;
-                match LiveGestureGraphs::with_form(&bundle, be.as_ref(), choice) {
-                    Ok(p) => other_forms.push((*k, p)),
-                    Err(e) => rows.push(Row::failed(
-                        Check::Rollout,
-                        format!("rollout ({main} form)"),
-                        k.to_string(),
-                        "(all)",
-                        0.0,
-                        format!("{k} could not load the {f} form: {e:#}"),
-                    )),
-                }
-            }
-        }
-    }
-    if want(Check::Rollout) {
-        rollout_rows(
-            &bundle,
-            &mut pipelines,
-            &mut other_forms,
-            &clip,
-            &mut rows,
-            &mut notes,
-            &mut divergences,
-            opts.target,
-            log,
-        )?;
-    }
-    let seed = bundle.reference().and_then(|r| r.rollout_seed).unwrap_or(0);
-    let prefix_len = ((opts.chunk_seconds * 16000.0).round() as usize).clamp(1, clip.len().max(1));
-    if want(Check::Chunks) {
-        let t = Instant::now();
-        let prefix = &clip[..prefix_len.min(clip.len())];
-        notes.push(format!(
-            "chunks: on the first {:.2} s of reference/clip.wav ({} samples, {} tokens, finished to {} frames), chunk sizes {:?} samples vs the whole prefix at once",
-            prefix.len() as f64 / 16000.0,
-            prefix.len(),
-            bundle.frontend().n_tokens(prefix.len() as u64),
-            AudioSpan::at_16k(prefix.len() as u64).frames(bundle.frontend().fps),
-            CHUNK_SIZES
-        ));
-        for (k, p) in pipelines.iter_mut() {
-            chunk_rows(p, *k, prefix, seed, &mut rows);
-        }
-        log(&format!("chunks: {:.1} s", t.elapsed().as_secs_f64()));
-    }
-    if want(Check::Batch) {
-        let t = Instant::now();
-        notes.push(format!(
-            "batch: {} streams of {:.2} s from different offsets of reference/clip.wav with different seeds (stream 3 without guidance), batch sizes {:?} vs separate runs",
-            BATCH_SIZES.iter().max().unwrap_or(&1),
-            prefix_len as f64 / 16000.0,
-            BATCH_SIZES
-        ));
-        for (k, p) in pipelines.iter_mut() {
-            batch_rows(p, *k, &clip, prefix_len, seed, &mut rows);
-        }
-        log(&format!("batch: {:.1} s", t.elapsed().as_secs_f64()));
-    }
     if opts.target {
         target_graph_bounds(&mut rows);
     }
