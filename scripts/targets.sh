@@ -78,7 +78,7 @@ target_armv7() {
 }
 target_windows() {
   BIN="$(scripts/cross.sh x86_64-pc-windows-gnu)"; RUNNER="wine"; ORT_LIB=""; BACKENDS=tract; EMULATED=1
-  export WINEDEBUG=-all
+  export WINEDEBUG=-all WINEPREFIX="${WINEPREFIX:-$(dirname "$LIVEGESTURE_VENV")/wine}"   # created once (wineboot)
 }
 
 failed=()
