@@ -60,7 +60,7 @@ for triple in "$@"; do
   [ -s "$d/$name/LICENSES/livegesture-LICENSE" ] && [ -s "$d/$name/LICENSES/crates.txt" ] \
     || { failed+=("$triple (LICENSES/livegesture-LICENSE or crates.txt missing)"); continue; }
   if [[ $triple == *musl* ]]; then
-    file "$exe" | grep -q "statically linked" || { file "$exe"; failed+=("$triple (not static)"); continue; }
+    file "$exe" | grep -qE "statically linked|static-pie linked" || { file "$exe"; failed+=("$triple (not static)"); continue; }
     l="$(ldd "$exe" 2>&1 || true)"
     [[ $l == *"not a dynamic executable"* || $l == *"statically linked"* ]] || { echo "$l"; failed+=("$triple (ldd: dynamic)"); continue; }
     echo "static: $(file -b "$exe" | cut -d, -f1-5); ldd: $l"

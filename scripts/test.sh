@@ -19,8 +19,8 @@
 #  10. the page's second browser engine, onnxruntime-web, in chromium (parity of both shipped bundles, a
 #      perturbed weight; report in target/browser-ortweb/);
 #  11. the x86-64 levels (the release binary under qemu-x86_64 -cpu Haswell / Nehalem: AVX2+FMA and SSE-only
-#      kernels of tract and ONNX Runtime) and the targets matrix (docs/targets.md); the aarch64 musl, x86-64 musl
-#      and Windows release archives proven from the archive alone (qemu-aarch64, natively, wine: docs/install.md);
+#      kernels of tract and ONNX Runtime) and the targets matrix (docs/targets.md); the aarch64 musl and x86-64
+#      musl release archives proven from the archive alone (under qemu-aarch64, natively: docs/install.md);
 # and first, the docs check (scripts/check_docs.py: relative links in the Markdown resolve).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -66,12 +66,13 @@ cargo build --release --workspace --all-targets
 mkdir -p target/cross
 CROSS_NICE=10 scripts/cross.sh aarch64-unknown-linux-musl > target/cross/build.log 2>&1 &
 cross_pid=$!
-# then, one after the other once that one is done (not beside it: two cargo builds would only share the two
-# cores and cargo's lock on target/dist), the x86-64 musl and Windows release builds (static/tract, profile dist),
-# waited for at the stage "release" below
+# then, once that one is done (not beside it: two cargo builds would only share the two cores and cargo's lock on
+# target/dist), the x86-64 musl release build (static, tract, profile dist), waited for at the stage "release"
+# below. The Windows build (scripts/cross.sh x86_64-pc-windows-gnu) is not here yet: never built and proven in a
+# session so far (docs/install.md)
 ( # done: gone, or a zombie not yet reaped
   while [ -r "/proc/$cross_pid/stat" ] && [ "$(cut -d' ' -f3 "/proc/$cross_pid/stat" 2>/dev/null)" != Z ]; do sleep 5; done
-  for t in x86_64-unknown-linux-musl x86_64-pc-windows-gnu; do CROSS_NICE=10 scripts/cross.sh "$t" || exit 1; done
+  CROSS_NICE=10 scripts/cross.sh x86_64-unknown-linux-musl
 ) > target/cross/build-x86.log 2>&1 &
 cross_x86_pid=$!
 
@@ -286,11 +287,10 @@ done
 # the release archive for aarch64 Linux (static), proven from the archive alone under qemu-aarch64
 scripts/release.sh --prove aarch64-unknown-linux-musl
 
-stage "release: the x86-64 musl (static) and Windows archives, proven from the archive alone (docs/install.md)"
-wait "$cross_x86_pid" || { tail -n 40 target/cross/build-x86.log; echo "the x86-64 musl/Windows build failed (target/cross/build-x86.log)" >&2; exit 1; }
+stage "release: the x86-64 musl (static) archive, proven from the archive alone (docs/install.md)"
+wait "$cross_x86_pid" || { tail -n 40 target/cross/build-x86.log; echo "the x86-64 musl build failed (target/cross/build-x86.log)" >&2; exit 1; }
 grep "built in" target/cross/build-x86.log
-# musl: static (file, ldd), its generate output the same bytes as the native gnu build's tract output (cmp);
-# Windows under wine (prefix in the cache folder): 157 frames within 1e-4 of native tract, no --bundle
-scripts/release.sh --prove x86_64-unknown-linux-musl x86_64-pc-windows-gnu
+# static (file, ldd); its generate output, with no --bundle, the same bytes as the native gnu build's tract output
+scripts/release.sh --prove x86_64-unknown-linux-musl
 
 stage "all tests passed"
