@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The execution-provider and browser targets of the target matrix (docs/targets-providers.md, the parity contract (docs/parity.md)
+# The execution-provider and browser targets of the target matrix (docs/targets.md, the parity contract (docs/parity.md)
 # "Targets"); scripts/targets.sh runs the instruction-set targets. Same interface and output:
 #
 #   scripts/targets_providers.sh [--bundle DIR] [--allow-unsupported] TARGET...
@@ -14,7 +14,7 @@
 # --allow-unsupported: a native target also passes when its only failed rows are graphs that the provider
 # refuses to compile for an operator it does not support (its error says "does not support the following
 # ONNX operations"; the JSON lists them in "unsupported"), every other comparison passing (OpenVINO 2025.4
-# and the ONNX Attention operator of the tract form's fusion_attention graph: docs/targets-providers.md).
+# and the ONNX Attention operator of the tract form's fusion_attention graph: docs/targets.md).
 #
 #   openvino      ONNX Runtime 1.24.1 with the OpenVINO execution provider (CPU device), from PyPI's
 #                 onnxruntime-openvino wheel (its libonnxruntime and provider libraries, loaded at run time)

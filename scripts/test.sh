@@ -227,7 +227,7 @@ timeout 1500 node runtime/web/tests/wasm.mjs --site target/web-static --out targ
   --parity bundle/ --parity bundles/diffsheg/ --broken bundles/broken/:expert_hands \
   --serve target/release/livegesture
 
-stage "providers: onnxruntime-web in chromium, the page's ?engine=ort-web (docs/wasm.md, docs/targets-providers.md)"
+stage "providers: onnxruntime-web in chromium, the page's ?engine=ort-web (docs/wasm.md, docs/targets.md)"
 # the page's second engine on the same bundles as the wasm stage above: every graph vs torch at 1e-5, the
 # seeded rollouts, a perturbed weight that must fail naming its graph (~1.5 min on a loaded 2-core VM)
 timeout 900 node runtime/web/tests/ortweb.mjs --site target/web-static --out target/browser-ortweb \
