@@ -71,7 +71,7 @@ PY
 native_ep() {
   local target="$1" lib="$2" ep="$3" log="$out/$1.log" rc=0
   [ -x target/release/livegesture ] || { echo "targets_providers.sh: target/release/livegesture is missing (cargo build --release -p livegesture)" >&2; return 2; }
-  ORT_DYLIB_PATH="$lib" ./target/release/livegesture parity --bundle "$bundle" --backends ort --ep "$ep" \
+  ORT_DYLIB_PATH="$lib" ./target/release/livegesture parity --bundle "$bundle" --backends ort --ep "$ep" --target-name "$target" \
     --json "$out/$target.json.part" >"$log" 2>&1 || rc=$?
   if [ -f "$out/$target.json.part" ]; then
     local ok=0
