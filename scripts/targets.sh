@@ -9,6 +9,7 @@
 # tract and ONNX Runtime from PyPI's aarch64 wheel), aarch64-musl (the static aarch64 build, tract), armv7 (tract,
 # qemu-arm), windows (the x86-64 Windows build under wine, tract), aarch64-neon and aarch64-musl-neon (aarch64 and
 # aarch64-musl under `qemu-aarch64 -cpu cortex-a72`: NEON, no SVE), or all (x86-64-v4 x86-64-v3 x86-64-v2 aarch64 armv7).
+# openvino, webgpu, wasm-tract and wasm-ort-web run through scripts/targets_providers.sh (same report, same exit).
 #
 # Each target runs `livegesture parity --target-name TARGET --json OUT/TARGET.json` (default OUT: target/targets):
 # ONNX Runtime within 1e-5 and tract within 1e-4 (scaled) of the torch references, the seeded rollout with
@@ -35,13 +36,13 @@ while [ $# -gt 0 ]; do
     --bundle) bundle="${2:?--bundle needs a folder}"; shift 2 ;;
     --checks) checks="${2:?--checks needs a list}"; shift 2 ;;
     --out) out="${2:?--out needs a folder}"; shift 2 ;;
-    -h|--help) sed -n '2,26p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,25p' "$0"; exit 0 ;;
     all) targets+=($ALL); shift ;;
     -*) echo "targets.sh: unknown option $1" >&2; exit 2 ;;
     *) targets+=("$1"); shift ;;
   esac
 done
-[ ${#targets[@]} -gt 0 ] || { echo "targets.sh: name at least one target (or all): $ALL aarch64-musl aarch64-neon aarch64-musl-neon windows" >&2; exit 2; }
+[ ${#targets[@]} -gt 0 ] || { echo "targets.sh: name at least one target (or all): $ALL aarch64-musl aarch64-neon aarch64-musl-neon windows openvino webgpu wasm-tract wasm-ort-web" >&2; exit 2; }
 [ -f "$bundle/manifest.json" ] || { echo "targets.sh: --bundle $bundle: no manifest.json there (expected a bundle folder)" >&2; exit 2; }
 source scripts/env.sh >/dev/null
 mkdir -p "$out"
@@ -93,9 +94,13 @@ target_windows() {
 
 failed=()
 for t in "${targets[@]}"; do
+  case "$t" in   # the execution-provider and browser targets: scripts/targets_providers.sh, same report and exit
+    openvino|webgpu|wasm-tract|wasm-ort-web)
+      scripts/targets_providers.sh --bundle "$bundle" --out "$out" "$t" || failed+=("$t"); continue ;;
+  esac
   fn="target_${t//-/_}"
   if ! declare -F "$fn" >/dev/null; then
-    echo "targets.sh: unknown target '$t'; expected: $ALL aarch64-musl aarch64-neon aarch64-musl-neon windows all" >&2; exit 2
+    echo "targets.sh: unknown target '$t'; expected: $ALL aarch64-musl aarch64-neon aarch64-musl-neon windows openvino webgpu wasm-tract wasm-ort-web all" >&2; exit 2
   fi
   echo "=== target $t on $bundle"
   if ! "$fn"; then failed+=("$t (could not start)"); continue; fi
