@@ -70,19 +70,27 @@ export function createFaceMesh(parsed) {
   mesh.frustumCulled = false;
   mesh.morphTargetInfluences = new Array(52).fill(0);
   // the face region has eye openings but no eyes: an eyeball behind each, at the centre of the
-  // vertices its blink shape moves (eyeBlinkLeft 0, eyeBlinkRight 7), set back by its radius
+  // eyelid (the vertices its blink shape moves more than half its most: eyeBlinkLeft 0, eyeBlinkRight 7),
+  // set back by about its radius
   for (const t of [0, 7]) {
-    const [idx] = targets[t];
-    if (!idx.length) continue;
+    const [idx, d] = targets[t];
+    const mag = Array.from(idx, (_, i) => Math.hypot(d[3 * i], d[3 * i + 1], d[3 * i + 2]));
+    const top = Math.max(0, ...mag);
+    if (!(top > 0)) continue;
     const c = new THREE.Vector3();
-    for (const i of idx) c.add(new THREE.Vector3(positions[3 * i], positions[3 * i + 1], positions[3 * i + 2]));
-    c.divideScalar(idx.length);
+    let m = 0;
+    for (let i = 0; i < idx.length; i++) {
+      if (mag[i] <= 0.5 * top) continue;
+      c.add(new THREE.Vector3(positions[3 * idx[i]], positions[3 * idx[i] + 1], positions[3 * idx[i] + 2]));
+      m++;
+    }
+    c.divideScalar(m);
     const eye = new THREE.Mesh(new THREE.SphereGeometry(0.0125, 20, 14), new THREE.MeshStandardMaterial({ color: 0xf4f4f0, roughness: 0.3 }));
     const iris = new THREE.Mesh(new THREE.SphereGeometry(0.0055, 14, 10), new THREE.MeshStandardMaterial({ color: 0x3a2a1c, roughness: 0.3 }));
-    iris.position.set(0, 0, 0.0095);
-    iris.scale.set(1, 1, 0.45);
+    iris.position.set(0, 0, 0.0112);
+    iris.scale.set(1, 1, 0.4);
     eye.add(iris);
-    eye.position.set(c.x, c.y, c.z - 0.0125);
+    eye.position.set(c.x, c.y, c.z - 0.011);
     eye.name = t === 0 ? 'eyeLeft' : 'eyeRight';
     mesh.add(eye);
   }
