@@ -209,6 +209,7 @@ def rollout_audio(clip: np.ndarray, cfg, windows: int) -> tuple[np.ndarray, int]
     return np.tile(clip, reps)[:n_samples], T
 
 
+# long: the bundle's files in the order they are verified and written (graphs, reference clip, rollout, manifest)
 def build(model: DiffSHEG, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_tokens, log,
           rollout_windows: int = 5) -> dict:
     cfg = model.cfg

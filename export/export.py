@@ -136,6 +136,7 @@ def build_bundle(model, out: Path, *, provenance: dict, reference_wav: str | Non
                                    ref_seconds=ref_seconds, rollout_tokens=rollout_tokens, log=log, **kw)
 
 
+# long: the bundle's files in the order they are verified and written (graphs per form, reference clip, rollout, manifest)
 def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_tokens, log,
            forms=FORMS, backend_forms: dict | None = None) -> dict:
     backend_forms = dict(backend_forms or DEFAULT_BACKEND_FORMS)
@@ -313,6 +314,7 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
     return manifest
 
 
+# long: the command's arguments and the export steps they select, in order
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     src = ap.add_mutually_exclusive_group(required=True)

@@ -335,6 +335,7 @@ class LoggingChain(Chain):
         return out
 
 
+# long: one reduced-precision bundle in order (weights, activations, verification, manifest)
 def build(src: Path, out: Path, precision: str, per_channel: bool, log=print, activations: str = "dynamic") -> dict:
     import onnxruntime as ort
     from .bundle_writer import export_provenance, file_table, sha256, staged_folder

@@ -1,5 +1,5 @@
 //! The fuzzed entry points, shared by the cargo-fuzz targets (`fuzz/fuzz_targets/*.rs`, nightly) and
-//! their regression test on stable (`runtime/tests/fuzz_regressions.rs`, which replays every file
+//! their regression test on stable (`cli/tests/fuzz_regressions.rs`, which replays every file
 //! of `fuzz/regressions/<target>/` and the committed corpus through the same functions). Each takes
 //! arbitrary bytes; the property is that the parser returns (an error is fine) without panicking,
 //! hanging or allocating without bound.
@@ -11,7 +11,7 @@ use livegesture::audio::RESAMPLE_BLOCK;
 use livegesture::audio::{RawFormat, RawPcmDecoder, RawPcmStream, WavStream};
 use livegesture::bundle::parse_manifest;
 #[cfg(feature = "serve")]
-use livegesture::serve::protocol::{
+use livegesture_serve::protocol::{
     SessionInput, SessionParams, CLOSE_INTERNAL, CLOSE_INVALID, CLOSE_UNSUPPORTED,
 };
 

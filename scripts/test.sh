@@ -29,6 +29,10 @@ stage() { echo; echo "=== $* ($(( SECONDS - t0 )) s elapsed)"; }
 stage "docs: every relative link in the Markdown resolves, no outside-specification reference"
 "$LIVEGESTURE_PY" scripts/check_docs.py
 
+stage "layout: no module cycle in a Rust crate, no long function or file without its reason"
+# (scripts/check_structure.py, about a second; its must-fail cases: python/tests/test_check_structure.py)
+"$LIVEGESTURE_PY" scripts/check_structure.py
+
 stage "python tests"
 "$LIVEGESTURE_PY" -m pytest -q python/tests
 

@@ -36,6 +36,25 @@ with wave.open(str(src), "rb") as r, wave.open(str(out / "speech.wav"), "wb") as
     w.writeframes(r.readframes(6 * r.getframerate()))
 PY
 
+serve_variant() {   # bundle-dir name: `serve` on the bundle (tract, loopback), one real-time session of 2 s
+  # streamed by `loadtest`, which fails unless the server sends every frame the audio implies and `done`
+  local dir="$1" name="$2" port pid rc=0
+  port="$("$LIVEGESTURE_PY" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')"
+  "$BIN" serve --bundle "$dir/bundle" --addr "127.0.0.1:$port" >"$dir.serve.log" 2>&1 &
+  pid=$!
+  for _ in $(seq 100); do
+    curl -sf "http://127.0.0.1:$port/healthz" >/dev/null && break
+    kill -0 "$pid" 2>/dev/null || break
+    sleep 0.1
+  done
+  "$BIN" loadtest "ws://127.0.0.1:$port" --audio "$OUT/speech.wav" --levels 1 --hold 2 --pause 0 --require 1 \
+    --server-pid "$pid" -q >"$dir.loadtest.log" 2>&1 || rc=$?
+  kill "$pid" 2>/dev/null; wait "$pid" 2>/dev/null || true
+  if [ "$rc" != 0 ]; then
+    tail -20 "$dir.serve.log" "$dir.loadtest.log" >&2; echo "variants: $name: serve failed" >&2; return 1
+  fi
+}
+
 run_variant() {   # family variant graphs|training
   local fam="$1" v="$2" dir="$OUT/$1-$2" t=$SECONDS
   local steps=(--steps-svq1 3 --steps-svq2 3 --steps-experts 3 --steps-fuse 3)
@@ -73,7 +92,8 @@ PY
       --bundle "$dir/bundle" >"$dir.generate.log" 2>&1 \
       || { cat "$dir.generate.log" >&2; echo "variants: $fam/$v: generate ($backend) failed" >&2; return 1; }
   done
-  echo "variant $fam/$v: trained, exported, parity ort+tract, generate ort+tract ($(( SECONDS - t )) s)"
+  serve_variant "$dir" "$fam/$v" || return 1
+  echo "variant $fam/$v: trained, exported, parity ort+tract, generate ort+tract, served ($(( SECONDS - t )) s)"
 }
 
 for fam in livegesture diffsheg; do

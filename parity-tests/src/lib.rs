@@ -15,7 +15,7 @@
 //! - copies of a bundle to corrupt ([`copy_bundle`]) or with one graph broken by
 //!   `tools/break_bundle.py` ([`break_bundle`]);
 //! - the bundle's reference rollout through the library's own reader
-//!   ([`livegesture::parity::ReferenceRollout::load`], via [`reference_rollout`]).
+//!   ([`livegesture_parity::ReferenceRollout::load`], via [`reference_rollout`]).
 //!
 //! Both backends run: ort needs ONNX Runtime (`ORT_DYLIB_PATH`, set by `source scripts/env.sh`;
 //! [`require_ort`]).
@@ -30,7 +30,7 @@ use std::sync::OnceLock;
 use livegesture::bundle::Bundle;
 use livegesture::compare::{self, Diff};
 use livegesture::output::Frame;
-use livegesture::parity::{self, Check, ParityOptions, ReferenceRollout, Report};
+use livegesture_parity::{self as parity, Check, ParityOptions, ReferenceRollout, Report};
 
 /// Environment variable naming the tiny test bundle exported by the test command.
 pub const TEST_BUNDLE_ENV: &str = "LIVEGESTURE_TEST_BUNDLE";

@@ -1,4 +1,4 @@
-//! Export against export (`livegesture parity --against`, `livegesture::parity::against`): a
+//! Export against export (`livegesture parity --against`, `livegesture_parity::against`): a
 //! re-export of the same weights passes; an export of other weights (the tiny config with another
 //! `--random-seed`) fails, naming the graphs and outputs that moved and the rollout's first differing
 //! step.
@@ -6,7 +6,7 @@
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 
-use livegesture::parity::{self, AgainstOptions, Check, Metric, ParityOptions, Report};
+use livegesture_parity::{self as parity, AgainstOptions, Check, Metric, ParityOptions, Report};
 use livegesture_parity_tests::{diffsheg_tiny_bundle, repo_root, run_python, tiny_bundle};
 
 /// Exports `args` into `dir` with `export/export.py`.

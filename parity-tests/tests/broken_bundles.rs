@@ -1,7 +1,7 @@
 //! Proof that the parity checks can fail: copies of the tiny bundle with one graph broken by
 //! `tools/break_bundle.py` (ONNX surgery, manifest sha256 rewritten so the copy loads).
 
-use livegesture::parity::{Check, Metric, Report};
+use livegesture_parity::{Check, Metric, Report};
 use livegesture_parity_tests::{break_bundle, run_parity, tiny_bundle, Breakage};
 
 const BROKEN: &str = "expert_hands";
@@ -11,7 +11,7 @@ fn graph_rows<'a>(
     report: &'a Report,
     graph: &str,
     comparison: &str,
-) -> Vec<&'a livegesture::parity::Row> {
+) -> Vec<&'a livegesture_parity::Row> {
     report
         .rows_for(Check::Graph, graph)
         .into_iter()

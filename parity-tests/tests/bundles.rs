@@ -1,7 +1,7 @@
 //! The parity suite passes on the shipped bundle and on a freshly exported tiny bundle, both
 //! backends, every check (docs/parity.md).
 
-use livegesture::parity::{Check, Metric, Report};
+use livegesture_parity::{Check, Metric, Report};
 use livegesture_parity_tests::{default_bundle, rollout_tokens_row, run_parity, tiny_bundle};
 
 /// Every check ran and produced rows for every graph and both backends, and all passed.

@@ -3,8 +3,8 @@
 //! near-tie from a real difference.
 
 use livegesture::model::livegesture::StepLogits;
-use livegesture::parity::{find_divergence, replay_uniform, RolloutTrace, SamplingParams};
 use livegesture::sampling::{sample_token, SplitMix64};
+use livegesture_parity::{find_divergence, replay_uniform, RolloutTrace, SamplingParams};
 
 const K: usize = 16;
 const REGIONS: [&str; 4] = ["upper", "hands", "lower", "face"];

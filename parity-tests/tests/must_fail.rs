@@ -7,7 +7,7 @@
 use std::path::Path;
 
 use livegesture::backend::BackendKind;
-use livegesture::parity::{Check, Report};
+use livegesture_parity::{Check, Report};
 use livegesture_parity_tests::{edit_reference, run_parity_on, tiny_bundle};
 
 fn broken(dir: &Path, args: &[&str]) -> std::path::PathBuf {

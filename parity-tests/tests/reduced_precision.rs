@@ -9,7 +9,7 @@ use std::ffi::OsStr;
 use std::path::Path;
 
 use livegesture::bundle::Bundle;
-use livegesture::parity::{Check, Report};
+use livegesture_parity::{Check, Report};
 use livegesture_parity_tests::{
     break_bundle, repo_root, rollout_tokens_row, run_parity, run_python, tiny_bundle, Breakage,
 };

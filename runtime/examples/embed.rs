@@ -1,7 +1,7 @@
 //! The library API in one page (docs/embedding.md): load a bundle, stream audio through a
 //! `MotionStream` in chunks, finish, and check the frames against the whole-input path.
 //!
-//!   cargo run --release -p livegesture --example embed -- models/default speech.wav
+//!   cargo run --release -p livegesture-core --example embed -- models/default speech.wav
 
 use std::path::PathBuf;
 

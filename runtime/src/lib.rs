@@ -13,6 +13,8 @@
 //!   family's implementation) and the families ([`model::livegesture`], [`model::diffsheg`]);
 //! - [`diffusion`]: DiffSHEG's sampler settings and noise schedule (read from the manifest, used by
 //!   the model);
+//! - [`error`]: [`error::InputError`] (bad input and the options it concerns) and the error kinds
+//!   every door maps ([`error::classify`]);
 //! - [`generate`]: the whole-input path (`livegesture generate` and every binding's `generate`) and
 //!   [`generate::PcmStream`], a stream fed with PCM at any sample rate (the bindings' streams);
 //! - [`audio`]: WAV and raw PCM input, converted to 16 kHz mono, and [`audio::AudioSpan`] (how many
@@ -30,36 +32,27 @@
 //! - [`skeleton`] and [`bvh`]: the project's own skeleton (SMPL-X joint names and hierarchy) and BVH
 //!   output on it.
 //!
-//! Tools, behind cargo features that are on by default (the `livegesture` binary uses them; a program
-//! that only runs bundles can depend on the crate with `default-features = false, features = ["ort"]`):
-//!
-//! - `parity` ([`parity`]): the parity suite of docs/parity.md;
-//! - `bench` ([`bench`]): the benchmarks of BENCHMARKS.md;
-//! - `serve` ([`serve`]): live serving over WebSocket (docs/serve.md), due sessions stepped together
-//!   through [`model::MotionModel::step_many`].
+//! The tools are crates of their own on this library and on no other tool (README.md "Map of the tree"):
+//! `livegesture-parity` (tools/parity: the parity suite of docs/parity.md), `livegesture-bench`
+//! (tools/bench: the benchmarks of BENCHMARKS.md), `livegesture-serve` (tools/serve: live serving over
+//! WebSocket, docs/serve.md, and its load test) and the `livegesture` program (cli/) on all of them. A
+//! program that only runs bundles depends on this crate alone (package `livegesture-core`).
 
 pub mod audio;
 pub mod backend;
-#[cfg(feature = "bench")]
-pub mod bench;
 pub mod bundle;
 pub mod bvh;
 pub mod compare;
 pub mod diffusion;
+pub mod error;
 pub mod face;
 pub mod frontend;
 pub mod generate;
-#[cfg(feature = "loadtest")]
-pub mod loadtest;
 pub mod model;
 pub mod output;
-#[cfg(feature = "parity")]
-pub mod parity;
 pub mod portable_parity;
 pub mod rotation;
 pub mod sampling;
-#[cfg(feature = "serve")]
-pub mod serve;
 pub mod skeleton;
 pub mod stats;
 pub mod tensor;

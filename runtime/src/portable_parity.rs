@@ -3,7 +3,7 @@
 //! rollout, on one backend, with the bundle's files read through [`Bundle::read`] (a folder or
 //! files in memory, [`Bundle::from_files`]). It is what the WebAssembly binding's `Model.parity()`
 //! runs in a browser (tract compiled to WebAssembly); natively a test runs it on the shipped bundles.
-//! The full suite (`livegesture parity`, feature `parity`) adds onnxruntime, the chunk and batch
+//! The full suite (`livegesture parity`, the `livegesture-parity` crate in tools/parity) adds onnxruntime, the chunk and batch
 //! invariances, the log-mel frontend and the recorded export checks.
 //!
 //! | check | what | bound |

@@ -8,7 +8,7 @@ use livegesture::backend::{self, BackendKind, BackendOptions};
 use livegesture::bundle::Bundle;
 use livegesture::model::livegesture::{LiveGestureGraphs, StreamOptions, TokenStep};
 use livegesture::output::Frame;
-use livegesture::parity::ReferenceRollout;
+use livegesture_parity::ReferenceRollout;
 use ndarray::Array2;
 
 /// Rollout frames (docs/parity.md, scaled).

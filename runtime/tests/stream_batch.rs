@@ -185,6 +185,7 @@ fn the_batch_comparison_fails_on_nan_either_side() {
 /// StreamBatch joining and leaving between steps (`batched`); and twins of the batched streams,
 /// separately owned Streams stepped with `step_batch` in exactly the batch's composition and order
 /// at every step (`twins`).
+// long: one scenario's three runs (alone, batched, twins) and their comparisons, step by step, as the doc above lists them
 fn check_scenario(kind: BackendKind) {
     let (bundle, mut p) = pipeline(kind);
     let steps = 24usize;

@@ -1,7 +1,7 @@
 import { defineConfig } from 'vite';
 
 // Fixed file names: the binary embeds dist/index.html, dist/assets/app.js and dist/worklet.js by name
-// (runtime/src/serve/web.rs), so a rebuild only changes their contents.
+// (tools/serve/src/web.rs), so a rebuild only changes their contents.
 export default defineConfig({
   // relative URLs: the same build is served by `livegesture serve` at / and as a static folder at any path
   base: './',

@@ -268,6 +268,7 @@ def syllable_loudness(a: AudioAnalysis, window: float = SYLLABLE_WINDOW) -> np.n
     return (c[i1] - c[i0]) / np.maximum(i1 - i0, 1)
 
 
+# long: one clip's motion built part by part (arms, torso and head, face, assembly, lower body), each a marked block
 def generate_motion(analysis: AudioAnalysis, n_frames: int, style: Style, rng: np.random.Generator,
                     drive: str = "flux"):
     """SMPL-X motion for one clip driven by ``analysis`` -> (poses (T,165), trans (T,3), expressions (T,100))

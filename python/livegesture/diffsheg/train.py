@@ -117,6 +117,7 @@ def losses(model: DiffSHEG, x0, mel, spk, t, eps, cond, tc: DiffSHEGTrainConfig,
     return tc.lambda_t * l_t + tc.lambda_v * l_v + tc.lambda_huber * l_h, {"l_eps": l_t, "l_vel": l_v, "l_huber": l_h}
 
 
+# long: the training run in order (config, data, model, resume, the loop, checkpoints)
 def train(config: str, data_dir: str, out: str, device: str = "cpu", overrides: dict | None = None,
           init_from: str | None = None, opts: RunOptions | None = None, step_hook=None,
           variant: str | None = None) -> Path:

@@ -248,6 +248,7 @@ def _table(report: dict) -> str:
     return "\n".join(lines)
 
 
+# long: the evaluation in order (arguments, real data, FGD statistics, reference, generated motion, the report)
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m livegesture.eval", description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", required=True, help="BEAT2-layout corpus directory")

@@ -1,3 +1,4 @@
+// long: the manifest's types and their checks field by field (docs/bundle.md); the family sections are in livegesture.rs and diffsheg.rs, the ONNX reading in onnx.rs
 //! Model bundles: `manifest.json`, the step ONNX graphs it lists, and their verification.
 //!
 //! A bundle is a folder written by `export/export.py` (format: `docs/bundle.md`). [`Bundle::load`]

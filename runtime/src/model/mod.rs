@@ -44,8 +44,8 @@
 //!    (frames with consecutive indices from 0; `finish` follows [`AudioSpan::frames`]);
 //! 3. its arm in [`for_family`] (the one place that maps a family to its code), a method in
 //!    [`FamilyTool`], and the family's [`load_with`] and [`describe`] there;
-//! 4. `parity` and `bench` (features of the same names) implement [`FamilyTool`]: the compiler
-//!    then asks for the family's checks and benchmarks.
+//! 4. the parity suite and the benchmarks (crates `livegesture-parity`, `livegesture-bench` in tools/)
+//!    implement [`FamilyTool`]: the compiler then asks for the family's checks and benchmarks.
 //!
 //! [`StreamOptions`] carries the settings of every family; a family refuses (in
 //! [`MotionModel::new_stream`]) an option it does not support rather than ignoring it silently.

@@ -1,3 +1,4 @@
+// long: one output format in one file: the document's layout (module doc), its assembly section by section and its checks
 //! glTF 2.0 output (`generate -o motion.glb` or `motion.gltf`, docs/avatars.md) on the project's own
 //! skeleton ([`crate::skeleton`]).
 //!
@@ -333,6 +334,7 @@ pub fn gltf_document(motion: &Beat2Motion) -> Result<(json::Root, Vec<u8>)> {
 }
 
 /// The face mesh with its 52 morph targets, and the node that holds it (a child of the head joint).
+// long: one glTF mesh built in order (positions, normals, indices, 52 morph targets, their accessors and views); its parts share the same indices
 fn face_node(root: &mut json::Root, bin: &mut Bin) -> Result<json::Index<json::Node>> {
     use json::accessor::{ComponentType as C, Type as Ty};
     let m = crate::face::mesh::face_mesh()?;
@@ -459,6 +461,7 @@ fn face_node(root: &mut json::Root, bin: &mut Bin) -> Result<json::Index<json::N
 
 /// [`gltf_document`] with the face channel's head mesh and weights animation when `face` is given
 /// (see the module docs).
+// long: the glTF document assembled in the order of its sections (joints, mesh, skin, animation, face), each a commented block; to split into one function per section
 pub fn gltf_document_with_face(
     motion: &Beat2Motion,
     face: Option<&FaceTrack>,

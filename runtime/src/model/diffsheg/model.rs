@@ -80,7 +80,7 @@ impl Shared {
                 ("temperature", opts.temperature.is_some()),
                 ("top_k", opts.top_k.is_some()),
             ];
-            return Err(crate::generate::InputError::fields(
+            return Err(crate::error::InputError::fields(
                 set.into_iter().filter(|s| s.1).map(|s| s.0).collect(),
                 "only apply to LiveGesture bundles; a DiffSHEG bundle samples with DDIM (its options: ddim_steps, jumps, window, overlap)",
             )

@@ -88,13 +88,10 @@ pub use model::{LiveGestureModel, LiveGestureStream};
 pub use stream::{cut_frames, StepLogits, Stream, TokenStep};
 
 use crate::model::regions::{resolve_layouts, RegionLayout};
+use crate::model::GraphForm;
 use caches::{Caches, SeparateCaches, StackedCaches};
 use chain::Stage;
 use stream::StreamState;
-
-/// The graph form a [`LiveGestureGraphs`] runs: the family-neutral [`crate::model::GraphForm`]
-/// (LiveGesture's forms are those of its region eXperts, fusion and decoders).
-pub use crate::model::GraphForm as FormChoice;
 
 /// The loaded graphs of a bundle, shared by any number of [`Stream`]s.
 pub struct LiveGestureGraphs {
@@ -135,21 +132,21 @@ impl LiveGestureGraphs {
     /// Loads every graph of `bundle` with `backend`, the eXperts, fusion and decoders in the
     /// bundle's form for the backend (`backend_forms`, else canonical).
     pub fn new(bundle: &Bundle, backend: &dyn Backend) -> Result<Self> {
-        Self::with_form(bundle, backend, FormChoice::Auto)
+        Self::with_form(bundle, backend, GraphForm::Auto)
     }
 
     /// Loads every graph of `bundle` with `backend`, the region eXperts, fusion and decoders in the
     /// form `form` (a fused form without `decoders_fused`, from bundles exported before it, runs the
     /// canonical decoders; a form without its own `fusion` runs the canonical fusion). Asking for a
     /// form the bundle does not carry is an error naming the forms it has.
-    pub fn with_form(bundle: &Bundle, backend: &dyn Backend, form: FormChoice) -> Result<Self> {
+    pub fn with_form(bundle: &Bundle, backend: &dyn Backend, form: GraphForm) -> Result<Self> {
         let lg = bundle.livegesture()?;
         let names: Vec<String> = lg.region_names().iter().map(|s| s.to_string()).collect();
         let regions = resolve_layouts(&lg.regions)?;
         let forms = lg.form_graphs();
         // the form's name in the manifest is its `Display` (`auto`: the bundle's form for the backend)
         let form = match form {
-            FormChoice::Auto => lg.default_form(backend.name()).to_string(),
+            GraphForm::Auto => lg.default_form(backend.name()).to_string(),
             named => named.to_string(),
         };
         // a form the bundle does not carry is bad input (exit code 2), named in the manifest's terms

@@ -15,11 +15,11 @@ use anyhow::{anyhow, ensure, Result};
 use ndarray::Array2;
 
 use super::cohorts::{Cohorts, Member};
-use super::{FormChoice, LiveGestureGraphs, Stream};
+use super::{LiveGestureGraphs, Stream};
 use crate::audio::AudioSpan;
 use crate::backend::Backend;
 use crate::bundle::{Bundle, Family};
-use crate::model::{MotionModel, MotionStream, StreamJob, StreamOptions};
+use crate::model::{GraphForm, MotionModel, MotionStream, StreamJob, StreamOptions};
 use crate::output::Frame;
 
 /// A loaded LiveGesture bundle ([`MotionModel`] of the `livegesture` family).
@@ -43,11 +43,7 @@ fn lock<T>(p: &Mutex<T>) -> Result<MutexGuard<'_, T>> {
 impl LiveGestureModel {
     /// Loads every graph of `bundle` (family `livegesture`) with `backend`, the region eXperts in
     /// the form `form` (docs/bundle.md#forms-and-precision; auto: the bundle's form for the backend).
-    pub fn load_with_form(
-        bundle: &Bundle,
-        backend: &dyn Backend,
-        form: FormChoice,
-    ) -> Result<Self> {
+    pub fn load_with_form(bundle: &Bundle, backend: &dyn Backend, form: GraphForm) -> Result<Self> {
         Ok(Self::from(LiveGestureGraphs::with_form(
             bundle, backend, form,
         )?))
@@ -95,7 +91,7 @@ impl MotionModel for LiveGestureModel {
     fn new_stream(&self, opts: &StreamOptions) -> Result<Box<dyn MotionStream>> {
         let set = opts.diffsheg_options_set();
         if !set.is_empty() {
-            return Err(crate::generate::InputError::fields(
+            return Err(crate::error::InputError::fields(
                 set,
                 "only apply to DiffSHEG bundles; a LiveGesture bundle samples tokens (its options: guidance, temperature, top_k)",
             )

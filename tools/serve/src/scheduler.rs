@@ -1,0 +1,486 @@
+//! The server's one scheduler: a thread that owns the [`MotionModel`] and one [`MotionStream`] per
+//! session, and steps the sessions whose audio completes a unit (a LiveGesture token, a DiffSHEG
+//! window) together, in one [`MotionModel::step_many`] call per tick. It never names a model family:
+//! the model decides how the streams of a tick share their graph runs (LiveGesture: every graph once
+//! per token for all of them; DiffSHEG: the due windows on the denoiser's batch axis).
+//!
+//! Sessions send 16 kHz mono audio ([`Cmd::Audio`]). Audio that does not complete the stream's next
+//! unit ([`MotionStream::next_unit_samples`]) is pushed at once (it only fills the stream's buffers);
+//! audio that does is held, and from then on the session is *due*. Ticks fall on a fixed grid, a
+//! whole number of slots per token (slots of about `batch_wait`: 33.3 ms for 30 ms); a tick steps
+//! every due session in one `step_many` call and queues the frames, and when every live session is
+//! due it steps at once. A real-time session completes its tokens at a steady phase, so it falls in
+//! the same slot tick after tick, with the same company: batches of the sessions of one slot, no
+//! wait past the slot's end, and the model keeps the caches of sessions stepped together stacked
+//! between ticks (a session late by a slot steps with the next one). A session's frames are
+//! therefore those it gets on its own: a stream is chunk-size invariant, and batching changes only the
+//! backend's rounding (docs/parity.md).
+//!
+//! At the end of a session's audio ([`Cmd::End`]) the session is due at once; its job ends the stream
+//! with the input's own span (docs/output.md: the last unit completed with silence, exactly
+//! [`AudioSpan::frames`] frames), then `done` is sent. On shutdown ([`Cmd::Drain`]) the units whose
+//! audio has arrived are stepped, a partial one is not, and the session is closed with 1001.
+//!
+//! Back-pressure: a session's reader takes one credit per frontend token boundary its audio crosses;
+//! the scheduler gives them back once that audio has been pushed into the stream, so at most
+//! `max_pending_tokens` tokens' worth of a session's audio waits here.
+
+use std::collections::HashMap;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::Result;
+use tokio::sync::{mpsc, Semaphore};
+
+use livegesture::audio::AudioSpan;
+use livegesture::frontend::FrontendConfig;
+use livegesture::model::{MotionModel, MotionStream, StreamJob, StreamOptions};
+use livegesture::output::Frame;
+
+use super::messages::{Cmd, Joined, Out, SessionCtl, SessionStats};
+use super::metrics::Metrics;
+use super::protocol::{CLOSE_GOING_AWAY, CLOSE_INTERNAL, CLOSE_POLICY};
+
+/// Scheduler settings.
+#[derive(Debug, Clone)]
+pub struct SchedConfig {
+    /// About the slot of the tick grid: a due session waits at most this long for the sessions of
+    /// its slot (the token divided into a whole number of slots; zero: it steps at once).
+    pub batch_wait: Duration,
+}
+
+struct Sess {
+    stream: Box<dyn MotionStream>,
+    out: mpsc::Sender<Out>,
+    ctl: Arc<SessionCtl>,
+    credits: Arc<Semaphore>,
+    stats: SessionStats,
+    /// Audio held for the next tick (it completes a unit), in arrival order.
+    held: Vec<f32>,
+    /// When the session became due (the arrival of the audio completing a unit, or of the end).
+    due_since: Option<Instant>,
+    /// 16 kHz samples forwarded by the reader (pushed, held, or dropped after an end or a cut).
+    samples_in: u64,
+    /// 16 kHz samples pushed into the stream (or dropped): credits are given back for these.
+    samples_done: u64,
+    /// Frontend tokens of `samples_done` whose credits were given back.
+    tokens_credited: u64,
+    /// The end of the audio, once the client sent it.
+    end: Option<AudioSpan>,
+    draining: bool,
+    frames_per_unit: u64,
+    /// Finished or cut off: nothing more is pushed or sent; waits for its Leave.
+    dead: bool,
+}
+
+/// Steps the sessions' streams, due ones together (see the module docs).
+pub struct BatchScheduler {
+    model: Box<dyn MotionModel>,
+    /// The grid the sessions' readers take credits on (the bundle's frontend).
+    frontend: FrontendConfig,
+    sessions: HashMap<u64, Sess>,
+    metrics: Arc<Metrics>,
+    /// The tick grid: ticks fall on `epoch + k * slot`.
+    epoch: Instant,
+    slot: Duration,
+}
+
+impl BatchScheduler {
+    pub fn new(
+        model: Box<dyn MotionModel>,
+        frontend: FrontendConfig,
+        metrics: Arc<Metrics>,
+        cfg: SchedConfig,
+    ) -> Self {
+        Self {
+            model,
+            sessions: HashMap::new(),
+            metrics,
+            slot: tick_slot(&frontend, cfg.batch_wait),
+            frontend,
+            epoch: Instant::now(),
+        }
+    }
+
+    /// When to step, once a session is due: at once when every live session is due, else at the
+    /// end of the slot the oldest due session's audio arrived in. `None`: nothing is due.
+    fn due(&self) -> Option<(Instant, bool)> {
+        let t0 = self
+            .sessions
+            .values()
+            .filter(|s| !s.dead)
+            .filter_map(|s| s.due_since)
+            .min()?;
+        let all = self
+            .sessions
+            .values()
+            .all(|s| s.dead || s.due_since.is_some());
+        Some((grid_after(self.epoch, self.slot, t0), all))
+    }
+
+    /// Runs until every command sender is dropped.
+    pub fn run(mut self, mut rx: mpsc::Receiver<Cmd>) {
+        let rt = match tokio::runtime::Builder::new_current_thread()
+            .enable_time()
+            .build()
+        {
+            Ok(rt) => rt,
+            Err(e) => {
+                eprintln!("livegesture serve: scheduler: cannot build its timer runtime: {e}");
+                return;
+            }
+        };
+        loop {
+            let cmd = match self.due() {
+                None => match rx.blocking_recv() {
+                    Some(c) => Some(c),
+                    None => break,
+                },
+                Some((deadline, all_due)) => {
+                    let now = Instant::now();
+                    if all_due || now >= deadline {
+                        // take whatever has already arrived without waiting, then step
+                        match rx.try_recv() {
+                            Ok(c) => Some(c),
+                            Err(_) => {
+                                self.tick();
+                                continue;
+                            }
+                        }
+                    } else {
+                        match rt.block_on(async {
+                            tokio::time::timeout(deadline - now, rx.recv()).await
+                        }) {
+                            Ok(Some(c)) => Some(c),
+                            Ok(None) => break,
+                            Err(_) => None,
+                        }
+                    }
+                }
+            };
+            if let Some(c) = cmd {
+                self.handle(c);
+            }
+        }
+    }
+
+    fn handle(&mut self, cmd: Cmd) {
+        match cmd {
+            Cmd::Join {
+                sid,
+                opts,
+                out,
+                ctl,
+                credits,
+                reply,
+            } => {
+                let r = self.join(sid, &opts, out, ctl, credits);
+                let _ = reply.send(r.map_err(|e| format!("{e:#}")));
+            }
+            Cmd::Audio { sid, samples, at } => self.audio(sid, samples, at),
+            Cmd::End { sid, input } => self.end(sid, input),
+            Cmd::Drain { sid } => {
+                if let Some(s) = self.sessions.get_mut(&sid) {
+                    s.draining = true;
+                }
+                self.close_if_complete(sid);
+            }
+            Cmd::Leave { sid, stats } => {
+                if let Some(s) = self.sessions.remove(&sid) {
+                    let _ = stats.send(s.stats);
+                }
+            }
+        }
+    }
+
+    fn join(
+        &mut self,
+        sid: u64,
+        opts: &StreamOptions,
+        out: mpsc::Sender<Out>,
+        ctl: Arc<SessionCtl>,
+        credits: Arc<Semaphore>,
+    ) -> Result<Joined> {
+        let stream = livegesture::generate::new_stream(self.model.as_ref(), opts)?;
+        let joined = Joined {
+            guidance: stream.guidance(),
+            frames_per_unit: stream.frames_per_unit(),
+            lookahead_frames: stream.lookahead_frames(),
+            // a fresh stream's next unit is its first: the audio the first frame waits for
+            first_frame_samples_16k: stream.next_unit_samples(),
+        };
+        self.sessions.insert(
+            sid,
+            Sess {
+                frames_per_unit: stream.frames_per_unit().max(1),
+                stream,
+                out,
+                ctl,
+                credits,
+                stats: SessionStats::default(),
+                held: Vec::new(),
+                due_since: None,
+                samples_in: 0,
+                samples_done: 0,
+                tokens_credited: 0,
+                end: None,
+                draining: false,
+                dead: false,
+            },
+        );
+        Ok(joined)
+    }
+
+    /// The client's audio: pushed at once when it completes no unit, else held for the next tick.
+    fn audio(&mut self, sid: u64, samples: Vec<f32>, at: Instant) {
+        let Some(s) = self.sessions.get_mut(&sid) else {
+            return;
+        };
+        s.samples_in += samples.len() as u64;
+        if s.dead || s.end.is_some() {
+            s.samples_done = s.samples_in;
+            self.give_credits(sid);
+            return;
+        }
+        s.stats.samples_16k += samples.len() as u64;
+        self.metrics
+            .audio_samples_total
+            .fetch_add(samples.len() as u64, Ordering::Relaxed);
+        if s.due_since.is_none() && s.samples_in < s.stream.next_unit_samples() {
+            // fills the stream's buffers only
+            let r = s.stream.push_audio(&samples);
+            s.samples_done = s.samples_in;
+            match r {
+                Ok(frames) => {
+                    self.deliver(sid, frames, at);
+                }
+                Err(e) => {
+                    let msg = format!("internal error in the audio frontend: {e:#}");
+                    self.kill(sid, CLOSE_INTERNAL, msg);
+                }
+            }
+            self.give_credits(sid);
+        } else {
+            s.held.extend_from_slice(&samples);
+            s.due_since.get_or_insert(at);
+        }
+    }
+
+    fn end(&mut self, sid: u64, input: AudioSpan) {
+        let Some(s) = self.sessions.get_mut(&sid) else {
+            return;
+        };
+        if s.dead || s.end.is_some() {
+            return;
+        }
+        s.end = Some(input);
+        s.due_since.get_or_insert_with(Instant::now);
+    }
+
+    /// Gives back the credits of the session's audio that has been pushed (or dropped).
+    fn give_credits(&mut self, sid: u64) {
+        let Some(s) = self.sessions.get_mut(&sid) else {
+            return;
+        };
+        let tokens = self.frontend.n_tokens(s.samples_done);
+        if tokens > s.tokens_credited {
+            s.credits.add_permits((tokens - s.tokens_credited) as usize);
+            s.tokens_credited = tokens;
+        }
+    }
+
+    /// One [`MotionModel::step_many`] call for every due session.
+    fn tick(&mut self) {
+        let mut sids = Vec::new();
+        let mut jobs = Vec::new();
+        for (sid, s) in self.sessions.iter_mut() {
+            if s.dead || s.due_since.is_none() {
+                continue;
+            }
+            sids.push((
+                *sid,
+                s.due_since.unwrap_or_else(Instant::now),
+                s.end.is_some(),
+            ));
+            jobs.push(StreamJob {
+                stream: s.stream.as_mut(),
+                audio: &s.held,
+                end: s.end,
+            });
+        }
+        if jobs.is_empty() {
+            return;
+        }
+        let t0 = Instant::now();
+        let results = self.model.step_many(&mut jobs);
+        drop(jobs);
+        let done = Instant::now();
+        self.metrics.step_seconds.observe((done - t0).as_secs_f64());
+        self.metrics.steps_total.fetch_add(1, Ordering::Relaxed);
+        self.metrics.batch_size.observe(sids.len() as f64);
+        for ((sid, at, ended), r) in sids.into_iter().zip(results) {
+            let Some(s) = self.sessions.get_mut(&sid) else {
+                continue;
+            };
+            s.held.clear();
+            s.due_since = None;
+            s.samples_done = s.samples_in;
+            self.give_credits(sid);
+            match r {
+                Ok(frames) => {
+                    if !self.deliver(sid, frames, at) {
+                        continue;
+                    }
+                    if ended {
+                        let frames = self.sessions.get(&sid).map_or(0, |s| s.stats.frames);
+                        self.send_last(sid, Out::Done { frames });
+                    } else {
+                        self.close_if_complete(sid);
+                    }
+                }
+                Err(e) => {
+                    let m = format!("internal error in a graph run: {e:#}");
+                    eprintln!("livegesture serve: session {sid}: {m}");
+                    self.kill(sid, CLOSE_INTERNAL, m);
+                }
+            }
+        }
+    }
+
+    /// Queues `frames` (of audio that arrived at `at`); a full queue is a slow client, cut off
+    /// (returns false).
+    fn deliver(&mut self, sid: u64, frames: Vec<Frame>, at: Instant) -> bool {
+        let Some(s) = self.sessions.get_mut(&sid) else {
+            return false;
+        };
+        if frames.is_empty() || s.dead {
+            return !s.dead;
+        }
+        let latency = Instant::now().saturating_duration_since(at).as_secs_f64();
+        let units = (frames.len() as u64).div_ceil(s.frames_per_unit);
+        s.stats.tokens += units;
+        self.metrics
+            .tokens_total
+            .fetch_add(units, Ordering::Relaxed);
+        s.stats.latencies.push(latency);
+        self.metrics.token_latency_seconds.observe(latency);
+        let mut full = false;
+        for f in frames {
+            if s.out.try_send(Out::Frame(Box::new(f))).is_err() {
+                full = true;
+                break;
+            }
+            s.stats.frames += 1;
+            self.metrics.frames_total.fetch_add(1, Ordering::Relaxed);
+        }
+        if full {
+            self.cut_slow(sid);
+        }
+        !full
+    }
+
+    /// On shutdown: close 1001 once nothing whose audio has arrived is left to step.
+    fn close_if_complete(&mut self, sid: u64) {
+        let Some(s) = self.sessions.get(&sid) else {
+            return;
+        };
+        if s.dead || !s.draining || s.due_since.is_some() {
+            return;
+        }
+        self.send_last(
+            sid,
+            Out::Close(CLOSE_GOING_AWAY, "server shutting down".into()),
+        );
+    }
+
+    /// Queues the session's last message (done, or close 1001 on shutdown) and retires it; a full
+    /// queue is a slow client, cut off.
+    fn send_last(&mut self, sid: u64, msg: Out) {
+        let sent = self
+            .sessions
+            .get(&sid)
+            .is_some_and(|s| s.out.try_send(msg).is_ok());
+        if sent {
+            self.retire(sid);
+        } else {
+            self.cut_slow(sid);
+        }
+    }
+
+    /// Nothing more is pushed or sent for the session; it waits for its Leave.
+    fn retire(&mut self, sid: u64) {
+        if let Some(s) = self.sessions.get_mut(&sid) {
+            s.dead = true;
+            s.held = Vec::new();
+            s.due_since = None;
+            s.samples_done = s.samples_in;
+        }
+        self.give_credits(sid);
+    }
+
+    /// Cuts a session short: its writer closes with `code` and `reason`.
+    fn kill(&mut self, sid: u64, code: u16, reason: String) {
+        self.retire(sid);
+        if let Some(s) = self.sessions.get(&sid) {
+            s.ctl.kill(code, reason);
+        }
+    }
+
+    /// A client whose outbound queue is full: counted (`livegesture_refusals_total{reason="slow_client"}`), closed 1008.
+    fn cut_slow(&mut self, sid: u64) {
+        self.metrics.refuse("slow_client");
+        self.kill(
+            sid,
+            CLOSE_POLICY,
+            "client too slow: its outbound frame queue is full".into(),
+        );
+    }
+}
+
+/// The slot of the tick grid: the token's duration divided into a whole number of slots of about
+/// `wait` (zero: no grid, a due session steps at once).
+fn tick_slot(f: &FrontendConfig, wait: Duration) -> Duration {
+    if wait.is_zero() {
+        return Duration::ZERO;
+    }
+    let token = Duration::from_secs_f64(f.frames_per_token as f64 / f.fps.max(1) as f64);
+    let n = (token.as_secs_f64() / wait.as_secs_f64()).round().max(1.0);
+    token.div_f64(n)
+}
+
+/// The first instant of the grid `epoch + k * slot` at or after `t`.
+fn grid_after(epoch: Instant, slot: Duration, t: Instant) -> Instant {
+    if slot.is_zero() {
+        return t;
+    }
+    let since = t.saturating_duration_since(epoch).as_nanos();
+    let s = slot.as_nanos().max(1);
+    let k = since.div_ceil(s);
+    epoch + Duration::from_nanos((k * s).min(u64::MAX as u128) as u64)
+}
+
+#[cfg(test)]
+mod grid_tests {
+    use super::*;
+
+    #[test]
+    fn the_grid_divides_a_token_into_whole_slots() {
+        let f = FrontendConfig::default(); // 4 frames at 30 fps: 133.3 ms
+        let ms = |d: Duration| d.as_secs_f64() * 1e3;
+        assert!((ms(tick_slot(&f, Duration::from_millis(30))) - 133.333 / 4.0).abs() < 1e-3);
+        assert!((ms(tick_slot(&f, Duration::from_millis(60))) - 133.333 / 2.0).abs() < 1e-3);
+        assert!((ms(tick_slot(&f, Duration::from_millis(500))) - 133.333).abs() < 1e-3);
+        assert_eq!(tick_slot(&f, Duration::ZERO), Duration::ZERO);
+        let e = Instant::now();
+        let slot = Duration::from_millis(10);
+        assert_eq!(grid_after(e, slot, e), e);
+        assert_eq!(grid_after(e, slot, e + Duration::from_millis(1)), e + slot);
+        assert_eq!(grid_after(e, slot, e + slot), e + slot);
+        assert_eq!(
+            grid_after(e, slot, e + Duration::from_millis(25)),
+            e + 3 * slot
+        );
+        assert_eq!(grid_after(e, Duration::ZERO, e + slot), e + slot);
+    }
+}
