@@ -231,7 +231,7 @@ timeout 1500 node runtime/web/tests/wasm.mjs --site target/web-static --out targ
   --parity bundle/ --parity bundles/diffsheg/ --broken bundles/broken/:expert_hands \
   --serve target/release/livegesture
 
-stage "providers: onnxruntime-web in chromium, the page's ?engine=ort-web (docs/wasm.md, docs/targets-providers.md)"
+stage "providers: onnxruntime-web in chromium, the page's ?engine=ort-web (docs/wasm.md, docs/targets.md)"
 # the page's second engine on the same bundles as the wasm stage above: every graph vs torch at 1e-5, the
 # seeded rollouts, a perturbed weight that must fail naming its graph (~1.5 min on a loaded 2-core VM)
 timeout 900 node runtime/web/tests/ortweb.mjs --site target/web-static --out target/browser-ortweb \
@@ -256,6 +256,15 @@ for t in aarch64-musl; do
   grep -q "^FAIL graph expert_hands" "target/targets/broken/$t.txt" || {
     cat target/targets/broken.txt; echo "targets.sh on $t did not name expert_hands" >&2; exit 1; }
 done
+# NEON-only aarch64 (`qemu-aarch64 -cpu cortex-a72`: no SVE, as on Graviton 2 or a Raspberry Pi 4): the same static
+# build must take tract's arm64simd kernels there and pass on the tiny bundle (63-87 s under qemu, loaded 2-core VM)
+scripts/targets.sh --bundle target/test-bundles/tiny --out target/targets/tiny aarch64-musl-neon
+"$LIVEGESTURE_PY" - target/targets/tiny/aarch64-musl-neon.json <<'PY'
+import json, sys
+cpu = json.load(open(sys.argv[1]))["target"]["cpu"]
+if cpu["tract_rung"] != "neon" or any("sve" in t for t in cpu["tract_mmm_tiers"]):
+    sys.exit(f"aarch64-musl-neon: tract took {cpu['tract_rung']} {cpu['tract_mmm_tiers']}, not the NEON-only arm64simd path")
+PY
 # the release archive for aarch64 Linux (static), proven from the archive alone under qemu-aarch64
 scripts/release.sh --prove aarch64-unknown-linux-musl
 
