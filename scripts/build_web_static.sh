@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The browser page as a static folder that any static file host can serve (docs/wasm.md):
 #   target/web-static/            index.html (engine "this browser" by default), assets/, worklet.js,
-#                                 worker.js, skeleton.json
+#                                 worker.js, skeleton.json, face.bin
 #   target/web-static/wasm/       the runtime in WebAssembly (scripts/build_wasm.sh)
 #   target/web-static/bundle/     the bundle (default models/default; or the folder given as $1)
 # Nothing is fetched from anywhere but this folder. Host it with e.g.
@@ -38,5 +38,7 @@ const m = await import('$PWD/target/wasm-pkg/livegesture_wasm.js');
 m.initSync({ module: readFileSync('target/wasm-pkg/livegesture_wasm_bg.wasm') });
 writeFileSync('$out/skeleton.json', m.skeletonJson());
 "
+# the face mesh the page's figure wears (the asset compiled into the runtime; docs/face.md)
+cp runtime/assets/face/ict_face.bin "$out/face.bin"
 scripts/copy_bundle.py "$bundle" "$out/bundle"
 du -sh "$out" "$out/wasm" "$out/ort" "$out/bundle"

@@ -34,7 +34,9 @@ t_x86_64_unknown_linux_musl() {
 }
 t_aarch64_unknown_linux_gnu() {
   TRIPLE=aarch64-unknown-linux-gnu; APT="gcc-aarch64-linux-gnu libc6-dev-arm64-cross qemu-user"
-  FEATURES=$FEATURES_FULL; RUNNER="qemu-aarch64 -L /usr/aarch64-linux-gnu"
+  # qemu-aarch64 with an aarch64 /proc/cpuinfo: ONNX Runtime's aarch64 library segfaults while loading under plain
+  # qemu-user on an x86-64 host (scripts/qemu_aarch64_cpuinfo.sh says why)
+  FEATURES=$FEATURES_FULL; RUNNER="$PWD/scripts/qemu_aarch64_cpuinfo.sh -L /usr/aarch64-linux-gnu"
   export CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc
   export CC_aarch64_unknown_linux_gnu=aarch64-linux-gnu-gcc
 }

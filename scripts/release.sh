@@ -12,7 +12,7 @@
 #   lib/libonnxruntime.so.*                   (gnu targets) ONNX Runtime from PyPI's wheel, found next to the exe
 #   README.md                                 the quick start
 #   LICENSES/                                 every linked crate's licence text (cargo metadata of that build),
-#                                             the project's, ONNX Runtime's, the bundles' and data's
+#                                             the project's (LICENSE: Apache-2.0), ONNX Runtime's, the bundles' and data's
 # and SHA256SUMS over every archive. --prove then proves each archive from the archive alone
 # (scripts/prove_release.sh): extracted in an empty folder outside the repository, `generate` on a WAV natively,
 # under qemu-user or wine, ceil(duration x 30) valid frames, equal to the native x86-64 build.
@@ -58,11 +58,11 @@ common_files() {  # STAGE_DIR
   done
   cp models/README.md "$s/share/livegesture/models/README.md"
   cp /work/shared/data/real-speech/SOURCES.md "$s/LICENSES/real-speech-SOURCES.md" 2>/dev/null || true
-  [ -f LICENSE ] && cp LICENSE "$s/LICENSES/livegesture-LICENSE"
+  cp LICENSE "$s/LICENSES/livegesture-LICENSE"
   cat > "$s/LICENSES/README.md" <<EOF
 Licences of livegesture $VERSION (commit $COMMIT)
 
-- livegesture itself: Apache-2.0 (Cargo.toml).
+- livegesture itself: Apache-2.0 (livegesture-LICENSE, the repository's LICENSE).
 - crates.txt: every Rust crate linked into this build, with the licence texts each crate ships
   (collected from \`cargo metadata\` of this exact build by scripts/release.sh).
 - The bundles in share/livegesture/models: trained by this project on synthetic motion and speech; the
@@ -160,6 +160,7 @@ set(livegesture_FOUND TRUE)
 EOF
   echo "set(PACKAGE_VERSION \"$VERSION\")" > "$stage/lib/cmake/livegesture/livegestureConfigVersion.cmake"
   licences x86_64-unknown-linux-gnu "" livegesture-c "$stage/LICENSES/crates.txt"
+  cp LICENSE "$stage/LICENSES/livegesture-LICENSE"
   tar -C "$dist/stage" --owner=0 --group=0 --sort=name -czf "$dist/$name.tar.gz" "$name"
   echo "release.sh: $name: static library $(du -h "$stage/lib/liblivegesture_c.a" | cut -f1), shared $(du -h "$stage/lib/liblivegesture_c.so" | cut -f1)" >&2
 }

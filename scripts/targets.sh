@@ -7,7 +7,9 @@
 # TARGET: x86-64-v4 (this machine, native), x86-64-v3 (`qemu-x86_64 -cpu Haswell`: AVX2+FMA, no AVX-512),
 # x86-64-v2 (`qemu-x86_64 -cpu Nehalem`: SSE4.2, no AVX), aarch64 (the aarch64 gnu build under qemu-aarch64,
 # tract and ONNX Runtime from PyPI's aarch64 wheel), aarch64-musl (the static aarch64 build, tract), armv7 (tract,
-# qemu-arm), windows (the x86-64 Windows build under wine, tract), or all (every target above).
+# qemu-arm), windows (the x86-64 Windows build under wine, tract), aarch64-neon and aarch64-musl-neon (aarch64 and
+# aarch64-musl under `qemu-aarch64 -cpu cortex-a72`: NEON, no SVE), or all (x86-64-v4 x86-64-v3 x86-64-v2 aarch64 armv7).
+# openvino, webgpu, wasm-tract and wasm-ort-web run through scripts/targets_providers.sh (same report, same exit).
 #
 # Each target runs `livegesture parity --target-name TARGET --json OUT/TARGET.json` (default OUT: target/targets):
 # ONNX Runtime within 1e-5 and tract within 1e-4 (scaled) of the torch references, the seeded rollout with
@@ -40,7 +42,7 @@ while [ $# -gt 0 ]; do
     *) targets+=("$1"); shift ;;
   esac
 done
-[ ${#targets[@]} -gt 0 ] || { echo "targets.sh: name at least one target (or all): $ALL aarch64-musl windows" >&2; exit 2; }
+[ ${#targets[@]} -gt 0 ] || { echo "targets.sh: name at least one target (or all): $ALL aarch64-musl aarch64-neon aarch64-musl-neon windows openvino webgpu wasm-tract wasm-ort-web" >&2; exit 2; }
 [ -f "$bundle/manifest.json" ] || { echo "targets.sh: --bundle $bundle: no manifest.json there (expected a bundle folder)" >&2; exit 2; }
 source scripts/env.sh >/dev/null
 mkdir -p "$out"
@@ -72,20 +74,33 @@ target_aarch64_musl() {
   BIN="$(scripts/cross.sh aarch64-unknown-linux-musl)"; RUNNER="$(scripts/cross.sh --runner aarch64-unknown-linux-musl)"
   ORT_LIB=""; BACKENDS=tract; EMULATED=1
 }
+# NEON-only aarch64 (Graviton 2 / Neoverse N1, Raspberry Pi 4, Ampere Altra): qemu's default CPU model (`max`) offers
+# SVE, so tract would take its SVE kernels; `-cpu cortex-a72` (ARMv8.0 + NEON, no SVE, no dotprod) makes both
+# runtimes dispatch to their NEON paths (tract: the arm64simd kernels)
+target_aarch64_neon() {
+  target_aarch64; RUNNER="$RUNNER -cpu cortex-a72"
+}
+target_aarch64_musl_neon() {
+  target_aarch64_musl; RUNNER="$RUNNER -cpu cortex-a72"
+}
 target_armv7() {
   BIN="$(scripts/cross.sh armv7-unknown-linux-gnueabihf)"; RUNNER="$(scripts/cross.sh --runner armv7-unknown-linux-gnueabihf)"
   ORT_LIB=""; BACKENDS=tract; EMULATED=1
 }
 target_windows() {
   BIN="$(scripts/cross.sh x86_64-pc-windows-gnu)"; RUNNER="wine"; ORT_LIB=""; BACKENDS=tract; EMULATED=1
-  export WINEDEBUG=-all
+  export WINEDEBUG=-all WINEPREFIX="${WINEPREFIX:-$(dirname "$LIVEGESTURE_VENV")/wine}"   # created once (wineboot)
 }
 
 failed=()
 for t in "${targets[@]}"; do
+  case "$t" in   # the execution-provider and browser targets: scripts/targets_providers.sh, same report and exit
+    openvino|webgpu|wasm-tract|wasm-ort-web)
+      scripts/targets_providers.sh --bundle "$bundle" --out "$out" "$t" || failed+=("$t"); continue ;;
+  esac
   fn="target_${t//-/_}"
   if ! declare -F "$fn" >/dev/null; then
-    echo "targets.sh: unknown target '$t'; expected: $ALL aarch64-musl windows all" >&2; exit 2
+    echo "targets.sh: unknown target '$t'; expected: $ALL aarch64-musl aarch64-neon aarch64-musl-neon windows openvino webgpu wasm-tract wasm-ort-web all" >&2; exit 2
   fi
   echo "=== target $t on $bundle"
   if ! "$fn"; then failed+=("$t (could not start)"); continue; fi

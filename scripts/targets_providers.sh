@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
-# The execution-provider and browser targets of the target matrix (docs/targets-providers.md, the parity contract (docs/parity.md)
+# The execution-provider and browser targets of the target matrix (docs/targets.md, the parity contract (docs/parity.md)
 # "Targets"); scripts/targets.sh runs the instruction-set targets. Same interface and output:
 #
-#   scripts/targets_providers.sh [--bundle DIR] [--allow-unsupported] TARGET...
+#   scripts/targets_providers.sh [--bundle DIR] [--out DIR] [--allow-unsupported] TARGET...
 #                                     TARGET: openvino webgpu wasm-tract wasm-ort-web
 #
 # Each target runs the parity suite of the bundle (default models/default) against the torch references
-# made at export and writes target/targets/TARGET.json:
+# made at export and writes OUT/TARGET.json (default OUT: target/targets):
 #   {"target", "bundle", "passed": bool, ...the parity report}
 # (native targets: `livegesture parity --json` (rows, notes, divergences); browser targets: the page's
 # parity report (lines, comparisons passed/failed)). A target that cannot run writes
@@ -14,7 +14,7 @@
 # --allow-unsupported: a native target also passes when its only failed rows are graphs that the provider
 # refuses to compile for an operator it does not support (its error says "does not support the following
 # ONNX operations"; the JSON lists them in "unsupported"), every other comparison passing (OpenVINO 2025.4
-# and the ONNX Attention operator of the tract form's fusion_attention graph: docs/targets-providers.md).
+# and the ONNX Attention operator of the tract form's fusion_attention graph: docs/targets.md).
 #
 #   openvino      ONNX Runtime 1.24.1 with the OpenVINO execution provider (CPU device), from PyPI's
 #                 onnxruntime-openvino wheel (its libonnxruntime and provider libraries, loaded at run time)
@@ -29,12 +29,14 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 bundle=models/default
+out=target/targets
 allow_unsupported=0
 targets=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --bundle) bundle="${2:?--bundle needs a folder}"; shift 2 ;;
     --allow-unsupported) allow_unsupported=1; shift ;;
+    --out) out="${2:?--out needs a folder}"; shift 2 ;;
     -h|--help) sed -n '2,31p' "$0"; exit 0 ;;
     openvino|webgpu|wasm-tract|wasm-ort-web) targets+=("$1"); shift ;;
     *) echo "targets_providers.sh: unknown target '$1' (expected openvino, webgpu, wasm-tract, wasm-ort-web)" >&2; exit 2 ;;
@@ -43,7 +45,6 @@ done
 [ ${#targets[@]} -gt 0 ] || { echo "targets_providers.sh: name at least one target" >&2; exit 2; }
 [ -f "$bundle/manifest.json" ] || { echo "targets_providers.sh: --bundle $bundle: no manifest.json (not a bundle)" >&2; exit 2; }
 source scripts/env.sh >/dev/null
-out=target/targets
 mkdir -p "$out"
 
 # An ONNX Runtime build from a PyPI wheel, unpacked once (cached beside the venv); prints its library.
@@ -71,7 +72,7 @@ PY
 native_ep() {
   local target="$1" lib="$2" ep="$3" log="$out/$1.log" rc=0
   [ -x target/release/livegesture ] || { echo "targets_providers.sh: target/release/livegesture is missing (cargo build --release -p livegesture)" >&2; return 2; }
-  ORT_DYLIB_PATH="$lib" ./target/release/livegesture parity --bundle "$bundle" --backends ort --ep "$ep" \
+  ORT_DYLIB_PATH="$lib" ./target/release/livegesture parity --bundle "$bundle" --backends ort --ep "$ep" --target-name "$target" \
     --json "$out/$target.json.part" >"$log" 2>&1 || rc=$?
   if [ -f "$out/$target.json.part" ]; then
     local ok=0
@@ -82,10 +83,15 @@ r = json.load(open(src))
 failed = [row for row in r["rows"] if not row["pass"]]
 unsupported = [row for row in failed if "does not support the following ONNX operations" in (row.get("detail") or "")]
 r["unsupported"] = sorted({row["what"] for row in unsupported})
+# the operators the provider named for each such graph ("... the following ONNX operations: A, B")
+r["unsupported_operators"] = {
+    row["what"]: [op.strip() for op in row["detail"].split("the following ONNX operations:", 1)[1].strip().splitlines()[0].split(",")]
+    for row in unsupported}
 r["passed_except_unsupported"] = len(r["rows"]) > len(failed) and len(failed) == len(unsupported)
 json.dump({"target": target, "bundle": bundle, "execution_provider": ep, "library": lib, **r}, open(dst, "w"), indent=1)
 print(f"{target}: {len(r['rows']) - len(failed)} of {len(r['rows'])} comparisons pass"
-      + (f"; the provider does not support graph(s) {', '.join(r['unsupported'])}" if unsupported else ""))
+      + (f"; the provider does not support graph(s) {', '.join(r['unsupported'])} (operators: "
+         + "; ".join(f"{g}: {', '.join(ops)}" for g, ops in r["unsupported_operators"].items()) + ")" if unsupported else ""))
 sys.exit(0 if r["passed_except_unsupported"] else 1)
 PY
     rm -f "$out/$target.json.part"
@@ -118,7 +124,7 @@ target_wasm-ort-web() { browser wasm-ort-web ort-web; }
 failed=()
 for t in "${targets[@]}"; do
   echo "=== target $t: $bundle"
-  if "target_$t"; then echo "target $t: passed"; else failed+=("$t"); echo "target $t: FAILED (target/targets/$t.json)"; fi
+  if "target_$t"; then echo "target $t: passed"; else failed+=("$t"); echo "target $t: FAILED ($out/$t.json)"; fi
 done
 [ ${#failed[@]} -eq 0 ] || { echo "targets failed: ${failed[*]}" >&2; exit 1; }
 echo "targets passed: ${targets[*]}"

@@ -5,7 +5,10 @@ Each result is a dict of numpy arrays, one row per 30 fps frame:
 - ``poses``: (n, 165) float32, SMPL-X axis-angle of 55 joints;
 - ``trans``: (n, 3) float32, root translation in metres (Y up);
 - ``expressions``: (n, 100) float32, face expression coefficients;
-- ``index``: (n,) int64, frame indices from 0 (time = index / 30 s).
+- ``index``: (n,) int64, frame indices from 0 (time = index / 30 s);
+- ``arkit``: (n, 52) float32 in [0, 1], ARKit blendshape weights in ``ARKIT_NAMES`` order, and
+  ``visemes``: (n, 15) float32 probabilities (each row sums to 1) in ``VISEME_NAMES`` order, from a
+  bundle with the face channel (``Model.has_face``, docs/face.md); both None without one.
 
 Errors carry the message of ``livegesture generate``: ``FileNotFoundError`` / ``OSError`` for files,
 ``ValueError`` for bad input (audio, bundle contents, options), ``RuntimeError`` otherwise. Every
@@ -23,12 +26,18 @@ FPS: int
 POSE_DIM: int
 TRANS_DIM: int
 EXPR_DIM: int
+ARKIT_DIM: int
+VISEME_DIM: int
+ARKIT_NAMES: list[str]
+VISEME_NAMES: list[str]
 
 class Frames(TypedDict):
     poses: npt.NDArray[np.float32]
     trans: npt.NDArray[np.float32]
     expressions: npt.NDArray[np.float32]
     index: npt.NDArray[np.int64]
+    arkit: npt.NDArray[np.float32] | None
+    visemes: npt.NDArray[np.float32] | None
 
 Pcm = npt.NDArray[np.float32] | npt.NDArray[np.int16] | npt.NDArray[np.float64]
 
@@ -64,6 +73,9 @@ class Model:
     @property
     def fps(self) -> int:
         """Output frames per second (30)."""
+    @property
+    def has_face(self) -> bool:
+        """Whether results carry ``arkit`` and ``visemes`` (a bundle with the face channel)."""
     def stream(
         self,
         seed: int = 0,

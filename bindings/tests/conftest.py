@@ -86,6 +86,9 @@ class Cli:
             assert r.returncode == 0, r.stderr
             with np.load(out) as z:
                 self.cache[key] = {k: z[k] for k in ("poses", "trans", "expressions")}
+                # the face channel: in the npz from a bundle with a face graph, else absent (None here)
+                for k in ("arkit", "visemes"):
+                    self.cache[key][k] = z[k] if k in z.files else None
         return self.cache[key]
 
     def error(self, *args):
@@ -128,14 +131,33 @@ def models(lgr):
 def assert_same(got, ref):
     """Frames equal the CLI's bit for bit, with indices 0..n-1."""
     n = len(ref["poses"])
-    assert set(got) == {"poses", "trans", "expressions", "index"}
+    assert set(got) == {"poses", "trans", "expressions", "index", "arkit", "visemes"}
     assert got["poses"].dtype == np.float32 and got["poses"].shape == (n, 165)
     assert got["trans"].dtype == np.float32 and got["trans"].shape == (n, 3)
     assert got["expressions"].dtype == np.float32 and got["expressions"].shape == (n, 100)
     assert got["index"].dtype == np.int64 and np.array_equal(got["index"], np.arange(n))
     for k in ("poses", "trans", "expressions"):
         assert np.array_equal(got[k], ref[k]), f"{k}: max abs diff {np.abs(got[k] - ref[k]).max()}"
+    assert_same_face(got, ref, n)
+
+
+def assert_same_face(got, ref, n):
+    """The face channel (docs/face.md) as the reference has it: None for a bundle without a face graph;
+    else arkit (n, 52) in [0, 1] and visemes (n, 15) summing to 1, bit for bit the reference's."""
+    if ref.get("arkit") is None:
+        assert got["arkit"] is None and got["visemes"] is None, "a bundle without a face gave face values"
+        return
+    assert got["arkit"] is not None and got["visemes"] is not None, "the face channel is missing"
+    assert got["arkit"].dtype == np.float32 and got["arkit"].shape == (n, 52)
+    assert got["visemes"].dtype == np.float32 and got["visemes"].shape == (n, 15)
+    assert np.isfinite(got["arkit"]).all() and (got["arkit"] >= 0).all() and (got["arkit"] <= 1).all()
+    assert np.isfinite(got["visemes"]).all() and np.allclose(got["visemes"].sum(1), 1, atol=1e-5)
+    for k in ("arkit", "visemes"):
+        assert np.array_equal(got[k], ref[k]), f"{k}: max abs diff {np.abs(got[k] - ref[k]).max()}"
 
 
 def concat(parts):
-    return {k: np.concatenate([p[k] for p in parts]) for k in ("poses", "trans", "expressions", "index")}
+    out = {k: np.concatenate([p[k] for p in parts]) for k in ("poses", "trans", "expressions", "index")}
+    for k in ("arkit", "visemes"):  # None in every part without the face channel
+        out[k] = None if parts[0][k] is None else np.concatenate([p[k] for p in parts])
+    return out

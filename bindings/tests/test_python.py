@@ -36,11 +36,11 @@ def test_assert_same_can_fail(clips, models):
     ref = models("livegesture", "tract").generate(str(wav), seed=7)
     assert_same(ref, ref)
     for change in ("bit", "frame", "dtype"):
-        bad = {k: v.copy() for k, v in ref.items()}
+        bad = {k: (v.copy() if v is not None else None) for k, v in ref.items()}
         if change == "bit":
             bad["expressions"].view(np.uint32)[3, 7] ^= 1
         elif change == "frame":
-            bad = {k: v[:-1] for k, v in bad.items()}
+            bad = {k: (v[:-1] if v is not None else None) for k, v in bad.items()}
         else:
             bad["poses"] = bad["poses"].astype(np.float64)
         with pytest.raises(AssertionError):
@@ -96,6 +96,8 @@ def test_default_bundle_equals_cli(lgr, cli, clips, monkeypatch):
     assert model.family == "livegesture" and model.backend == "tract"
     wav, pcm = clips[22050]
     ref = cli.generate(wav, ROOT / "models/default", "tract", 7)
+    # models/default carries the face channel (docs/face.md): arkit and visemes equal the CLI's npz
+    assert model.has_face and ref["arkit"] is not None
     assert_same(model.generate(str(wav), seed=7), ref)
     assert_same(chunked_push(model.stream(seed=7), pcm, 22050), ref)
     # $LIVEGESTURE_BUNDLE names another default
@@ -342,3 +344,37 @@ def test_stubs_match_the_module(lgr):
     module_public = {a for a in dir(lgr) if not a.startswith("_")} - {"livegesture_runtime"}
     assert module_public == (set(classes) - {"Frames"}) | (names - {"__version__"}), module_public
     assert lgr.__doc__ and lgr.__version__ and lgr.FPS == 30 and lgr.POSE_DIM == 165
+
+
+def test_face_channel_names_and_absence(lgr, models, clips):
+    """The face names are docs/face.md's; a bundle without a face graph (the tiny exports) says so
+    (has_face False, arkit and visemes None) on stream and generate; the face check can fail."""
+    assert lgr.ARKIT_DIM == 52 and len(lgr.ARKIT_NAMES) == 52 and lgr.ARKIT_NAMES[0] == "eyeBlinkLeft"
+    assert lgr.ARKIT_NAMES[17] == "jawOpen" and lgr.ARKIT_NAMES[-1] == "tongueOut"
+    assert lgr.VISEME_NAMES == ["sil", "PP", "FF", "TH", "DD", "kk", "CH", "SS", "nn", "RR", "aa", "E",
+                                "ih", "oh", "ou"] and lgr.VISEME_DIM == 15
+    _, pcm = clips[16000]
+    for family in TINY:
+        m = models(family, "tract")
+        assert not m.has_face
+        s = m.stream(seed=1)
+        got = concat([s.push(pcm, 16000), s.finish()])
+        assert got["arkit"] is None and got["visemes"] is None
+    # must-fail: face values where the reference has none, none where it has them, out of range, changed
+    n = 4
+    face = {"arkit": np.full((n, 52), 0.5, np.float32), "visemes": np.full((n, 15), 1 / 15, np.float32)}
+    from conftest import assert_same_face
+    assert_same_face(face, face, n)
+    bad_cases = [(face, {"arkit": None}), ({"arkit": None, "visemes": None}, face)]
+    high = {k: v.copy() for k, v in face.items()}
+    high["arkit"][1, 24] = 1.5
+    bad_cases.append((high, high))
+    skew = {k: v.copy() for k, v in face.items()}
+    skew["visemes"][2, 0] += 0.1
+    bad_cases.append((skew, skew))
+    bit = {k: v.copy() for k, v in face.items()}
+    bit["arkit"].view(np.uint32)[0, 0] ^= 1
+    bad_cases.append((bit, face))
+    for got, ref in bad_cases:
+        with pytest.raises(AssertionError):
+            assert_same_face(got, ref, n)

@@ -33,6 +33,8 @@ fn start() -> Server {
                 fps: bundle.frontend().fps,
                 frames_per_token: bundle.frontend().frames_per_token,
                 frontend: bundle.frontend().clone(),
+                // the test servers run the family's graphs without a face wrapper
+                face: false,
             };
             Ok((p, info))
         },

@@ -102,6 +102,10 @@ fn frames_equal_generate_whatever_the_split() {
         assert_eq!(ready["family"], "livegesture");
         assert_eq!(ready["frames_per_unit"], 4);
         assert_eq!(ready["lookahead_frames"], 0);
+        // the tiny bundle has no face channel: binary records of version 1 (docs/serve.md)
+        assert_eq!(ready["face"], false);
+        assert_eq!(ready["binary_version"], 1);
+        assert_eq!(ready["record_bytes"], 1104);
         assert_equal(&got.frames, &want, &format!("split {cuts:?}"));
         assert_eq!(got.done, Some(want.len() as u64));
         assert_eq!(got.close.as_ref().map(|c| c.0), Some(1000));

@@ -227,4 +227,16 @@ fn writers_carry_the_face() {
     let ch = doc["animations"][0]["channels"].as_array().unwrap();
     assert!(ch.iter().any(|c| c["target"]["path"] == "weights"));
     assert_eq!(VISEME_NAMES.len(), 15);
+    // binary records: version 2 (1372 bytes) carries the face; read back equal
+    let mut w = livegesture::output::BinaryFrameWriter::new(Vec::new());
+    for f in &frames {
+        w.write_frame(f).unwrap();
+    }
+    w.finish().unwrap();
+    let bytes = w.into_inner();
+    assert_eq!(bytes.len(), 16 + frames.len() * 1372);
+    let r = livegesture::output::BinaryFrameReader::new(&bytes[..]).unwrap();
+    assert_eq!(r.version(), 2);
+    let back: Vec<Frame> = r.map(|f| f.unwrap()).collect();
+    assert_eq!(back, frames);
 }

@@ -9,7 +9,7 @@ export default defineConfig({
     outDir: 'dist',
     emptyOutDir: true,
     assetsInlineLimit: 0,
-    chunkSizeWarningLimit: 800, // three.js is most of app.js
+    chunkSizeWarningLimit: 850, // three.js is most of app.js
     modulePreload: { polyfill: false },
     rollupOptions: {
       output: {

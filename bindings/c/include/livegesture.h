@@ -18,6 +18,12 @@
 // Motion frames per second.
 #define LG_FPS 30
 
+// ARKit blendshape weights per frame of the face channel (docs/face.md).
+#define LG_ARKIT_DIM 52
+
+// Viseme probabilities per frame of the face channel.
+#define LG_VISEME_DIM 15
+
 // The result of every call. On anything but `LG_STATUS_OK`, `lg_last_error()` says what went wrong.
 typedef enum LgStatus {
   // Success.
@@ -66,6 +72,15 @@ typedef struct LgStreamOptions {
   // DiffSHEG: style (speaker) id (< 0: the bundle's).
   int64_t speaker;
 } LgStreamOptions;
+
+// One frame's face channel (docs/face.md): ARKit weights in [0, 1] (names: `lg_arkit_name`) and
+// viseme probabilities summing to 1 (names: `lg_viseme_name`).
+typedef struct LgFace {
+  // ARKit blendshape weights, Apple's order (`eyeBlinkLeft` ... `tongueOut`).
+  float arkit[LG_ARKIT_DIM];
+  // Viseme probabilities: `sil, PP, FF, TH, DD, kk, CH, SS, nn, RR, aa, E, ih, oh, ou`.
+  float visemes[LG_VISEME_DIM];
+} LgFace;
 
 #ifdef __cplusplus
 extern "C" {
@@ -132,6 +147,7 @@ size_t lg_stream_frames_ready(const struct LgStream *stream);
 // Moves up to `max_frames` waiting frames, oldest first, into caller-owned buffers: `poses`
 // (max_frames x 165 floats), `trans` (x 3), `expressions` (x 100), `index` (frame indices); any
 // buffer may be NULL to skip that field. Writes the number of frames moved to `*frames_read`.
+// (`lg_stream_read_face` also gives the face channel.)
 enum LgStatus lg_stream_read(struct LgStream *stream,
                              size_t max_frames,
                              float *poses,
@@ -139,6 +155,28 @@ enum LgStatus lg_stream_read(struct LgStream *stream,
                              float *expressions,
                              uint64_t *index,
                              size_t *frames_read);
+
+// As `lg_stream_read`, and the frames' face channel into `face` (max_frames `LgFace`s; NULL to
+// skip it). A model without the face channel (`lg_model_has_face` 0) refuses a non-NULL `face`
+// with `LG_STATUS_INPUT`, moving no frame.
+enum LgStatus lg_stream_read_face(struct LgStream *stream,
+                                  size_t max_frames,
+                                  float *poses,
+                                  float *trans,
+                                  float *expressions,
+                                  uint64_t *index,
+                                  struct LgFace *face,
+                                  size_t *frames_read);
+
+// 1 if the model's frames carry the face channel (a bundle with a face graph; docs/face.md), 0
+// if not (or for NULL).
+int32_t lg_model_has_face(const struct LgModel *model);
+
+// The ARKit name of face weight `i` (0 ... 51), e.g. "jawOpen" (static string); NULL past the end.
+const char *lg_arkit_name(size_t i);
+
+// The viseme name of face probability `i` (0 ... 14), e.g. "aa" (static string); NULL past the end.
+const char *lg_viseme_name(size_t i);
 
 // Back to a cold start with the same options and seed (also after an error, a panic or finish);
 // frames not yet read are dropped.

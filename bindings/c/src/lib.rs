@@ -16,7 +16,8 @@ use std::collections::VecDeque;
 use std::ffi::{c_char, CStr, CString};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::PathBuf;
-use std::sync::Arc;
+use std::ptr;
+use std::sync::{Arc, OnceLock};
 
 use anyhow::{anyhow, Result};
 
@@ -34,6 +35,21 @@ pub const LG_TRANS_DIM: usize = 3;
 pub const LG_EXPR_DIM: usize = 100;
 /// Motion frames per second.
 pub const LG_FPS: u32 = 30;
+/// ARKit blendshape weights per frame of the face channel (docs/face.md).
+pub const LG_ARKIT_DIM: usize = 52;
+/// Viseme probabilities per frame of the face channel.
+pub const LG_VISEME_DIM: usize = 15;
+
+/// One frame's face channel (docs/face.md): ARKit weights in [0, 1] (names: `lg_arkit_name`) and
+/// viseme probabilities summing to 1 (names: `lg_viseme_name`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LgFace {
+    /// ARKit blendshape weights, Apple's order (`eyeBlinkLeft` ... `tongueOut`).
+    pub arkit: [f32; LG_ARKIT_DIM],
+    /// Viseme probabilities: `sil, PP, FF, TH, DD, kk, CH, SS, nn, RR, aa, E, ih, oh, ou`.
+    pub visemes: [f32; LG_VISEME_DIM],
+}
 
 /// The result of every call. On anything but `LG_STATUS_OK`, `lg_last_error()` says what went wrong.
 #[repr(C)]
@@ -413,6 +429,7 @@ pub unsafe extern "C" fn lg_stream_frames_ready(stream: *const LgStream) -> usiz
 /// Moves up to `max_frames` waiting frames, oldest first, into caller-owned buffers: `poses`
 /// (max_frames x 165 floats), `trans` (x 3), `expressions` (x 100), `index` (frame indices); any
 /// buffer may be NULL to skip that field. Writes the number of frames moved to `*frames_read`.
+/// (`lg_stream_read_face` also gives the face channel.)
 #[no_mangle]
 pub unsafe extern "C" fn lg_stream_read(
     stream: *mut LgStream,
@@ -423,9 +440,44 @@ pub unsafe extern "C" fn lg_stream_read(
     index: *mut u64,
     frames_read: *mut usize,
 ) -> LgStatus {
+    unsafe {
+        lg_stream_read_face(
+            stream,
+            max_frames,
+            poses,
+            trans,
+            expressions,
+            index,
+            ptr::null_mut(),
+            frames_read,
+        )
+    }
+}
+
+/// As `lg_stream_read`, and the frames' face channel into `face` (max_frames `LgFace`s; NULL to
+/// skip it). A model without the face channel (`lg_model_has_face` 0) refuses a non-NULL `face`
+/// with `LG_STATUS_INPUT`, moving no frame.
+#[no_mangle]
+#[allow(clippy::too_many_arguments)]
+pub unsafe extern "C" fn lg_stream_read_face(
+    stream: *mut LgStream,
+    max_frames: usize,
+    poses: *mut f32,
+    trans: *mut f32,
+    expressions: *mut f32,
+    index: *mut u64,
+    face: *mut LgFace,
+    frames_read: *mut usize,
+) -> LgStatus {
     ffi("lg_stream_read", || unsafe {
         write_out(frames_read, 0);
         with_stream(stream, |s| {
+            if !face.is_null() && !s.model.has_face() {
+                return Err(InputError::new(
+                    "face: this bundle has no face channel (lg_model_has_face is 0); pass NULL",
+                )
+                .into());
+            }
             let n = max_frames.min(s.ready.len());
             for (i, f) in s.ready.drain(..n).enumerate() {
                 copy_row(poses, i, &f.poses);
@@ -434,11 +486,51 @@ pub unsafe extern "C" fn lg_stream_read(
                 if !index.is_null() {
                     *index.add(i) = f.index;
                 }
+                if !face.is_null() {
+                    let v = f
+                        .face
+                        .ok_or_else(|| anyhow!("frame {} has no face values", f.index))?;
+                    *face.add(i) = LgFace {
+                        arkit: v.arkit,
+                        visemes: v.visemes,
+                    };
+                }
             }
             write_out(frames_read, n);
             Ok(())
         })
     })
+}
+
+/// 1 if the model's frames carry the face channel (a bundle with a face graph; docs/face.md), 0
+/// if not (or for NULL).
+#[no_mangle]
+pub unsafe extern "C" fn lg_model_has_face(model: *const LgModel) -> i32 {
+    unsafe { model.as_ref() }.map_or(0, |m| i32::from(m.inner.has_face()))
+}
+
+/// The ARKit name of face weight `i` (0 ... 51), e.g. "jawOpen" (static string); NULL past the end.
+#[no_mangle]
+pub extern "C" fn lg_arkit_name(i: usize) -> *const c_char {
+    static NAMES: OnceLock<Vec<CString>> = OnceLock::new();
+    name_at(&NAMES, &livegesture::face::ARKIT_NAMES, i)
+}
+
+/// The viseme name of face probability `i` (0 ... 14), e.g. "aa" (static string); NULL past the end.
+#[no_mangle]
+pub extern "C" fn lg_viseme_name(i: usize) -> *const c_char {
+    static NAMES: OnceLock<Vec<CString>> = OnceLock::new();
+    name_at(&NAMES, &livegesture::face::VISEME_NAMES, i)
+}
+
+fn name_at(cell: &OnceLock<Vec<CString>>, names: &[&str], i: usize) -> *const c_char {
+    let names = cell.get_or_init(|| {
+        names
+            .iter()
+            .map(|n| CString::new(*n).expect("no NUL in a name"))
+            .collect()
+    });
+    names.get(i).map_or(ptr::null(), |n| n.as_ptr())
 }
 
 unsafe fn copy_row(dst: *mut f32, row: usize, src: &[f32]) {

@@ -289,3 +289,140 @@ fn bad_input_returns_errors_with_messages() {
         lg_model_free(ptr::null_mut());
     }
 }
+
+/// Every waiting frame's face, in batches of 5 (`lg_stream_read_face`), and their indices.
+fn read_faces(s: *mut LgStream) -> (Vec<LgFace>, Vec<u64>) {
+    let (mut faces, mut index) = (vec![], vec![]);
+    loop {
+        let zero = LgFace {
+            arkit: [0.0; LG_ARKIT_DIM],
+            visemes: [0.0; LG_VISEME_DIM],
+        };
+        let mut f = vec![zero; 5];
+        let mut i = vec![0u64; 5];
+        let mut n = 0;
+        ok(unsafe {
+            lg_stream_read_face(
+                s,
+                5,
+                ptr::null_mut(),
+                ptr::null_mut(),
+                ptr::null_mut(),
+                i.as_mut_ptr(),
+                f.as_mut_ptr(),
+                &mut n,
+            )
+        });
+        if n == 0 {
+            return (faces, index);
+        }
+        faces.extend_from_slice(&f[..n]);
+        index.extend_from_slice(&i[..n]);
+    }
+}
+
+#[test]
+fn the_face_channel_equals_generate_and_a_bundle_without_says_so() {
+    // names
+    let name = |p: *const std::ffi::c_char| unsafe { CStr::from_ptr(p) }.to_str().unwrap();
+    assert_eq!(name(lg_arkit_name(17)), "jawOpen");
+    assert_eq!(name(lg_arkit_name(51)), "tongueOut");
+    assert!(lg_arkit_name(52).is_null() && lg_viseme_name(15).is_null());
+    assert_eq!(name(lg_viseme_name(0)), "sil");
+    assert_eq!(name(lg_viseme_name(10)), "aa");
+    assert_eq!(unsafe { lg_model_has_face(ptr::null()) }, 0);
+
+    // models/default carries the face: a push loop's face equals the library's generate (the CLI's)
+    let dir = tempfile_dir();
+    let rate = 16000;
+    let pcm = audio((rate as f64 * 1.3) as usize);
+    let wav = dir.join("face.wav");
+    write_wav(&wav, &pcm, rate);
+    let bundle = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default");
+    let model = load(&bundle);
+    assert_eq!(unsafe { lg_model_has_face(model) }, 1);
+    let mut opts = lg_stream_options_default();
+    opts.seed = 9;
+    let mut s = ptr::null_mut();
+    ok(unsafe { lg_stream_new(model, &opts, &mut s) });
+    let mut ready = 0;
+    for chunk in pcm.chunks(2011) {
+        ok(unsafe { lg_stream_push_i16(s, chunk.as_ptr(), chunk.len(), rate, &mut ready) });
+    }
+    ok(unsafe { lg_stream_finish(s, &mut ready) });
+    let (faces, index) = read_faces(s);
+    assert_eq!(faces.len(), (pcm.len() * 30).div_ceil(rate as usize));
+    assert_eq!(index, (0..faces.len() as u64).collect::<Vec<_>>());
+    let lib_model = livegesture::generate::open_model(
+        Some(&bundle),
+        &livegesture::backend::BackendOptions {
+            kind: livegesture::backend::BackendKind::Tract,
+            execution_provider: "cpu".into(),
+            intra_threads: 1,
+            ort_library: None,
+        },
+        livegesture::model::GraphForm::Auto,
+    )
+    .unwrap();
+    let whole = livegesture::generate::generate_wav(
+        lib_model.as_ref(),
+        &livegesture::model::StreamOptions {
+            seed: 9,
+            ..Default::default()
+        },
+        &wav,
+    )
+    .unwrap();
+    for (f, w) in faces.iter().zip(&whole.frames) {
+        let v = w.face.expect("the library's frame has a face");
+        assert!(
+            f.arkit == v.arkit && f.visemes == v.visemes,
+            "frame {}",
+            w.index
+        );
+        assert!(f.arkit.iter().all(|x| (0.0..=1.0).contains(x)));
+        assert!((f.visemes.iter().sum::<f32>() - 1.0).abs() < 1e-5);
+    }
+    // the comparison can fail: another seed blinks elsewhere, so some frame's face differs
+    opts.seed = 10;
+    let mut s2 = ptr::null_mut();
+    ok(unsafe { lg_stream_new(model, &opts, &mut s2) });
+    ok(unsafe { lg_stream_generate_wav(s2, c(wav.to_str().unwrap()).as_ptr(), &mut ready) });
+    let (other, _) = read_faces(s2);
+    assert!(other != faces);
+
+    // a bundle without a face graph: has_face 0, and a face buffer is refused without moving frames
+    let tiny = load(&tiny_bundle());
+    assert_eq!(unsafe { lg_model_has_face(tiny) }, 0);
+    let mut t = ptr::null_mut();
+    ok(unsafe { lg_stream_new(tiny, ptr::null(), &mut t) });
+    ok(unsafe { lg_stream_generate_wav(t, c(wav.to_str().unwrap()).as_ptr(), &mut ready) });
+    let mut one = [LgFace {
+        arkit: [0.0; LG_ARKIT_DIM],
+        visemes: [0.0; LG_VISEME_DIM],
+    }];
+    let mut n = 7;
+    let st = unsafe {
+        lg_stream_read_face(
+            t,
+            1,
+            ptr::null_mut(),
+            ptr::null_mut(),
+            ptr::null_mut(),
+            ptr::null_mut(),
+            one.as_mut_ptr(),
+            &mut n,
+        )
+    };
+    assert_eq!(st, LgStatus::Input);
+    assert!(last_error().contains("no face channel"), "{}", last_error());
+    assert_eq!(n, 0);
+    assert_eq!(unsafe { lg_stream_frames_ready(t) }, ready);
+    unsafe {
+        lg_stream_free(s);
+        lg_stream_free(s2);
+        lg_stream_free(t);
+        lg_model_free(model);
+        lg_model_free(tiny);
+    }
+}

@@ -95,6 +95,10 @@ fn committed_header_equals_a_fresh_generation() {
         "lg_stream_push",
         "lg_stream_finish",
         "lg_stream_read",
+        "lg_stream_read_face",
+        "lg_model_has_face",
+        "lg_arkit_name",
+        "lg_viseme_name",
         "lg_stream_reset",
         "lg_last_error",
     ] {

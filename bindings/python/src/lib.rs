@@ -21,6 +21,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use livegesture::backend::{BackendKind, BackendOptions};
+use livegesture::face::{ARKIT_DIM, ARKIT_NAMES, VISEME_DIM, VISEME_NAMES};
 use livegesture::generate::{self, ErrorKind, PcmStream};
 use livegesture::model::GraphForm;
 use livegesture::model::{MotionModel, StreamOptions};
@@ -53,8 +54,9 @@ fn compute<T: Send>(
 }
 
 /// Frames as the result dict: `poses` (n, 165) float32, `trans` (n, 3), `expressions` (n, 100),
-/// `index` (n,) int64.
-fn frames_dict<'py>(py: Python<'py>, frames: &[Frame]) -> PyResult<Bound<'py, PyDict>> {
+/// `index` (n,) int64; with `face` (a bundle with the face channel) `arkit` (n, 52) and `visemes`
+/// (n, 15) float32, else both None.
+fn frames_dict<'py>(py: Python<'py>, frames: &[Frame], face: bool) -> PyResult<Bound<'py, PyDict>> {
     let n = frames.len();
     let mut poses = Vec::with_capacity(n * POSE_DIM);
     let mut trans = Vec::with_capacity(n * TRANS_DIM);
@@ -80,6 +82,28 @@ fn frames_dict<'py>(py: Python<'py>, frames: &[Frame]) -> PyResult<Bound<'py, Py
         PyArray1::from_vec(py, expressions).reshape([n, EXPR_DIM])?,
     )?;
     d.set_item("index", PyArray1::from_vec(py, index))?;
+    if face {
+        let mut arkit = Vec::with_capacity(n * ARKIT_DIM);
+        let mut visemes = Vec::with_capacity(n * VISEME_DIM);
+        for f in frames {
+            let v = f.face.as_ref().ok_or_else(|| {
+                PyRuntimeError::new_err(format!("frame {} has no face values", f.index))
+            })?;
+            arkit.extend_from_slice(&v.arkit);
+            visemes.extend_from_slice(&v.visemes);
+        }
+        d.set_item(
+            "arkit",
+            PyArray1::from_vec(py, arkit).reshape([n, ARKIT_DIM])?,
+        )?;
+        d.set_item(
+            "visemes",
+            PyArray1::from_vec(py, visemes).reshape([n, VISEME_DIM])?,
+        )?;
+    } else {
+        d.set_item("arkit", py.None())?;
+        d.set_item("visemes", py.None())?;
+    }
     Ok(d)
 }
 
@@ -233,6 +257,13 @@ impl Model {
         self.inner.fps()
     }
 
+    /// Whether results carry the face channel (`arkit`, `visemes`; docs/face.md): a bundle with a
+    /// face graph. Without one, results have `arkit` and `visemes` None.
+    #[getter]
+    fn has_face(&self) -> bool {
+        self.inner.has_face()
+    }
+
     /// A new stream (cold start) with these options; None takes the bundle's default.
     #[pyo3(signature = (seed=0, guidance=None, *, temperature=None, top_k=None, ddim_steps=None, jumps=None, window=None, overlap=None, blend_steps=None, speaker=None))]
     #[allow(clippy::too_many_arguments)]
@@ -266,6 +297,7 @@ impl Model {
         let inner = compute(py, "stream", || generate::new_stream(model, &opts))?;
         Ok(Stream {
             inner: Mutex::new(PcmStream::new(inner, "stream")),
+            face: model.has_face(),
         })
     }
 
@@ -328,7 +360,7 @@ impl Model {
                 generate::generate_wav(model, &opts, &path)
             })?
         };
-        frames_dict(py, &out.frames)
+        frames_dict(py, &out.frames, model.has_face())
     }
 
     fn __repr__(&self) -> String {
@@ -348,6 +380,8 @@ impl Model {
 #[pyclass(module = "livegesture_runtime", frozen)]
 struct Stream {
     inner: Mutex<PcmStream>,
+    /// Whether the frames carry the face channel.
+    face: bool,
 }
 
 impl Stream {
@@ -370,7 +404,7 @@ impl Stream {
             let frames = stream.push(&samples, sample_rate)?;
             Ok((frames, t0.elapsed().as_secs_f64()))
         })?;
-        Ok((frames_dict(py, &frames)?, core))
+        Ok((frames_dict(py, &frames, self.face)?, core))
     }
 
     /// The stream, or an error if an earlier call panicked (then only reset() recovers it).
@@ -414,7 +448,7 @@ impl Stream {
     /// (ceil(n * 30 / rate) frames in all).
     fn finish<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let frames = compute(py, "stream.finish", || self.lock()?.finish())?;
-        frames_dict(py, &frames)
+        frames_dict(py, &frames, self.face)
     }
 
     /// Back to a cold start with the same options and seed (also after an error or finish()).
@@ -518,5 +552,9 @@ fn livegesture_runtime(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("POSE_DIM", POSE_DIM)?;
     m.add("TRANS_DIM", TRANS_DIM)?;
     m.add("EXPR_DIM", EXPR_DIM)?;
+    m.add("ARKIT_DIM", ARKIT_DIM)?;
+    m.add("VISEME_DIM", VISEME_DIM)?;
+    m.add("ARKIT_NAMES", ARKIT_NAMES.to_vec())?;
+    m.add("VISEME_NAMES", VISEME_NAMES.to_vec())?;
     Ok(())
 }

@@ -121,7 +121,8 @@ impl BundleFiles {
 }
 
 /// Frames out of a stream, row-major: `poses` (n x 165), `trans` (n x 3), `expressions` (n x 100),
-/// `footContact` (n x 4), `index` (n).
+/// `footContact` (n x 4), `index` (n); from a bundle with the face channel (docs/face.md) `arkit`
+/// (n x 52) and `visemes` (n x 15), else both undefined.
 #[wasm_bindgen]
 #[derive(Default)]
 pub struct Frames {
@@ -130,17 +131,32 @@ pub struct Frames {
     trans: Vec<f32>,
     expressions: Vec<f32>,
     foot_contact: Vec<f32>,
+    face: Option<(Vec<f32>, Vec<f32>)>,
 }
 
 impl Frames {
-    fn extend(&mut self, frames: &[Frame]) {
+    /// `frames` of a model with (`face`) or without the face channel.
+    fn of(frames: &[Frame], face: bool) -> Result<Self, String> {
+        let mut out = Frames {
+            face: face.then(Default::default),
+            ..Default::default()
+        };
         for f in frames {
-            self.index.push(f.index as f64);
-            self.poses.extend_from_slice(&f.poses);
-            self.trans.extend_from_slice(&f.trans);
-            self.expressions.extend_from_slice(&f.expressions);
-            self.foot_contact.extend_from_slice(&f.foot_contact);
+            out.index.push(f.index as f64);
+            out.poses.extend_from_slice(&f.poses);
+            out.trans.extend_from_slice(&f.trans);
+            out.expressions.extend_from_slice(&f.expressions);
+            out.foot_contact.extend_from_slice(&f.foot_contact);
+            if let Some((arkit, visemes)) = &mut out.face {
+                let v = f
+                    .face
+                    .as_ref()
+                    .ok_or_else(|| format!("frame {} has no face values", f.index))?;
+                arkit.extend_from_slice(&v.arkit);
+                visemes.extend_from_slice(&v.visemes);
+            }
         }
+        Ok(out)
     }
 }
 
@@ -176,6 +192,36 @@ impl Frames {
     pub fn foot_contact(&self) -> Vec<f32> {
         self.foot_contact.clone()
     }
+    /// ARKit weights in [0, 1], 52 per frame ([`arkit_names`] order); undefined from a bundle
+    /// without the face channel.
+    #[wasm_bindgen(getter)]
+    pub fn arkit(&self) -> Option<Vec<f32>> {
+        self.face.as_ref().map(|f| f.0.clone())
+    }
+    /// Viseme probabilities (each frame's sum 1), 15 per frame ([`viseme_names`] order); undefined
+    /// from a bundle without the face channel.
+    #[wasm_bindgen(getter)]
+    pub fn visemes(&self) -> Option<Vec<f32>> {
+        self.face.as_ref().map(|f| f.1.clone())
+    }
+}
+
+/// The 52 ARKit blendshape names of `Frames.arkit`, Apple's order (docs/face.md).
+#[wasm_bindgen(js_name = arkitNames)]
+pub fn arkit_names() -> Vec<String> {
+    livegesture::face::ARKIT_NAMES
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
+}
+
+/// The 15 viseme names of `Frames.visemes`: `sil, PP, FF, TH, DD, kk, CH, SS, nn, RR, aa, E, ih, oh, ou`.
+#[wasm_bindgen(js_name = visemeNames)]
+pub fn viseme_names() -> Vec<String> {
+    livegesture::face::VISEME_NAMES
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
 }
 
 /// A verified bundle loaded on tract: makes streams.
@@ -209,6 +255,13 @@ impl Model {
         self.model.fps() as f64
     }
 
+    /// Whether frames carry the face channel (`Frames.arkit`, `Frames.visemes`): a bundle with a
+    /// face graph.
+    #[wasm_bindgen(getter, js_name = hasFace)]
+    pub fn has_face(&self) -> bool {
+        self.model.has_face()
+    }
+
     /// The weights' precision (`float32`, `float16`, ...).
     #[wasm_bindgen(getter)]
     pub fn precision(&self) -> String {
@@ -222,6 +275,7 @@ impl Model {
         let inner = generate::new_stream(self.model.as_ref(), &opts).map_err(anyhow_err)?;
         Ok(Stream {
             inner: PcmStream::new(inner, "stream"),
+            face: self.model.has_face(),
         })
     }
 
@@ -244,9 +298,7 @@ impl Model {
         let opts = Self::options(seed, guidance)?;
         let g = generate::generate_wav_bytes(self.model.as_ref(), &opts, wav, "wav")
             .map_err(anyhow_err)?;
-        let mut out = Frames::default();
-        out.extend(&g.frames);
-        Ok(out)
+        Frames::of(&g.frames, self.model.has_face()).map_err(js_err)
     }
 
     /// The parity checks of docs/wasm.md on this bundle (the library's
@@ -263,6 +315,7 @@ impl Model {
 #[wasm_bindgen]
 pub struct Stream {
     inner: PcmStream,
+    face: bool,
 }
 
 #[wasm_bindgen]
@@ -271,18 +324,14 @@ impl Stream {
     /// reset); returns the frames it completes.
     pub fn push(&mut self, pcm: &[f32], sample_rate: u32) -> Result<Frames, JsError> {
         let f = self.inner.push(pcm, sample_rate).map_err(anyhow_err)?;
-        let mut out = Frames::default();
-        out.extend(&f);
-        Ok(out)
+        Frames::of(&f, self.face).map_err(js_err)
     }
 
     /// Ends the stream: the remaining frames, so that the stream has emitted
     /// `ceil(samples x fps / rate)` frames in total.
     pub fn finish(&mut self) -> Result<Frames, JsError> {
         let f = self.inner.finish().map_err(anyhow_err)?;
-        let mut out = Frames::default();
-        out.extend(&f);
-        Ok(out)
+        Frames::of(&f, self.face).map_err(js_err)
     }
 
     /// Back to a cold start with the same seed and options (also after an error or finish).

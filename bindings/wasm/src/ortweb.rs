@@ -203,10 +203,9 @@ fn options(seed: f64, guidance: f64) -> Result<model::StreamOptions> {
     })
 }
 
-fn frames(f: &[livegesture::output::Frame]) -> JsValue {
-    let mut out = Frames::default();
-    out.extend(f);
-    out.into()
+/// `f` as Frames, with the face channel when the model has one.
+fn frames(f: &[livegesture::output::Frame], face: bool) -> Result<JsValue> {
+    Ok(Frames::of(f, face).map_err(|e| anyhow!(e))?.into())
 }
 
 /// Loads a bundle (sha256 of every file checked) for ONNX Runtime Web; runs no graph. Returns
@@ -270,7 +269,8 @@ pub fn ortweb_stream(seed: f64, guidance: f64) -> u32 {
         let inner = PcmStream::new(generate::new_stream(model(e)?, &opts)?, "stream");
         e.next += 1;
         let id = e.next;
-        e.streams.insert(id, Stream { inner });
+        let face = model(e)?.has_face();
+        e.streams.insert(id, Stream { inner, face });
         Ok(JsValue::from(id))
     })
 }
@@ -280,8 +280,9 @@ pub fn ortweb_stream(seed: f64, guidance: f64) -> u32 {
 pub fn ortweb_push(id: u32, rate: u32) -> u32 {
     call(|e| {
         let pcm = std::mem::take(&mut e.pcm);
-        let f = stream(e, id)?.inner.push(&pcm, rate)?;
-        Ok(frames(&f))
+        let s = stream(e, id)?;
+        let f = s.inner.push(&pcm, rate)?;
+        frames(&f, s.face)
     })
 }
 
@@ -289,8 +290,9 @@ pub fn ortweb_push(id: u32, rate: u32) -> u32 {
 #[wasm_bindgen]
 pub fn ortweb_finish(id: u32) -> u32 {
     call(|e| {
-        let f = stream(e, id)?.inner.finish()?;
-        Ok(frames(&f))
+        let s = stream(e, id)?;
+        let f = s.inner.finish()?;
+        frames(&f, s.face)
     })
 }
 
@@ -321,9 +323,7 @@ pub fn ortweb_generate(seed: f64, guidance: f64) -> u32 {
         let wav = std::mem::take(&mut e.wav);
         let opts = options(seed, guidance)?;
         let g = generate::generate_wav_bytes(model(e)?, &opts, &wav, "wav")?;
-        let mut out = Frames::default();
-        out.extend(&g.frames);
-        Ok(out.into())
+        frames(&g.frames, model(e)?.has_face())
     })
 }
 

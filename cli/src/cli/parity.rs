@@ -75,7 +75,7 @@ pub struct Args {
     #[arg(long, value_name = "PATH")]
     pub ort_lib: Option<PathBuf>,
     /// Execution provider of the ort backend: cpu, openvino, webgpu, xnnpack, cuda, qnn (the library
-    /// must have it; docs/targets-providers.md). The graphs are judged at the bound of ONNX Runtime's
+    /// must have it; docs/targets.md). The graphs are judged at the bound of ONNX Runtime's
     /// CPU provider (1e-5 scaled, docs/parity.md).
     #[arg(long, value_name = "EP", default_value = "cpu")]
     pub ep: String,

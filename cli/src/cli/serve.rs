@@ -210,6 +210,7 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
             fps: bundle.frontend().fps,
             frames_per_token: bundle.frontend().frames_per_token,
             frontend: bundle.frontend().clone(),
+            face: model.has_face(),
         };
         Ok((model, info))
     })?;

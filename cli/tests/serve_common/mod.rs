@@ -42,6 +42,8 @@ pub fn model_info(model: &str, bundle: &Bundle, backend: &str) -> ModelInfo {
         fps: bundle.frontend().fps,
         frames_per_token: bundle.frontend().frames_per_token,
         frontend: bundle.frontend().clone(),
+        // the test servers run the family's graphs without a face wrapper
+        face: false,
     }
 }
 

@@ -71,6 +71,12 @@ impl Reader<'_> {
     }
 }
 
+/// The compiled-in asset's bytes (`LGFACE01`; the layout [`face_mesh`] reads): what `serve` sends
+/// the page at `/face.bin`.
+pub fn asset_bytes() -> &'static [u8] {
+    ASSET
+}
+
 /// Parses the compiled-in asset.
 pub fn face_mesh() -> Result<FaceMesh> {
     parse(ASSET)

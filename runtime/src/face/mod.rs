@@ -488,6 +488,9 @@ impl MotionModel for FacedModel {
     fn fps(&self) -> u64 {
         self.inner.fps()
     }
+    fn has_face(&self) -> bool {
+        true
+    }
     fn new_stream(&self, opts: &StreamOptions) -> Result<Box<dyn MotionStream>> {
         Ok(Box::new(FacedStream {
             inner: self.inner.new_stream(opts)?,

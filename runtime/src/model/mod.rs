@@ -120,6 +120,12 @@ pub trait MotionModel: Send + Sync {
     /// Output frames per second (30).
     fn fps(&self) -> u64;
 
+    /// Whether the frames carry the face channel (`Frame::face`; docs/face.md): a bundle with a
+    /// `face` section. The default: no.
+    fn has_face(&self) -> bool {
+        false
+    }
+
     /// A fresh stream (cold start) with `opts`; errors for options out of range or not supported by
     /// the family.
     fn new_stream(&self, opts: &StreamOptions) -> Result<Box<dyn MotionStream>>;

@@ -36,12 +36,12 @@
 //! | offset | size | field |
 //! |---|---|---|
 //! | 0 | 8 | magic `LGFRAMES` (ASCII) |
-//! | 8 | 2 | format version, `u16` = 1 |
+//! | 8 | 2 | format version, `u16`: 1 (body only) or 2 (body and face) |
 //! | 10 | 2 | header length in bytes, `u16` = 16 |
-//! | 12 | 2 | record length in bytes, `u16` = 1104 |
+//! | 12 | 2 | record length in bytes, `u16`: 1104 (version 1) or 1372 (version 2) |
 //! | 14 | 2 | frames per second, `u16` = 30 |
 //!
-//! then one fixed-size 1104-byte record per frame:
+//! then one fixed-size record per frame:
 //!
 //! | offset | size | field |
 //! |---|---|---|
@@ -51,10 +51,17 @@
 //! | 676 | 12 | `trans`, 3 x `f32` |
 //! | 688 | 400 | `expressions`, 100 x `f32` |
 //! | 1088 | 16 | `foot_contact`, 4 x `f32` |
+//! | 1104 | 208 | version 2 only: `arkit`, 52 x `f32` (ARKit names, Apple's order; docs/face.md) |
+//! | 1312 | 60 | version 2 only: `visemes`, 15 x `f32` (`sil` ... `ou`) |
 //!
-//! Writers refuse frames with NaN or infinite values, naming the frame and the field. The binary record
-//! carries the body only (version 1): the face channel is in the JSON lines, the npz and the glTF.
-
+//! Version 2 is version 1 with the face appended: a stream is version 2 exactly when its frames carry
+//! the face (a bundle with the face channel), version 1 otherwise, so a version-1 reader still reads
+//! every body-only stream and refuses a face stream by its version, never misreading it. The writer
+//! takes the version from the first frame (an empty stream is version 1) and refuses a later frame
+//! that differs. [`BinaryFrameReader`] reads both.
+//!
+//! Writers refuse frames with NaN or infinite values (and face values outside [0, 1]), naming the
+//! frame and the field.
 //!
 //! # Layout
 //!
@@ -70,7 +77,7 @@ pub mod gltf;
 mod jsonl;
 mod npz;
 
-pub use binary::{binary_header, BinaryFrameReader, BinaryFrameWriter};
+pub use binary::{binary_header, binary_header_for, BinaryFrameReader, BinaryFrameWriter};
 pub use gltf::{gltf_from_frames, write_gltf, write_gltf_with_face, GltfContainer};
 pub use jsonl::JsonLinesWriter;
 pub use npz::{
@@ -93,12 +100,26 @@ pub const BETAS_DIM: usize = 300;
 
 /// Magic bytes that open a binary frame stream.
 pub const BINARY_MAGIC: [u8; 8] = *b"LGFRAMES";
-/// Binary frame stream format version.
+/// Binary frame stream format version of a body-only stream.
 pub const BINARY_VERSION: u16 = 1;
+/// Binary frame stream format version of a stream whose frames carry the face.
+pub const BINARY_VERSION_FACE: u16 = 2;
 /// Binary header length in bytes.
 pub const BINARY_HEADER_LEN: usize = 16;
-/// Binary record length in bytes.
+/// Binary record length in bytes (version 1, body only).
 pub const BINARY_RECORD_LEN: usize = 16 + 4 * (POSE_DIM + TRANS_DIM + EXPR_DIM + CONTACT_DIM);
+/// Binary record length in bytes of version 2: the body, then `arkit` (52) and `visemes` (15).
+pub const BINARY_RECORD_LEN_FACE: usize =
+    BINARY_RECORD_LEN + 4 * (crate::face::ARKIT_DIM + crate::face::VISEME_DIM);
+
+/// The binary format version and record length of frames with (`true`) or without the face.
+pub fn binary_layout(face: bool) -> (u16, usize) {
+    if face {
+        (BINARY_VERSION_FACE, BINARY_RECORD_LEN_FACE)
+    } else {
+        (BINARY_VERSION, BINARY_RECORD_LEN)
+    }
+}
 
 // ----------------------------------------------------------------------------------------- Frame
 
@@ -252,9 +273,10 @@ impl Frame {
         serde_json::from_str(line).context("output: invalid frame JSON line")
     }
 
-    /// Appends the frame's 1104-byte binary record to `out`.
+    /// Appends the frame's binary record to `out`: 1104 bytes (version 1), or 1372 with the face
+    /// appended (version 2) when the frame carries it.
     pub fn encode_binary(&self, out: &mut Vec<u8>) {
-        out.reserve(BINARY_RECORD_LEN);
+        out.reserve(binary_layout(self.face.is_some()).1);
         out.extend_from_slice(&self.index.to_le_bytes());
         out.extend_from_slice(&self.time_s.to_le_bytes());
         for v in self
@@ -266,15 +288,23 @@ impl Frame {
         {
             out.extend_from_slice(&v.to_le_bytes());
         }
+        if let Some(f) = &self.face {
+            for v in f.arkit.iter().chain(&f.visemes) {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }
     }
 
-    /// Decodes one binary record (exactly [`BINARY_RECORD_LEN`] bytes).
+    /// Decodes one binary record: [`BINARY_RECORD_LEN`] bytes (version 1) or
+    /// [`BINARY_RECORD_LEN_FACE`] (version 2, with the face).
     pub fn decode_binary(rec: &[u8]) -> Result<Self> {
-        ensure!(
-            rec.len() == BINARY_RECORD_LEN,
-            "output: a binary frame record has {BINARY_RECORD_LEN} bytes, got {}",
-            rec.len()
-        );
+        let face = match rec.len() {
+            BINARY_RECORD_LEN => false,
+            BINARY_RECORD_LEN_FACE => true,
+            n => bail!(
+                "output: a binary frame record has {BINARY_RECORD_LEN} bytes (version 1) or {BINARY_RECORD_LEN_FACE} (version 2, with the face), got {n}"
+            ),
+        };
         let u64_at = |i: usize| {
             let mut b = [0u8; 8];
             b.copy_from_slice(&rec[i..i + 8]);
@@ -285,14 +315,25 @@ impl Frame {
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]));
         let mut f = Frame::zeros(u64::from_le_bytes(u64_at(0)));
         f.time_s = f64::from_le_bytes(u64_at(8));
+        let mut fv = crate::face::FaceValues {
+            arkit: [0.0; crate::face::ARKIT_DIM],
+            visemes: [0.0; crate::face::VISEME_DIM],
+        };
+        let face_slots: &mut [f32] = if face { &mut fv.arkit } else { &mut [] };
+        let viseme_slots: &mut [f32] = if face { &mut fv.visemes } else { &mut [] };
         for dst in f
             .poses
             .iter_mut()
             .chain(f.trans.iter_mut())
             .chain(f.expressions.iter_mut())
             .chain(f.foot_contact.iter_mut())
+            .chain(face_slots.iter_mut())
+            .chain(viseme_slots.iter_mut())
         {
             *dst = floats.next().unwrap_or(0.0);
+        }
+        if face {
+            f.face = Some(fv);
         }
         Ok(f)
     }

@@ -217,3 +217,70 @@ fn binary_round_trip() {
     w.finish().unwrap();
     assert_eq!(w.into_inner(), binary_header().to_vec());
 }
+
+fn face_frame(i: u64) -> Frame {
+    let mut f = frame(i);
+    let mut v = crate::face::FaceValues {
+        arkit: [0.0; crate::face::ARKIT_DIM],
+        visemes: [0.0; crate::face::VISEME_DIM],
+    };
+    v.arkit[17] = 0.25 + i as f32 / 100.0; // jawOpen
+    v.visemes[10] = 1.0; // aa
+    f.face = Some(v);
+    f
+}
+
+#[test]
+fn binary_version_2_carries_the_face() {
+    assert_eq!(BINARY_RECORD_LEN_FACE, 1372);
+    let mut w = BinaryFrameWriter::new(Vec::new());
+    for i in 0..3 {
+        w.write_frame(&face_frame(i)).unwrap();
+    }
+    w.finish().unwrap();
+    let bytes = w.into_inner();
+    assert_eq!(bytes.len(), 16 + 3 * 1372);
+    assert_eq!(&bytes[..16], &binary_header_for(true));
+    assert_eq!(u16::from_le_bytes([bytes[8], bytes[9]]), 2);
+    assert_eq!(u16::from_le_bytes([bytes[12], bytes[13]]), 1372);
+    // frame 2's jawOpen (arkit[17]) at 16 + 2 * 1372 + 1104 + 17 * 4; its `aa` at 1312 + 10 * 4
+    let o = 16 + 2 * 1372 + 1104 + 17 * 4;
+    let jaw = face_frame(2).face.unwrap().arkit[17];
+    assert_eq!(f32::from_le_bytes(bytes[o..o + 4].try_into().unwrap()), jaw);
+    let o = 16 + 2 * 1372 + 1312 + 40;
+    assert_eq!(f32::from_le_bytes(bytes[o..o + 4].try_into().unwrap()), 1.0);
+    let r = BinaryFrameReader::new(&bytes[..]).unwrap();
+    assert_eq!(r.version(), 2);
+    let frames: Vec<Frame> = r.map(|f| f.unwrap()).collect();
+    assert_eq!(frames, (0..3).map(face_frame).collect::<Vec<_>>());
+    // a body-only frame in a face stream (and the reverse) is refused, naming the version
+    let mut w = BinaryFrameWriter::new(Vec::new());
+    w.write_frame(&face_frame(0)).unwrap();
+    let e = format!("{:#}", w.write_frame(&frame(1)).unwrap_err());
+    assert!(e.contains("version 2"), "{e}");
+    let mut w = BinaryFrameWriter::new(Vec::new());
+    w.write_frame(&frame(0)).unwrap();
+    let e = format!("{:#}", w.write_frame(&face_frame(1)).unwrap_err());
+    assert!(e.contains("version 1"), "{e}");
+    // a face value out of [0, 1] is refused
+    let mut bad = face_frame(5);
+    bad.face.as_mut().unwrap().arkit[3] = 1.5;
+    let e = format!(
+        "{:#}",
+        BinaryFrameWriter::new(Vec::new())
+            .write_frame(&bad)
+            .unwrap_err()
+    );
+    assert!(e.contains("frame 5") && e.contains("arkit[3]"), "{e}");
+    // a header whose record length does not match its version, and an unknown version, are refused
+    let mut h = binary_header_for(true);
+    h[12..14].copy_from_slice(&1104u16.to_le_bytes());
+    let e = format!("{:#}", BinaryFrameReader::new(&h[..]).unwrap_err());
+    assert!(e.contains("version 2") && e.contains("1372"), "{e}");
+    let mut h = binary_header();
+    h[8] = 3;
+    let e = format!("{:#}", BinaryFrameReader::new(&h[..]).unwrap_err());
+    assert!(e.contains("version 3"), "{e}");
+    // a record of neither length
+    assert!(Frame::decode_binary(&bytes[16..16 + 1200]).is_err());
+}

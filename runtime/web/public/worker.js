@@ -22,12 +22,14 @@ function framesOut(f, ms) {
   const out = {
     count: f.count, index: new Float64Array(f.index), poses: new Float32Array(f.poses),
     trans: new Float32Array(f.trans), expressions: new Float32Array(f.expressions),
+    // the face channel (docs/face.md): undefined from a bundle without one
+    arkit: f.arkit && new Float32Array(f.arkit), visemes: f.visemes && new Float32Array(f.visemes),
     footContact: new Float32Array(f.footContact), ms,
   };
   f.free();
   return out;
 }
-const transfers = (r) => (r && r.poses ? [r.index.buffer, r.poses.buffer, r.trans.buffer, r.expressions.buffer, r.footContact.buffer] : []);
+const transfers = (r) => (r && r.poses ? [r.index.buffer, r.poses.buffer, r.trans.buffer, r.expressions.buffer, r.footContact.buffer, ...(r.arkit ? [r.arkit.buffer, r.visemes.buffer] : [])] : []);
 
 async function fetchBytes(url) {
   const r = await fetch(url);

@@ -72,7 +72,9 @@ export function setupAvatarControls(ctx) {
         const node = avatar.vrm.humanoid.getRawBoneNode(b);
         if (node) out[b] = node.getWorldPosition(v).toArray();
       }
-      return { bones: out, aa: avatar.vrm.expressionManager?.getValue('aa') ?? null, frame: window.lgState.lastFrame };
+      const em = avatar.vrm.expressionManager;
+      const expressions = Object.fromEntries(['aa', 'ih', 'ou', 'ee', 'oh', 'blinkLeft', 'blinkRight'].map((n) => [n, em?.getValue(n) ?? null]));
+      return { bones: out, aa: em?.getValue('aa') ?? null, expressions, frame: window.lgState.lastFrame };
     },
   };
   return { setView };

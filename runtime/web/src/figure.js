@@ -65,10 +65,12 @@ function segmentMatrix(a, b, sx = 1, sz = 1) {
 const smooth = (e0, e1, x) => { const t = Math.min(1, Math.max(0, (x - e0) / (e1 - e0))); return t * t * (3 - 2 * t); };
 
 /**
- * Builds the figure under `parent` for skeleton SK ({names, parents, offsets}).
+ * Builds the figure under `parent` for skeleton SK ({names, parents, offsets}). With `wearsFace` (the
+ * talking head of facemesh.js goes on the head joint) the head is the skull and hair only, set back
+ * so that the face mesh is in front: no eyes, mouth or jaw of its own.
  * Returns { setPose(poses, trans, P), setMode('skinned' | 'sticks'), mode, mesh, bones }.
  */
-export function createFigure(parent, SK) {
+export function createFigure(parent, SK, { wearsFace = false } = {}) {
   const n = SK.names.length;
   const J = Object.fromEntries(SK.names.map((nm, j) => [nm, j]));
   const R = [];
@@ -129,17 +131,19 @@ export function createFigure(parent, SK) {
   }
   // head: skull and hair on the head joint; eyes on the eye joints; a dark mouth on the head with a
   // lower jaw on the jaw joint in front of it, which swings down as the jaw opens
-  const H = at('head', 0, 0.085, 0.0);
+  const H = at('head', 0, 0.085, wearsFace ? -0.045 : 0.0);
   ellipsoid(H, 0.085, 0.105, 0.1, J.head, COLORS.skin, 28);
   ellipsoid(H.clone().add(new THREE.Vector3(0, 0.035, -0.022)), 0.09, 0.088, 0.097, J.head, COLORS.hair, 24);
-  for (const s of ['left', 'right']) {
+  if (!wearsFace) for (const s of ['left', 'right']) {
     const e = at(`${s}_eye_smplhf`, 0, 0, 0.012);
     ellipsoid(e, 0.014, 0.014, 0.012, J[`${s}_eye_smplhf`], COLORS.eye, 14);
     ellipsoid(e.clone().add(new THREE.Vector3(0, 0, 0.01)), 0.006, 0.006, 0.004, J[`${s}_eye_smplhf`], COLORS.pupil, 10);
   }
-  ellipsoid(at('jaw', 0, 0.008, 0.062), 0.04, 0.017, 0.035, J.head, COLORS.mouth, 18);
-  ellipsoid(at('jaw', 0, -0.022, 0.035), 0.058, 0.034, 0.062, J.jaw, COLORS.skin, 22);
-  ellipsoid(at('jaw', 0, -0.006, 0.085), 0.03, 0.008, 0.014, J.jaw, COLORS.lip, 12);
+  if (!wearsFace) {
+    ellipsoid(at('jaw', 0, 0.008, 0.062), 0.04, 0.017, 0.035, J.head, COLORS.mouth, 18);
+    ellipsoid(at('jaw', 0, -0.022, 0.035), 0.058, 0.034, 0.062, J.jaw, COLORS.skin, 22);
+    ellipsoid(at('jaw', 0, -0.006, 0.085), 0.03, 0.008, 0.014, J.jaw, COLORS.lip, 12);
+  }
 
   const bones = SK.names.map((name) => { const b = new THREE.Bone(); b.name = name; return b; });
   for (let j = 0; j < n; j++) {

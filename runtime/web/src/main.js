@@ -11,10 +11,12 @@ import { setupAvatarControls } from './avatarui.js';
 import { loadGltfMotion } from './gltfmotion.js';
 import { engineFromUrl } from './engine.js';
 import { WasmSession, engineLabel, installTestHook, wasmModel } from './wasm-page.js';
+import { loadFaceMesh, applyArkit, FACE_OFFSET, JAW_OPEN } from './facemesh.js';
 
 const $ = (id) => document.getElementById(id);
 const N = 55;
-const RECORD = 1104;
+// binary records (docs/output.md): 1104 bytes (version 1, body), 1372 (version 2, body and face)
+const RECORD = 1104, RECORD_FACE = 1372;
 // `?engine=wasm` (tract) or `?engine=ort-web` (onnxruntime-web): the runtime runs in this browser
 // (wasm-page.js), else on the server (WebSocket)
 const ENGINE = engineFromUrl();
@@ -33,6 +35,10 @@ let first = null; // joint positions of the first frame shown (to measure moveme
 const canvas = $('c');
 let renderer = null, scene, camera, ctx2d = null;
 let fk = null, figure = null, face = null, avatar = null, P = null, lastShown = null;
+let faceMesh = null; // the talking head (facemesh.js) on the figure's head joint
+let closeUp = false; // the camera: whole figure, or the face close-up
+let widestMouth = null; // the streamed frame with the widest-open jaw (a test hook shows it again)
+const headPos = new THREE.Vector3(), camGoal = new THREE.Vector3();
 let lastRender = performance.now();
 
 function initView() {
@@ -71,6 +77,7 @@ function render() {
   const dt = Math.min(0.1, (now - lastRender) / 1000);
   lastRender = now;
   if (avatar) avatar.update(dt);
+  aimCamera();
   if (renderer) {
     renderer.render(scene, camera);
   } else if (ctx2d && SK && P) {
@@ -88,6 +95,26 @@ function render() {
   requestAnimationFrame(render);
 }
 
+// the face close-up follows the head (the avatar's when it is shown, else the figure's)
+function aimCamera() {
+  if (!closeUp) return;
+  const head = avatar && avatar.vrm.scene.visible ? avatar.vrm.humanoid.getNormalizedBoneNode('head') : figure?.bones[15];
+  if (!head) return;
+  head.updateWorldMatrix(true, false);
+  head.getWorldPosition(headPos);
+  headPos.y += FACE_OFFSET[1];
+  camGoal.set(headPos.x + 0.12, headPos.y + 0.03, headPos.z + 0.62);
+  camera.position.copy(camGoal);
+  camera.lookAt(headPos);
+}
+
+function setCloseUp(on) {
+  closeUp = on;
+  state.closeUp = on;
+  $('camera').textContent = on ? 'Whole figure' : 'Face close-up';
+  if (!on) { camera.position.set(1.1, 1.25, 3.2); camera.lookAt(0, 0.9, 0); }
+}
+
 // ------------------------------------------------------------------------------------------ frames
 
 function showFrame(f) {
@@ -100,10 +127,29 @@ function showFrame(f) {
     state.moved = Math.max(state.moved, m);
   }
   figure.setPose(f.poses, f.trans, pos);
-  if (avatar) avatar.apply(f.poses, f.trans);
+  if (avatar) avatar.apply(f.poses, f.trans, f);
+  if (faceMesh) {
+    applyArkit(faceMesh, f.arkit);
+    // what the browser test reads: the face mesh's jawOpen weight now, and its range so far
+    const jaw = faceMesh.morphTargetInfluences[JAW_OPEN];
+    state.faceJaw = jaw;
+    if (f.arkit) {
+      state.faceFrames = (state.faceFrames || 0) + 1;
+      state.faceJawMin = Math.min(state.faceJawMin ?? jaw, jaw);
+      if (!(jaw <= state.faceJawMax) && f !== widestMouth) {
+        // the frame with the widest mouth so far, kept for the close-up screenshot (lgShowWidestMouth)
+        const c = (a) => a && Float32Array.from(a);
+        widestMouth = { index: f.index, time_s: f.time_s, poses: c(f.poses), trans: c(f.trans), expressions: c(f.expressions), arkit: c(f.arkit), visemes: c(f.visemes) };
+      }
+      state.faceJawMax = Math.max(state.faceJawMax ?? jaw, jaw);
+    }
+  }
   face.update(f);
   lastShown = f;
-  state.lastFrame = { index: f.index, poses: Array.from(f.poses), trans: Array.from(f.trans) };
+  state.lastFrame = {
+    index: f.index, poses: Array.from(f.poses), trans: Array.from(f.trans),
+    arkit: f.arkit && Array.from(f.arkit), visemes: f.visemes && Array.from(f.visemes),
+  };
   $('mtime').textContent = `${f.time_s.toFixed(2)} s`;
 }
 
@@ -114,6 +160,9 @@ function decodeRecord(buf) {
     index: Number(dv.getBigUint64(0, true)),
     time_s: dv.getFloat64(8, true),
     poses: f32(16, 165), trans: f32(676, 3), expressions: f32(688, 100),
+    // version 2: the face channel after the body
+    arkit: buf.byteLength === RECORD_FACE ? f32(1104, 52) : undefined,
+    visemes: buf.byteLength === RECORD_FACE ? f32(1312, 15) : undefined,
   };
 }
 
@@ -163,11 +212,11 @@ function openSession(inputRate) {
   ws.onmessage = (ev) => {
     if (typeof ev.data === 'string') {
       const m = JSON.parse(ev.data);
-      if (m.type === 'ready') { setStatus('live'); $('model').textContent = `${m.model} (${m.backend})`; }
+      if (m.type === 'ready') { setStatus('live'); state.faceChannel = !!m.face; $('model').textContent = `${m.model} (${m.backend})`; }
       else if (m.type === 'done') setStatus(`done: ${m.frames} frames`, 'idle');
       return;
     }
-    if (ev.data.byteLength !== RECORD) return;
+    if (ev.data.byteLength !== RECORD && ev.data.byteLength !== RECORD_FACE) return;
     onFrame(decodeRecord(ev.data));
   };
   ws.onclose = (ev) => {
@@ -313,12 +362,16 @@ async function loadNpz(file) {
   const z = await readZip(await file.arrayBuffer());
   const get = (k) => { if (!z[`${k}.npy`]) throw new Error(`${file.name}: no '${k}' array`); return readNpy(z[`${k}.npy`]); };
   const poses = get('poses'), trans = get('trans'), expr = get('expressions');
+  // the face channel where the file has it (docs/face.md)
+  const arkit = z['arkit.npy'] && z['visemes.npy'] ? get('arkit') : null, vis = arkit && get('visemes');
   const T = poses.shape[0];
   return Array.from({ length: T }, (_, t) => ({
     index: t, time_s: t / 30,
     poses: poses.data.subarray(165 * t, 165 * t + 165),
     trans: trans.data.subarray(3 * t, 3 * t + 3),
     expressions: expr.data.subarray(100 * t, 100 * t + 100),
+    arkit: arkit ? arkit.data.subarray(52 * t, 52 * t + 52) : undefined,
+    visemes: vis ? vis.data.subarray(15 * t, 15 * t + 15) : undefined,
   }));
 }
 
@@ -400,8 +453,23 @@ async function main() {
   initView();
   SK = await (await fetch(new URL('skeleton.json', document.baseURI))).json();
   fk = createFK(SK);
-  figure = createFigure(scene, SK);
+  // the talking head: the runtime's face mesh, worn on the figure's head joint
+  faceMesh = await loadFaceMesh(new URL('face.bin', document.baseURI));
+  figure = createFigure(scene, SK, { wearsFace: !!faceMesh });
   face = createFacePanel($('face'), state);
+  if (faceMesh) {
+    faceMesh.position.set(...FACE_OFFSET);
+    figure.bones[15].add(faceMesh);
+  }
+  state.faceMesh = !!faceMesh;
+  $('camera').onclick = () => setCloseUp(!closeUp);
+  // for the browser test's close-up screenshot: show again the frame with the widest mouth so far;
+  // returns its index, jawOpen and viseme weights
+  window.lgShowWidestMouth = () => {
+    if (!widestMouth) return null;
+    showFrame(widestMouth);
+    return { index: widestMouth.index, jawOpen: widestMouth.arkit[JAW_OPEN], visemes: Array.from(widestMouth.visemes) };
+  };
   setupAvatarControls({
     scene, SK, figure, state, setStatus, showFrame,
     setAvatar: (a) => { avatar = a; },

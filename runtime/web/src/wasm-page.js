@@ -82,6 +82,8 @@ export class WasmSession {
         poses: f.poses.subarray(165 * i, 165 * i + 165),
         trans: f.trans.subarray(3 * i, 3 * i + 3),
         expressions: f.expressions.subarray(100 * i, 100 * i + 100),
+        arkit: f.arkit ? f.arkit.subarray(52 * i, 52 * i + 52) : undefined,
+        visemes: f.visemes ? f.visemes.subarray(15 * i, 15 * i + 15) : undefined,
       });
     }
   }
@@ -112,7 +114,7 @@ export function installTestHook() {
     async generate(wavBytes, { seed = 0, guidance } = {}) {
       const model = await wasmModel();
       const f = await model.generate(wavBytes, { seed, guidance });
-      return { frames: f.count, poses: f.poses, expressions: f.expressions, trans: f.trans, ms: f.ms, graphMs: f.graphMs };
+      return { frames: f.count, poses: f.poses, expressions: f.expressions, trans: f.trans, arkit: f.arkit, visemes: f.visemes, ms: f.ms, graphMs: f.graphMs };
     },
     async parity() {
       // a second worker with the whole bundle (reference vectors included)

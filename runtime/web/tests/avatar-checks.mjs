@@ -7,13 +7,16 @@
 //      page holds the npz's frames and rotations;
 //   4. a VRM 1.0 humanoid built by the test (make-vrm.mjs) loaded in the page follows a WAV played through
 //      the server: its own bones point where the skeleton's bones point, frame by frame (forward
-//      kinematics here, in node), and its `aa` expression follows the jaw.
+//      kinematics here, in node), and its expressions follow the face channel: `aa, ih, ou, ee, oh`
+//      from the visemes, `blinkLeft`/`blinkRight` from ARKit's blinks (facemesh.js vrmExpressions;
+//      from a bundle without the face channel, `aa` follows the jaw).
 import { execFileSync } from 'node:child_process';
 import { readFileSync, writeFileSync } from 'node:fs';
 import { join, resolve } from 'node:path';
 import { Quaternion, Vector3 } from 'three';
 import { makeTestVrm } from './make-vrm.mjs';
 import { diff } from './compare.mjs';
+import { vrmExpressions } from '../src/facemesh.js';
 
 const FIXTURE = JSON.parse(readFileSync(new URL('./skeleton.json', import.meta.url)));
 
@@ -150,6 +153,7 @@ export async function avatarChecks(page, { bin, bundle, wav, outDir, fail }) {
   }
   // every angle and jaw error through compare.mjs: NaN fails (`ang > worstAngle` and `> 0.01` skipped it)
   const angles = [], where = [], aaGot = [], aaWant = [];
+  let faceFrames = 0;
   const dirs = [];
   for (const s of samples) {
     if (!s || !s.frame) { fail('no frame or avatar pose to compare'); continue; }
@@ -164,8 +168,15 @@ export async function avatarChecks(page, { bin, bundle, wav, outDir, fail }) {
       d.push(dv);
     }
     dirs.push(d);
-    aaGot.push(s.aa);
-    aaWant.push(Math.min(1, Math.max(0, s.frame.poses[66] / 0.3)));
+    if (s.frame.visemes) {
+      // every expression the face channel drives, against the table applied here
+      const want = vrmExpressions(s.frame.visemes, s.frame.arkit);
+      for (const [n, v] of Object.entries(want)) { aaGot.push(s.expressions[n]); aaWant.push(v); }
+      faceFrames++;
+    } else {
+      aaGot.push(s.aa);
+      aaWant.push(Math.min(1, Math.max(0, s.frame.poses[66] / 0.3)));
+    }
   }
   const dAngle = diff(angles, angles.map(() => 0), { absolute: true });
   const dAa = diff(aaGot, aaWant, { absolute: true });
@@ -177,7 +188,10 @@ export async function avatarChecks(page, { bin, bundle, wav, outDir, fail }) {
   console.log(`VRM follows the motion: ${samples.length} samples, bone direction error (rad) ${dAngle} (${where[dAngle.index] || '-'}), ` +
     `avatar bones turned up to ${(moved * 180 / Math.PI).toFixed(1)} deg, aa ${aas.join(' ')} (error ${dAa})`);
   if (!dAngle.within(0.01)) fail(`the avatar's bones do not point where the skeleton's do: ${dAngle} at ${where[dAngle.index]}`);
-  if (!dAa.within(1e-4)) fail(`the avatar's aa does not follow the jaw: ${dAa}`);
+  if (!dAa.within(1e-4)) fail(`the avatar's expressions do not follow the face channel (or aa the jaw): ${dAa}`);
+  const hasFace = await page.evaluate(() => window.lgState.faceChannel);
+  if (hasFace && faceFrames !== samples.length) fail(`${samples.length - faceFrames} of ${samples.length} avatar samples had no face channel`);
+  console.log(`VRM expressions from the face channel on ${faceFrames}/${samples.length} samples`);
   if (!(moved >= 0.02)) fail(`the avatar did not move (bone directions changed by ${moved} rad)`);
   await page.screenshot({ path: join(outDir, 'vrm.png') });
 }

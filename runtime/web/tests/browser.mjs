@@ -91,6 +91,29 @@ try {
   await page.click('#stop');
   await page.waitForFunction(() => /^done/.test(window.lgState.status), null, { timeout: 30000 })
     .catch(async () => fail(`no done after stop: ${JSON.stringify(await page.evaluate(() => window.lgState))}`));
+  // the talking head (docs/face.md): from a bundle with the face channel the figure wears the face mesh
+  // and its morph weights follow the frames' arkit while the audio plays; then the face close-up of the
+  // frame with the widest mouth (a real streamed frame, shown again) as face-closeup.png
+  const fs = await page.evaluate(() => ({ channel: window.lgState.faceChannel, mesh: window.lgState.faceMesh, frames: window.lgState.faceFrames, min: window.lgState.faceJawMin, max: window.lgState.faceJawMax }));
+  console.log('face:', JSON.stringify(fs));
+  if (fs.channel) {
+    if (!fs.mesh) fail('the bundle has the face channel but the page has no face mesh (/face.bin)');
+    if (!(fs.frames >= 90)) fail(`only ${fs.frames} frames drove the face mesh`);
+    if (!(fs.max - fs.min > 0.1)) fail(`the face's jawOpen weight did not change while the audio played (${fs.min} .. ${fs.max})`);
+    await page.click('#camera');
+    const widest = await page.evaluate(() => window.lgShowWidestMouth());
+    await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
+    const names = ['sil', 'PP', 'FF', 'TH', 'DD', 'kk', 'CH', 'SS', 'nn', 'RR', 'aa', 'E', 'ih', 'oh', 'ou'];
+    const top = names[widest.visemes.indexOf(Math.max(...widest.visemes))];
+    const shown = await page.evaluate(() => window.lgState.faceJaw);
+    console.log(`face close-up: frame ${widest.index}, jawOpen ${widest.jawOpen.toFixed(3)} (mesh weight ${shown.toFixed(3)}), top viseme ${top}`);
+    if (Math.abs(shown - widest.jawOpen) > 1e-6) fail(`the face mesh's jawOpen ${shown} is not the frame's ${widest.jawOpen}`);
+    if (!['aa', 'E', 'ih', 'oh', 'ou'].includes(top)) fail(`the widest mouth is not on a vowel viseme (${top})`);
+    const closeShot = join(outDir, 'face-closeup.png');
+    await page.screenshot({ path: closeShot });
+    await page.click('#camera');
+    console.log(`face close-up screenshot: ${closeShot}`);
+  }
   // file mode: the WAV streamed through the server at its own pace
   const before = await page.evaluate(() => window.lgState.frames);
   await page.setInputFiles('#wav', resolve(wav));

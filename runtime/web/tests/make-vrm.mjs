@@ -102,7 +102,9 @@ export function makeTestVrm() {
           allowAntisocialOrHateUsage: false, creditNotation: 'unnecessary', allowRedistribution: true, modification: 'allowModificationRedistribution',
         },
         humanoid: { humanBones },
-        expressions: { preset: { aa: { morphTargetBinds: [{ node: faceNode, index: 0, weight: 1.0 }], isBinary: false } } },
+        // the five vowels and the blinks the face channel drives (all on the one morph target)
+        expressions: { preset: Object.fromEntries(['aa', 'ih', 'ou', 'ee', 'oh', 'blinkLeft', 'blinkRight'].map((n) =>
+          [n, { morphTargetBinds: [{ node: faceNode, index: 0, weight: 1.0 }], isBinary: false }])) },
       },
     },
   };

@@ -112,7 +112,8 @@ try {
     const r = await page.evaluate(async ([b64, s]) => {
       const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
       const f = await window.livegestureTest.generate(bytes.buffer, { seed: s });
-      return { frames: f.frames, ms: f.ms, poses: Array.from(f.poses), trans: Array.from(f.trans), expressions: Array.from(f.expressions) };
+      return { frames: f.frames, ms: f.ms, poses: Array.from(f.poses), trans: Array.from(f.trans), expressions: Array.from(f.expressions),
+        arkit: f.arkit && Array.from(f.arkit), visemes: f.visemes && Array.from(f.visemes) };
     }, [wav.toString('base64'), seed]);
     const { rate, samples } = wavLength(wav);
     const want = Math.ceil((samples * 30) / rate);
@@ -176,7 +177,19 @@ function compareNative(got, npz, frames = 4) {
   if (T !== got.frames) return [`native tract has ${T} frames, the browser ${got.frames}`];
   const errs = [];
   let firstBad = -1, worst = 0, worstAt = '';
-  for (const [k, w] of [['poses', 165], ['trans', 3], ['expressions', 100]]) {
+  // the face channel (docs/face.md): where native tract's npz has it the browser's frames must too, with
+  // arkit in [0, 1] and visemes summing to 1; a bundle without it has it on neither side
+  const fields = [['poses', 165], ['trans', 3], ['expressions', 100]];
+  if (npz.arkit) {
+    if (!got.arkit || !got.visemes) return ['native tract has the face channel (arkit, visemes), the browser has none'];
+    if (!got.arkit.every((x) => x >= 0 && x <= 1)) errs.push('arkit: a weight outside [0, 1]');
+    for (let t = 0; t < T; t++) {
+      const s = got.visemes.slice(15 * t, 15 * t + 15).reduce((a, b) => a + b, 0);
+      if (!(Math.abs(s - 1) < 1e-4)) { errs.push(`visemes of frame ${t} sum to ${s}`); break; }
+    }
+    fields.push(['arkit', 52], ['visemes', 15]);
+  } else if (got.arkit || got.visemes) return ['the browser has a face channel that native tract has not'];
+  for (const [k, w] of fields) {
     const a = got[k], b = npz[k].data;
     const whole = diff(a, b, { shape: [got.frames, w], refShape: npz[k].shape });
     if (whole.problem) { errs.push(`${k}: ${whole}`); continue; }

@@ -118,6 +118,8 @@ pub struct ModelInfo {
     pub frames_per_token: u64,
     /// 16 kHz samples of the first token's audio span and of every later one (integer grid).
     pub frontend: livegesture::frontend::FrontendConfig,
+    /// Whether frames carry the face channel (binary records of version 2; docs/face.md).
+    pub face: bool,
 }
 
 pub(crate) struct AppState {

@@ -193,6 +193,10 @@ async fn run_session(
         "guidance": guidance,
         "max_message_bytes": st.cfg.max_message_bytes,
         "idle_timeout_s": st.cfg.idle_timeout.as_secs_f64(),
+        // the face channel, and the binary record that output=binary sends (docs/serve.md)
+        "face": info.face,
+        "binary_version": livegesture::output::binary_layout(info.face).0,
+        "record_bytes": livegesture::output::binary_layout(info.face).1,
     });
     let ready_ok = sink
         .send(Message::Text(ready.to_string().into()))
@@ -252,7 +256,7 @@ async fn write_loop(
             reason: "client gone".into(),
         };
     }
-    let mut buf = Vec::with_capacity(livegesture::output::BINARY_RECORD_LEN);
+    let mut buf = Vec::with_capacity(livegesture::output::BINARY_RECORD_LEN_FACE);
     loop {
         let next = tokio::select! {
             biased;

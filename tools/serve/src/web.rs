@@ -1,6 +1,7 @@
 //! The browser page, embedded in the binary: `runtime/web/dist/` (built by vite from `runtime/web/`,
 //! committed, so `cargo build` needs no npm; rebuild with `cd runtime/web && npm ci && npm run build`),
-//! and `/skeleton.json`, the project's skeleton ([`livegesture::skeleton`]) the page poses.
+//! `/skeleton.json`, the project's skeleton ([`livegesture::skeleton`]) the page poses, and `/face.bin`,
+//! the face mesh the page's figure wears ([`livegesture::face::mesh`], docs/face.md).
 
 use std::sync::Arc;
 
@@ -91,6 +92,15 @@ pub(crate) fn routes() -> Router<Arc<AppState>> {
             get(|| async { asset(WORKER_JS, "text/javascript; charset=utf-8") }),
         )
         .fallback(web_dir_file)
+        .route(
+            "/face.bin",
+            get(|| async {
+                asset(
+                    livegesture::face::mesh::asset_bytes(),
+                    "application/octet-stream",
+                )
+            }),
+        )
         .route(
             "/skeleton.json",
             get(|| async {
