@@ -67,7 +67,7 @@ fn stereo(rate: u32, seconds: f64) -> Vec<[f32; 2]> {
 /// What `generate` computes for these interleaved samples (see the module docs).
 fn reference(samples: &[f32], rate: u32, channels: u16, float: bool, seed: u64) -> Vec<Frame> {
     let (a16, input) = generate_input(samples, rate, channels, float);
-    let (_bundle, mut p) = make_pipeline();
+    let (_bundle, p) = make_pipeline();
     let mut s = p
         .new_stream(&StreamOptions {
             seed,
