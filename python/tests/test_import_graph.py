@@ -8,12 +8,20 @@ one). Packages' ``__init__`` modules are nodes like the others.
 from __future__ import annotations
 
 import ast
+import importlib.util
 import subprocess
 import sys
 from pathlib import Path
 
 PKG_DIR = Path(__file__).resolve().parents[1] / "livegesture"
 PKG = "livegesture"
+
+# one cycle finder for the Rust crates and this package: the test command's layout check's
+_spec = importlib.util.spec_from_file_location(
+    "check_structure", Path(__file__).resolve().parents[2] / "scripts" / "check_structure.py")
+_check_structure = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_check_structure)
+find_cycle = _check_structure.find_cycle
 
 
 def modules() -> dict[str, Path]:
@@ -46,32 +54,6 @@ def import_graph(mods: dict[str, Path]) -> dict[str, set[str]]:
                 if t in mods and t != name:
                     graph[name].add(t)
     return graph
-
-
-def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
-    state: dict[str, int] = {}
-    stack: list[str] = []
-
-    def visit(n):
-        state[n] = 1
-        stack.append(n)
-        for m in sorted(graph[n]):
-            if state.get(m) == 1:
-                return stack[stack.index(m):] + [m]
-            if m not in state:
-                c = visit(m)
-                if c:
-                    return c
-        stack.pop()
-        state[n] = 2
-        return None
-
-    for n in sorted(graph):
-        if n not in state:
-            c = visit(n)
-            if c:
-                return c
-    return None
 
 
 def test_the_graph_finds_a_cycle():
