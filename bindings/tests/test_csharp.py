@@ -1,5 +1,6 @@
 """The C# P/Invoke declarations of docs/c.md (examples/csharp/LiveGesture.cs), compiled with Debian's mono
-(mcs): a whole WAV file and a chunked push loop give the poses of `livegesture generate` bit for bit."""
+(mcs): a whole WAV file and a chunked push loop give the poses of `livegesture generate` bit for bit, and
+`lg_stream_read_face` its face channel (docs/face.md)."""
 import os
 import pathlib
 import shutil
@@ -30,6 +31,12 @@ def run(exe, *args):
     return subprocess.run([mono, str(out), *map(str, args)], capture_output=True, env=env, timeout=300)
 
 
+def test_docs_show_the_declarations():
+    """docs/c.md shows examples/csharp/LiveGesture.cs as it is (the file the other tests compile)."""
+    cs = (ROOT / "examples/csharp/LiveGesture.cs").read_text()
+    assert cs in (ROOT / "docs/c.md").read_text(), "docs/c.md: the C# block differs from examples/csharp/LiveGesture.cs"
+
+
 def test_csharp_poses_equal_cli(exe, cli, clips):
     bundle = FAMILIES["livegesture"][0]
     for rate in (16000, 22050):
@@ -40,6 +47,28 @@ def test_csharp_poses_equal_cli(exe, cli, clips):
             assert r.returncode == 0, r.stderr.decode()
             got = np.frombuffer(r.stdout, dtype="<f4")
             assert got.size == ref.size and np.array_equal(got.reshape(-1, 165), ref), (rate, mode)
+
+
+def test_csharp_face_channel_equals_cli(exe, cli, clips):
+    """models/default's face channel through lg_stream_read_face: the ARKit weights and visemes of the CLI's
+    npz bit for bit, and the names of docs/face.md; a bundle without the face channel is refused."""
+    bundle = FAMILIES["livegesture"][0]
+    wav, _ = clips[16000]
+    ref = cli.generate(wav, bundle, "tract", 5)
+    assert ref["arkit"] is not None, f"{bundle}: the reference has no face channel"
+    r = run(exe, bundle, wav, 5, "face")
+    assert r.returncode == 0, r.stderr.decode()
+    names = r.stderr.decode().split("\n")
+    arkit = [n.split(" ", 1)[1] for n in names if n.startswith("arkit ")]
+    visemes = [n.split(" ", 1)[1] for n in names if n.startswith("viseme ")]
+    assert len(arkit) == 52 and arkit[0] == "eyeBlinkLeft" and "jawOpen" in arkit and arkit[-1] == "tongueOut"
+    assert visemes == "sil PP FF TH DD kk CH SS nn RR aa E ih oh ou".split()
+    got = np.frombuffer(r.stdout, dtype="<f4").reshape(-1, 67)
+    assert np.array_equal(got[:, :52], ref["arkit"]), np.abs(got[:, :52] - ref["arkit"]).max()
+    assert np.array_equal(got[:, 52:], ref["visemes"]), np.abs(got[:, 52:] - ref["visemes"]).max()
+    tiny = pathlib.Path(os.environ.get("LIVEGESTURE_TEST_BUNDLE", ROOT / "target/test-bundles/tiny"))
+    r = run(exe, tiny, wav, 5, "face")
+    assert r.returncode == 2 and r.stdout == b"" and b"has no face channel" in r.stderr, r.stderr
 
 
 def test_csharp_gets_the_error_message(exe, tmp_path):

@@ -1,9 +1,11 @@
 // The C example's job from C# (examples/c/generate.c): poses of a WAV file as little-endian float32,
 // frames x 165, on stdout. Test of docs/c.md's P/Invoke declarations with Debian's mono:
 //   mcs -out:target/csharp/generate.exe examples/csharp/*.cs
-//   LD_LIBRARY_PATH=target/release mono target/csharp/generate.exe BUNDLE IN.wav SEED [push] > poses.f32
+//   LD_LIBRARY_PATH=target/release mono target/csharp/generate.exe BUNDLE IN.wav SEED [push|face] > out.f32
 // With "push", the WAV's 16-bit mono samples are pushed in chunks of 1600 (lg_stream_push_i16) instead
-// of lg_stream_generate_wav: the same frames.
+// of lg_stream_generate_wav: the same frames. With "face", the output is the face channel instead of the
+// poses (lg_stream_read_face: frames x (52 ARKit weights, 15 viseme probabilities)), after one line per
+// ARKit and viseme name on stderr; a bundle without the face channel fails.
 using System;
 using System.IO;
 
@@ -17,25 +19,37 @@ static class Generate
 
     static int Main(string[] args)
     {
-        if (args.Length < 3) { Console.Error.WriteLine("usage: generate.exe BUNDLE IN.wav SEED [push]"); return 2; }
+        if (args.Length < 3) { Console.Error.WriteLine("usage: generate.exe BUNDLE IN.wav SEED [push|face]"); return 2; }
+        string mode = args.Length > 3 ? args[3] : "";
         if (LiveGesture.lg_model_load(args[0], "tract", out IntPtr model) != LiveGesture.Ok) return Fail("loading the bundle");
+        bool face = mode == "face";
+        if (face)
+        {
+            if (LiveGesture.lg_model_has_face(model) == 0) { Console.Error.WriteLine("generate.exe: " + args[0] + ": the bundle has no face channel"); return 2; }
+            for (int i = 0; LiveGesture.ArkitName(i) != null; i++) Console.Error.WriteLine("arkit " + LiveGesture.ArkitName(i));
+            for (int i = 0; LiveGesture.VisemeName(i) != null; i++) Console.Error.WriteLine("viseme " + LiveGesture.VisemeName(i));
+        }
         var opts = LiveGesture.lg_stream_options_default();
         opts.seed = ulong.Parse(args[2]);
         if (LiveGesture.lg_stream_new(model, ref opts, out IntPtr stream) != LiveGesture.Ok) return Fail("creating a stream");
         var stdout = Console.OpenStandardOutput();
-        var poses = new float[64 * LiveGesture.PoseDim];
-        var bytes = new byte[poses.Length * 4];
+        int dim = face ? LiveGesture.FaceDim : LiveGesture.PoseDim;
+        var values = new float[64 * dim];
+        var bytes = new byte[values.Length * 4];
         var frames = new MemoryStream();
         Action drain = () => {
             UIntPtr got;
             do {
-                if (LiveGesture.lg_stream_read(stream, (UIntPtr)64, poses, null, null, null, out got) != LiveGesture.Ok) throw new Exception(LiveGesture.LastError());
-                Buffer.BlockCopy(poses, 0, bytes, 0, (int)got * LiveGesture.PoseDim * 4);
-                frames.Write(bytes, 0, (int)got * LiveGesture.PoseDim * 4);
+                int status = face
+                    ? LiveGesture.lg_stream_read_face(stream, (UIntPtr)64, null, null, null, null, values, out got)
+                    : LiveGesture.lg_stream_read(stream, (UIntPtr)64, values, null, null, null, out got);
+                if (status != LiveGesture.Ok) throw new Exception(LiveGesture.LastError());
+                Buffer.BlockCopy(values, 0, bytes, 0, (int)got * dim * 4);
+                frames.Write(bytes, 0, (int)got * dim * 4);
             } while ((ulong)got > 0);
         };
         UIntPtr ready;
-        if (args.Length > 3 && args[3] == "push")
+        if (mode == "push")
         {
             // a 16-bit mono PCM WAV with a 44-byte header, as the test writes it
             var wav = File.ReadAllBytes(args[1]);

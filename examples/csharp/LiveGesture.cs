@@ -7,6 +7,9 @@ public static class LiveGesture
 {
     const string Lib = "livegesture_c";
     public const int PoseDim = 165, TransDim = 3, ExprDim = 100, Fps = 30;
+    // The face channel (docs/face.md): one LgFace is ArkitDim weights then VisemeDim probabilities, floats
+    // with no padding, so a float[] of FaceDim per frame is its layout.
+    public const int ArkitDim = 52, VisemeDim = 15, FaceDim = ArkitDim + VisemeDim;
     public const int Ok = 0; // LG_STATUS_OK; NOT_FOUND 1, IO 2, INPUT 3, RUNTIME 4, PANIC 5
 
     [StructLayout(LayoutKind.Sequential)]
@@ -26,9 +29,18 @@ public static class LiveGesture
     [DllImport(Lib)] public static extern int lg_stream_finish(IntPtr stream, out UIntPtr ready);
     [DllImport(Lib)] public static extern int lg_stream_generate_wav(IntPtr stream, [MarshalAs(UnmanagedType.LPUTF8Str)] string wavPath, out UIntPtr ready);
     [DllImport(Lib)] public static extern int lg_stream_read(IntPtr stream, UIntPtr maxFrames, float[] poses, float[] trans, float[] expressions, ulong[] index, out UIntPtr got);
+    [DllImport(Lib)] public static extern int lg_stream_read_face(IntPtr stream, UIntPtr maxFrames, float[] poses, float[] trans, float[] expressions, ulong[] index, float[] face, out UIntPtr got);
+    [DllImport(Lib)] public static extern int lg_model_has_face(IntPtr model);
+    [DllImport(Lib, EntryPoint = "lg_arkit_name")] static extern IntPtr lg_arkit_name_ptr(UIntPtr i);
+    [DllImport(Lib, EntryPoint = "lg_viseme_name")] static extern IntPtr lg_viseme_name_ptr(UIntPtr i);
     [DllImport(Lib)] public static extern int lg_stream_reset(IntPtr stream);
     [DllImport(Lib)] public static extern void lg_stream_free(IntPtr stream);
     [DllImport(Lib, EntryPoint = "lg_last_error")] static extern IntPtr lg_last_error_ptr();
+
+    /// The ARKit name of face weight i ("jawOpen"...), null past the end.
+    public static string ArkitName(int i) => Marshal.PtrToStringUTF8(lg_arkit_name_ptr((UIntPtr)i));
+    /// The viseme name of face probability i ("aa"...), null past the end.
+    public static string VisemeName(int i) => Marshal.PtrToStringUTF8(lg_viseme_name_ptr((UIntPtr)i));
 
     /// The message of the last failed call on this thread.
     public static string LastError() => Marshal.PtrToStringUTF8(lg_last_error_ptr());
