@@ -1,5 +1,5 @@
 //! Where each graph's caches live during a token step: separately owned per stream (stacked before
-//! each graph run and split after it) or already stacked in a [`super::StreamBatch`].
+//! each graph run and split after it) or already stacked in a cohort (`super::cohorts`).
 
 use std::collections::HashMap;
 
@@ -28,7 +28,7 @@ impl Slot {
     }
 }
 
-/// Caches of every graph: one stream's, or the stacked caches of a [`StreamBatch`].
+/// Caches of every graph: one stream's, or the stacked caches of a cohort (`super::cohorts`).
 #[derive(Debug, Clone)]
 pub(super) struct Caches {
     pub(super) audio_encoder: Vec<Tensor>,
@@ -199,7 +199,7 @@ impl CacheStore for SeparateCaches<'_> {
     }
 }
 
-/// Caches already stacked on the batch axis ([`StreamBatch`]): handed to the graph and replaced by
+/// Caches already stacked on the batch axis (a cohort, `super::cohorts`): handed to the graph and replaced by
 /// its outputs, moved, never copied. Double-buffered: the graph writes its new caches into the
 /// buffers of the previous step's input caches (`spare`), so a steady batch allocates nothing.
 pub(super) struct StackedCaches<'a> {
