@@ -4,6 +4,8 @@
 //! server, its clients, `generate` to compare with); the project's test fixture (bundles, Python,
 //! the reference rollout) is the `livegesture-parity-tests` crate (`common` in the modules).
 
+#[cfg(feature = "bench")]
+mod bench;
 mod cli;
 mod diffsheg_cli;
 #[cfg(feature = "parity")]

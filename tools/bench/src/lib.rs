@@ -433,34 +433,58 @@ pub fn run(
     })
 }
 
-/// One stream of the batched measurement: a stream of the model and where it reads the audio.
+/// One stream of the batched measurement: a stream of the model, where it reads the audio, the
+/// samples pushed into it and the next token it completes.
 struct Fed {
     stream: Box<dyn MotionStream>,
     pos: usize,
+    pushed: u64,
+    token: u64,
 }
 
-/// A fresh stream (cold start) whose frontend holds all but the last token's worth of token 0's
-/// audio, so that every later push of one token's samples completes exactly one token.
-fn fed_stream(
-    model: &LiveGestureModel,
-    opts: &StreamOptions,
-    seed: u64,
-    audio: &[f32],
-    start: usize,
-    per: usize,
-) -> Result<Fed> {
-    let mut stream = model.new_stream(&StreamOptions {
-        seed,
-        ..opts.clone()
-    })?;
-    let prime = (model.graphs().frontend().token_end(0) as usize).saturating_sub(per);
-    let start = start % audio.len().saturating_sub(prime + per).max(1);
-    let frames = stream.push_audio(&audio[start..start + prime])?;
-    ensure!(frames.is_empty(), "priming a stream completed a token");
-    Ok(Fed {
-        stream,
-        pos: start + prime,
-    })
+impl Fed {
+    /// A fresh stream (cold start) whose frontend holds all of token 0's audio but its last sample,
+    /// read from `start` in `audio`.
+    fn new(
+        model: &LiveGestureModel,
+        opts: StreamOptions,
+        audio: &[f32],
+        start: usize,
+    ) -> Result<Self> {
+        let mut stream = model.new_stream(&opts)?;
+        let prime = model.graphs().frontend().token_end(0).saturating_sub(1) as usize;
+        ensure!(
+            audio.len() > 2 * prime,
+            "bench: the audio is shorter than two tokens"
+        );
+        let start = start % (audio.len() - prime);
+        let frames = stream.push_audio(&audio[start..start + prime])?;
+        ensure!(frames.is_empty(), "priming a stream completed a token");
+        Ok(Fed {
+            stream,
+            pos: start + prime,
+            pushed: prime as u64,
+            token: 0,
+        })
+    }
+
+    /// The samples that complete its next token (token ends fall on whole samples unevenly, so
+    /// their count varies by one), read on from where it is (from the start once `audio` ends).
+    fn next_token<'a>(
+        &mut self,
+        fe: &livegesture::frontend::FrontendConfig,
+        audio: &'a [f32],
+    ) -> &'a [f32] {
+        let n = (fe.token_end(self.token) - self.pushed) as usize;
+        if self.pos + n > audio.len() {
+            self.pos = 0;
+        }
+        let chunk = &audio[self.pos..self.pos + n];
+        self.pos += n;
+        self.pushed += n as u64;
+        self.token += 1;
+        chunk
+    }
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -479,16 +503,18 @@ fn run_batched(
     // so the streams' log-mel frontends are timed with the step; their caches stay stacked in the
     // model's cohort between steps
     let fe = model.graphs().frontend();
-    let per = (fe.token_end(1) - fe.token_end(0)) as usize;
+    let with_seed = |seed: u64| StreamOptions {
+        seed,
+        ..opts.clone()
+    };
+    let per = fe.token_end(0) as usize;
     let mut fed: Vec<Fed> = (0..n)
         .map(|i| {
-            fed_stream(
+            Fed::new(
                 model,
-                opts,
-                opts.seed.wrapping_add(i as u64),
+                with_seed(opts.seed.wrapping_add(i as u64)),
                 audio,
                 i * 7 * per,
-                per,
             )
         })
         .collect::<Result<_>>()?;
@@ -516,21 +542,18 @@ fn run_batched(
         // the joining stream's move into the cohort (in the step) are
         let mut dt = 0.0;
         if cfg.churn && step > 0 && n > 1 {
-            let joining = fed_stream(model, opts, next_seed, audio, step * 13 * per, per)?;
+            let joining = Fed::new(model, with_seed(next_seed), audio, step * 13 * per)?;
             next_seed = next_seed.wrapping_add(1);
             let leaving = std::mem::replace(&mut fed[step % n], joining);
             let t = Instant::now();
             drop(leaving);
             dt += ms(t.elapsed());
         }
-        for f in fed.iter_mut() {
-            if f.pos + per > audio.len() {
-                f.pos = 0;
-            }
-        }
+        let chunks: Vec<&[f32]> = fed.iter_mut().map(|f| f.next_token(fe, audio)).collect();
         let mut jobs: Vec<StreamJob<'_>> = fed
             .iter_mut()
-            .map(|f| StreamJob::push(f.stream.as_mut(), &audio[f.pos..f.pos + per]))
+            .zip(chunks)
+            .map(|(f, c)| StreamJob::push(f.stream.as_mut(), c))
             .collect();
         let t = Instant::now();
         let out = model.step_many(&mut jobs);
@@ -556,9 +579,6 @@ fn run_batched(
             for (v, x) in per_graph.iter_mut().zip(step_graph) {
                 v.push(x);
             }
-        }
-        for f in fed.iter_mut() {
-            f.pos += per;
         }
     }
     let st = Stats::of(&times);
