@@ -42,7 +42,7 @@ fn main() -> anyhow::Result<()> {
     println!(
         "| N | stack+split ms | step_many ms (frontend, frames) | per stream: split / step_many |"
     );
-    println!("|---|---|---|---|---|");
+    println!("|---|---|---|---|");
     for &n in &ns {
         let opts = |i: usize| StreamOptions {
             seed: i as u64,
