@@ -415,8 +415,6 @@ fn capacity_idle_and_health() {
     server.join().unwrap();
 }
 
-/// A minimal HTTP/1.1 GET over a raw socket (the test needs no HTTP client crate).
-
 /// Resident memory of process `pid` in KiB (`VmRSS` of `/proc/<pid>/status`).
 fn rss_kib(pid: u32) -> u64 {
     let status =

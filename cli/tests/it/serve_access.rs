@@ -54,8 +54,6 @@ async fn open(
     }
 }
 
-/// A plain HTTP GET over a raw socket: status line and body.
-
 /// What a session got: frames, the `done` message, the close code.
 #[derive(Debug, Default)]
 struct Got {
