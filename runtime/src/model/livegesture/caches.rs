@@ -99,21 +99,6 @@ impl Caches {
         }
         Ok(out)
     }
-
-    /// Zero caches like `template`'s (same tensors and row shapes) with `rows` rows in the branched
-    /// graphs and one row in the others.
-    pub(super) fn zeros_like(template: &Caches, branch_rows: usize) -> Caches {
-        let mut out = template.clone();
-        for s in template.slots() {
-            let r = if s.branched() { branch_rows } else { 1 };
-            for t in out.slot_mut(s) {
-                let mut shape = t.shape.clone();
-                shape[0] = r;
-                *t = Tensor::zeros(t.dtype(), shape);
-            }
-        }
-        out
-    }
 }
 
 /// Where a token step takes each graph's caches from and puts the updated ones.
