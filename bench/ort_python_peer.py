@@ -6,7 +6,7 @@ One ``onnxruntime.InferenceSession`` per graph (1 intra-op and 1 inter-op thread
 optimisation), numpy feeds, every ``new_cache.*`` output fed back as the next step's ``cache.*`` input, the
 guided sampler of ``livegesture.sampling`` (the manifest's guidance, temperature, top-k and the SplitMix64
 draw), the decoders, and ``livegesture.motion.features_to_motion`` for the frames: the same work per token
-as a token step of the Rust runtime (``LiveGestureGraphs::step_batch``, what ``MotionModel::step_many`` runs) (and as ``python -m livegesture.bench torch``, on the ONNX graphs
+as a token step of the Rust runtime (``LiveGestureGraphs::step``; ``MotionModel::step_many`` runs the same chain on stacked caches) (and as ``python -m livegesture.bench torch``, on the ONNX graphs
 instead of the torch modules).
 
     taskset -c 1 python bench/ort_python_peer.py --bundle models/default --audio models/default/reference/clip.wav \

@@ -1,5 +1,5 @@
 //! The fuzzed entry points, shared by the cargo-fuzz targets (`fuzz/fuzz_targets/*.rs`, nightly) and
-//! their regression test on stable (`cli/tests/fuzz_regressions.rs`, which replays every file
+//! their regression test on stable (`cli/tests/it/fuzz_regressions.rs`, which replays every file
 //! of `fuzz/regressions/<target>/` and the committed corpus through the same functions). Each takes
 //! arbitrary bytes; the property is that the parser returns (an error is fine) without panicking,
 //! hanging or allocating without bound.

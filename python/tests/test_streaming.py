@@ -160,7 +160,7 @@ def test_step_rejects_bad_shapes(tiny):
 
 def test_finish_covers_the_whole_audio(tiny):
     """docs/output.md: the last partial token is completed with silence and cut at the audio's end, so
-    ceil(duration x 30) frames come out; the same rule as the runtime's finish (runtime/tests/coverage.rs)."""
+    ceil(duration x 30) frames come out; the same rule as the runtime's finish (runtime/tests/it/coverage.rs)."""
     cfg = FrontendConfig()
     audio = speechy(1.0, seed=4)
     for n in (1, 1000, cfg.token_end(3), cfg.token_end(3) + 1, cfg.token_end(3) - 1):

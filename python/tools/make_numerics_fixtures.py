@@ -1,5 +1,5 @@
 """Write ``runtime/tests/fixtures/numerics.npz``: reference values from the Python numerics for the Rust
-cross-language tests in ``runtime/tests/numerics.rs``.
+cross-language tests in ``runtime/tests/it/numerics.rs``.
 
 Contents (all produced by the ``livegesture`` package, the single source of truth for numerics):
 

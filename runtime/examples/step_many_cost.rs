@@ -1,7 +1,7 @@
-//! Where the time of one serve tick goes, for N LiveGesture streams stepped together: the batched
-//! graphs on caches kept stacked (`StreamBatch`), the same with the caches stacked before and split
-//! after every graph (`step_batch`, the separately owned streams), and the whole
-//! `MotionModel::step_many` the server calls (frontend, steps, frames). Interleaved rounds, medians.
+//! Where the time of one serve tick goes, for N LiveGesture streams stepped together: the graphs
+//! with the caches stacked before and split after every graph (`step_batch`, the separately owned
+//! streams), and the whole `MotionModel::step_many` the server calls (frontend, steps, frames, the
+//! caches kept stacked in the model's cohort). Interleaved rounds, medians.
 //!
 //!   cargo run --release --example step_many_cost -- models/default ort 8,16,32 [rounds]
 use std::time::Instant;
@@ -39,31 +39,26 @@ fn main() -> anyhow::Result<()> {
     let mut s0 = graphs.new_stream(&StreamOptions::default())?;
     let mels = s0.push_audio(&audio)?;
     let model = LiveGestureModel::from(LiveGestureGraphs::new(&bundle, be.as_ref())?);
-    println!("| N | stacked ms | stack+split ms | step_many ms (frontend, frames) | per stream: stacked / split / step_many |");
-    println!("|---|---|---|---|---|");
+    println!(
+        "| N | stack+split ms | step_many ms (frontend, frames) | per stream: split / step_many |"
+    );
+    println!("|---|---|---|---|");
     for &n in &ns {
         let opts = |i: usize| StreamOptions {
             seed: i as u64,
             ..Default::default()
         };
-        let mut batch = graphs.new_batch();
-        for i in 0..n {
-            batch.add(graphs.new_stream(&opts(i))?)?;
-        }
         let mut sep: Vec<_> = (0..n)
             .map(|i| graphs.new_stream(&opts(i)))
             .collect::<anyhow::Result<_>>()?;
         let mut streams: Vec<Box<dyn MotionStream>> = (0..n)
             .map(|i| model.new_stream(&opts(i)))
             .collect::<anyhow::Result<_>>()?;
-        let (mut ta, mut tb, mut tc) = (vec![], vec![], vec![]);
+        let (mut tb, mut tc) = (vec![], vec![]);
         for (pos, r) in (0..rounds + 3).enumerate() {
             let block: Vec<_> = (0..n)
                 .map(|i| mels[(pos + i * 7) % mels.len()].clone())
                 .collect();
-            let t = Instant::now();
-            std::hint::black_box(graphs.step_stream_batch(&mut batch, &block)?);
-            let a_ms = t.elapsed().as_secs_f64() * 1e3;
             let mut refs: Vec<_> = sep.iter_mut().collect();
             let t = Instant::now();
             std::hint::black_box(graphs.step_batch(&mut refs, &block)?);
@@ -91,16 +86,14 @@ fn main() -> anyhow::Result<()> {
                 std::hint::black_box(o?);
             }
             if r >= 3 {
-                ta.push(a_ms);
                 tb.push(b_ms);
                 tc.push(c_ms);
             }
         }
-        let (a_, b_, c_) = (median(&mut ta), median(&mut tb), median(&mut tc));
+        let (b_, c_) = (median(&mut tb), median(&mut tc));
         let nf = n as f64;
         println!(
-            "| {n} | {a_:.2} | {b_:.2} | {c_:.2} | {:.3} / {:.3} / {:.3} |",
-            a_ / nf,
+            "| {n} | {b_:.2} | {c_:.2} | {:.3} / {:.3} |",
             b_ / nf,
             c_ / nf
         );

@@ -7,10 +7,9 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 
 use livegesture::model::GraphForm;
-use livegesture_bench::diffsheg::DiffshegBenchConfig;
 use livegesture_bench::{run_family, BenchConfig};
 
-use super::common::{DiffshegArgs, InputError, ModelArgs};
+use super::common::{GenArgs, InputError, ModelArgs};
 
 #[derive(Debug, clap::Args)]
 #[command(
@@ -22,12 +21,10 @@ pub struct Args {
     /// Audio fed to the streams, repeated as needed (default: the bundle's reference clip).
     #[arg(long, value_name = "WAV")]
     pub audio: Option<PathBuf>,
-    /// Guidance scale gamma (default: the bundle's; benchmarks are quoted with guidance on).
-    #[arg(long, value_name = "G")]
-    pub guidance: Option<f64>,
-    /// Sampler seed.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
+    /// The streams' options, as `generate` takes them (benchmarks are quoted with the bundle's
+    /// guidance, on).
+    #[command(flatten)]
+    pub gen: GenArgs,
     /// Untimed single-stream warm-up steps.
     #[arg(long, default_value_t = 20)]
     pub warmup: usize,
@@ -55,9 +52,6 @@ pub struct Args {
     /// Batched stepping without churn (by default one stream leaves and a fresh one joins every step).
     #[arg(long)]
     pub no_churn: bool,
-    /// DiffSHEG: the schedule and windows of the main figures.
-    #[command(flatten)]
-    pub diffsheg: DiffshegArgs,
     /// DiffSHEG: timed outpainting windows (after two untimed ones).
     #[arg(long, default_value_t = 5)]
     pub windows: usize,
@@ -93,16 +87,6 @@ fn positive_list(flag: &str, v: &str) -> Result<Vec<usize>> {
 
 pub fn run(a: Args, form: GraphForm) -> Result<()> {
     let streams = positive_list("--streams", &a.streams)?;
-    let dcfg = DiffshegBenchConfig {
-        ddim_steps: a.diffsheg.ddim_steps,
-        jumps: a.diffsheg.jumps,
-        window: a.diffsheg.window,
-        overlap: a.diffsheg.overlap,
-        windows: a.windows.max(1),
-        table_steps: positive_list("--table-steps", &a.table_steps)?,
-        table_jumps: positive_list("--table-jumps", &a.table_jumps)?,
-        table_windows: a.table_windows.max(1),
-    };
     if a.steps == 0 {
         return Err(InputError::new("--steps must be at least 1").into());
     }
@@ -114,8 +98,7 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
     };
     let cfg = BenchConfig {
         audio,
-        guidance: a.guidance,
-        seed: a.seed,
+        options: a.gen.stream_options()?,
         warmup: a.warmup,
         steps: a.steps,
         latency_trials: a.latency_trials,
@@ -126,12 +109,16 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
         batch_seconds: a.batch_seconds,
         churn: !a.no_churn,
         form,
+        windows: a.windows.max(1),
+        table_steps: positive_list("--table-steps", &a.table_steps)?,
+        table_jumps: positive_list("--table-jumps", &a.table_jumps)?,
+        table_windows: a.table_windows.max(1),
         ..Default::default()
     };
     // the backend alone: the bench wraps it to time each graph
     let be = livegesture::backend::create(&a.model.backend_options()?)?;
     let quiet = a.quiet;
-    let report = run_family(&bundle, be.as_ref(), &cfg, &dcfg, |what| {
+    let report = run_family(&bundle, be.as_ref(), &cfg, |what| {
         if !quiet {
             eprintln!("[bench] {what}");
         }

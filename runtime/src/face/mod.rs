@@ -15,7 +15,7 @@
 //! frame is used.
 
 use std::collections::VecDeque;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use serde::{Deserialize, Serialize};
@@ -254,9 +254,12 @@ pub fn manifest_face(m: &Manifest) -> Result<Option<&FaceManifest>, String> {
     }
 }
 
-/// The face graph of a loaded bundle, shared by its streams.
+/// The face graph of a loaded bundle, shared by its streams as the graphs of the families are: the
+/// runner is shared (its runs take `&self`, each with a run state or session of its own,
+/// [`GraphRunner`]), the caches belong to each stream, so streams on different threads run it at the
+/// same time.
 pub struct FaceGraph {
-    runner: Mutex<Box<dyn GraphRunner>>,
+    runner: Box<dyn GraphRunner>,
     spec: GraphSpec,
     section: FaceManifest,
     frontend: crate::frontend::FrontendConfig,
@@ -284,7 +287,7 @@ impl FaceGraph {
             .load_from(bundle, &spec)
             .with_context(|| format!("loading the face graph '{}'", spec.name))?;
         Ok(Some(Arc::new(Self {
-            runner: Mutex::new(runner),
+            runner,
             spec,
             section: section.clone(),
             frontend: bundle.frontend().clone(),
@@ -307,13 +310,7 @@ impl FaceGraph {
         let n_mels = self.frontend.n_mels;
         let mut inputs = vec![Tensor::f32(vec![1, m, n_mels], mel)?];
         inputs.append(caches);
-        let out = {
-            let r = self
-                .runner
-                .lock()
-                .map_err(|_| anyhow!("face graph: a previous call panicked"))?;
-            r.run(&inputs)?
-        };
+        let out = self.runner.run(&inputs)?;
         ensure!(
             out.len() == 2 + self.spec.caches.len(),
             "face graph '{}': {} outputs, expected {}",

@@ -25,7 +25,7 @@
 //!
 //! | family | module | look-ahead | batched stepping |
 //! |---|---|---|---|
-//! | `livegesture` | [`livegesture`] | 0 (causal, one token = 4 frames) | every graph once per token for all streams ([`MotionModel::step_many`]; also [`livegesture::StreamBatch`]) |
+//! | `livegesture` | [`livegesture`] | 0 (causal, one token = 4 frames) | every graph once per token for all streams ([`MotionModel::step_many`]; with the tokens: [`livegesture::LiveGestureModel::step_many_steps`]) |
 //! | `diffsheg` | [`diffsheg`] | its window N (first frame after N frames of audio; then every N - L frames) | CFG rows, and the due windows of all streams of one length, on the denoiser's batch axis |
 //!
 //! # Stepping many streams

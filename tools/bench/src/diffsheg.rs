@@ -29,46 +29,6 @@ use livegesture::model::diffsheg::foppas::SamplerOptions;
 use livegesture::model::diffsheg::model::DiffshegModel;
 use livegesture::model::{MotionStream, StreamOptions};
 
-/// What to measure besides the shared settings of [`BenchConfig`] (audio, seed, guidance,
-/// latency trials).
-#[derive(Debug, Clone)]
-pub struct DiffshegBenchConfig {
-    /// Sampler options (None: the bundle's defaults).
-    pub ddim_steps: Option<usize>,
-    pub jumps: Option<usize>,
-    pub window: Option<usize>,
-    pub overlap: Option<usize>,
-    /// Timed outpainting windows (after one untimed).
-    pub windows: usize,
-    /// The steps x jumps table (empty: skip).
-    pub table_steps: Vec<usize>,
-    pub table_jumps: Vec<usize>,
-    /// Timed outpainting windows per table cell.
-    pub table_windows: usize,
-}
-
-impl Default for DiffshegBenchConfig {
-    fn default() -> Self {
-        Self {
-            ddim_steps: None,
-            jumps: None,
-            window: None,
-            overlap: None,
-            windows: 5,
-            table_steps: vec![10, 25, 50],
-            table_jumps: vec![1, 2, 3],
-            table_windows: 2,
-        }
-    }
-}
-
-/// Options of one run: the shared ones and the DiffSHEG ones.
-struct Cfg<'a> {
-    seed: u64,
-    guidance: Option<f64>,
-    d: &'a DiffshegBenchConfig,
-}
-
 /// Times of the two graphs, per call, in ms.
 #[derive(Debug, Clone, Serialize)]
 pub struct GraphTimes {
@@ -133,15 +93,12 @@ fn ms(s: f64) -> f64 {
     s * 1e3
 }
 
-fn options(cfg: &Cfg<'_>, steps: Option<usize>, jumps: Option<usize>) -> StreamOptions {
+/// The options of `cfg`, DDIM steps and jumps replaced where given (a table cell).
+fn options(cfg: &BenchConfig, steps: Option<usize>, jumps: Option<usize>) -> StreamOptions {
     StreamOptions {
-        seed: cfg.seed,
-        guidance: cfg.guidance,
-        ddim_steps: steps.or(cfg.d.ddim_steps),
-        jumps: jumps.or(cfg.d.jumps),
-        window: cfg.d.window,
-        overlap: cfg.d.overlap,
-        ..Default::default()
+        ddim_steps: steps.or(cfg.options.ddim_steps),
+        jumps: jumps.or(cfg.options.jumps),
+        ..cfg.options.clone()
     }
 }
 
@@ -194,12 +151,11 @@ fn run_windows(
 }
 
 /// Runs the DiffSHEG benchmark.
-// long: the benchmark's measurements in the order the report prints them (each a short block); being reworked onto step_many (issue 37 item 3)
+// long: the benchmark's measurements in the order the report prints them (each a short block)
 pub fn run(
     bundle: &Bundle,
     backend: &dyn Backend,
     shared: &BenchConfig,
-    d: &DiffshegBenchConfig,
     mut progress: impl FnMut(&str),
 ) -> Result<DiffshegBenchReport> {
     let wall = Instant::now();
@@ -211,12 +167,7 @@ pub fn run(
         "{}: the audio has no samples",
         shared.audio.display()
     );
-    ensure!(d.windows >= 1, "bench: at least one timed window");
-    let cfg = &Cfg {
-        seed: shared.seed,
-        guidance: shared.guidance,
-        d,
-    };
+    ensure!(shared.windows >= 1, "bench: at least one timed window");
     let rec = Arc::new(Recorder::default());
     let timing = TimingBackend::new(backend, rec.clone());
     let t0 = Instant::now();
@@ -227,8 +178,10 @@ pub fn run(
     let (sr, fps) = (fe.sample_rate as f64, fe.fps as f64);
 
     // enough audio for the longest run: window count of the main run or a table cell, + 3
-    let base = model.shared().sampler_options(&options(cfg, None, None))?;
-    let n_windows = d.windows.max(d.table_windows) + 4;
+    let base = model
+        .shared()
+        .sampler_options(&options(shared, None, None))?;
+    let n_windows = shared.windows.max(shared.table_windows) + 4;
     let need =
         (((n_windows * (base.window - base.overlap) + base.window) as f64) * sr / fps) as usize + 1;
     let mut audio = Vec::with_capacity(need);
@@ -239,11 +192,16 @@ pub fn run(
 
     // warm-up: every plan (batch rows x window length) built once
     progress("warm-up (plans)");
-    run_windows(&model, &options(cfg, None, None), &audio, 1, &rec)?;
+    run_windows(&model, &options(shared, None, None), &audio, 1, &rec)?;
 
     progress("windows");
-    let (_, times, events, state_bytes, so) =
-        run_windows(&model, &options(cfg, None, None), &audio, d.windows, &rec)?;
+    let (_, times, events, state_bytes, so) = run_windows(
+        &model,
+        &options(shared, None, None),
+        &audio,
+        shared.windows,
+        &rec,
+    )?;
     let window_ms = Stats::of(&times);
     let mut graphs = Vec::new();
     for (id, name) in names.iter().enumerate() {
@@ -267,7 +225,7 @@ pub fn run(
     progress("first frame");
     let mut first_times = Vec::new();
     for _ in 0..shared.latency_trials.max(1) {
-        let mut s = model.stream(&options(cfg, None, None), false)?;
+        let mut s = model.stream(&options(shared, None, None), false)?;
         let need = ((so.window as f64) * sr / fps).floor() as usize;
         let t = Instant::now();
         let frames = s.push_audio(&audio[..need])?;
@@ -278,12 +236,12 @@ pub fn run(
     let lookahead_ms = 1e3 * so.window as f64 / fps;
 
     let mut table = Vec::new();
-    for &steps in &d.table_steps {
-        for &jumps in &d.table_jumps {
+    for &steps in &shared.table_steps {
+        for &jumps in &shared.table_jumps {
             progress(&format!("steps x jumps: {steps} x {jumps}"));
-            let o = options(cfg, Some(steps), Some(jumps));
+            let o = options(shared, Some(steps), Some(jumps));
             let (_, t, _, _, so2) =
-                run_windows(&model, &o, &audio, d.table_windows.max(1), &rec)
+                run_windows(&model, &o, &audio, shared.table_windows.max(1), &rec)
                     .with_context(|| format!("{steps} DDIM steps x {jumps} jumps"))?;
             let st = Stats::of(&t);
             let median = st.median;

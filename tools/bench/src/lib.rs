@@ -10,14 +10,14 @@
 //!   from the first sample's arrival until the first frame comes back, and the compute part after the
 //!   chunk completing token 0's audio arrived;
 //! - **state bytes per stream** ([`livegesture::model::livegesture::state_bytes`]) and **peak RSS** (`VmHWM`);
-//! - **batched stepping**: [`LiveGestureGraphs::step_stream_batch`] over a [`livegesture::model::livegesture::StreamBatch`] of
-//!   N streams (caches kept stacked on the batch axis between steps; optionally one stream leaving and
-//!   a fresh one joining at every step, the leaving and joining timed with the step), and the streams
-//!   one core sustains in real time.
+//! - **batched stepping**: [`MotionModel::step_many`] of a [`LiveGestureModel`] (the call `serve` makes
+//!   per tick; the parity `batch` check verifies the same path) on N streams, one token of audio each
+//!   per step, frontends included (caches kept stacked in the model's cohort between steps;
+//!   optionally one stream leaving and a fresh one joining at every step, the leaving and joining
+//!   timed with the step), and the streams one core sustains in real time.
 //!
 //! Warm-up steps (which also build tract's per-batch-size plans) are excluded from every figure.
 
-use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -29,8 +29,10 @@ use serde::Serialize;
 use livegesture::backend::Backend;
 use livegesture::bundle::Bundle;
 use livegesture::frontend::StreamingLogMel;
-use livegesture::model::livegesture::{state_bytes, LiveGestureGraphs, StreamId, StreamOptions};
-use livegesture::model::{for_family, FamilyTool};
+use livegesture::model::livegesture::{
+    state_bytes, LiveGestureGraphs, LiveGestureModel, StreamOptions,
+};
+use livegesture::model::{for_family, FamilyTool, MotionModel, MotionStream, StreamJob};
 
 pub mod diffsheg;
 mod machine;
@@ -46,9 +48,10 @@ pub use timing::{Recorder, Stats, TimingBackend};
 pub struct BenchConfig {
     /// Audio fed to the streams (16 kHz mono after conversion), repeated as needed.
     pub audio: PathBuf,
-    /// Guidance scale (None: the bundle's default).
-    pub guidance: Option<f64>,
-    pub seed: u64,
+    /// The streams' options, as every door takes them ([`StreamOptions`], checked by the family's
+    /// `new_stream`): seed, guidance and the family's sampler settings (None: the bundle's). Each
+    /// batched stream adds its index to the seed.
+    pub options: StreamOptions,
     /// Untimed steps before the single-stream measurement.
     pub warmup: usize,
     /// Timed single-stream steps.
@@ -72,14 +75,20 @@ pub struct BenchConfig {
     /// LiveGesture: the form of the region eXperts and decoders to measure (docs/bundle.md#forms-and-precision; auto = the
     /// bundle's form for the backend).
     pub form: livegesture::model::GraphForm,
+    /// A family that steps in windows (DiffSHEG): timed windows after the untimed ones.
+    pub windows: usize,
+    /// A family that samples by diffusion (DiffSHEG): the steps x jumps table, steps (empty: no
+    /// table), jumps, and timed windows per cell.
+    pub table_steps: Vec<usize>,
+    pub table_jumps: Vec<usize>,
+    pub table_windows: usize,
 }
 
 impl Default for BenchConfig {
     fn default() -> Self {
         Self {
             audio: PathBuf::new(),
-            guidance: None,
-            seed: 0,
+            options: StreamOptions::default(),
             warmup: 20,
             steps: 300,
             latency_trials: 5,
@@ -91,6 +100,10 @@ impl Default for BenchConfig {
             batch_seconds: 15.0,
             churn: true,
             form: Default::default(),
+            windows: 5,
+            table_steps: vec![10, 25, 50],
+            table_jumps: vec![1, 2, 3],
+            table_windows: 2,
         }
     }
 }
@@ -167,18 +180,19 @@ pub struct Batched {
     pub timed_steps: usize,
     /// True when the time cap ended the timed steps before `batch_steps`.
     pub capped: bool,
-    /// One batched token step of all N streams (graphs, sampling, frames; with churn, one stream
-    /// leaving and one joining the batch).
+    /// One `step_many` call (what `serve` runs per tick) pushing one token's audio into each of the
+    /// N streams: their log-mel frontends, graphs, sampling, frames; with churn, one stream leaving
+    /// (dropped) and a fresh one joining the cohort.
     pub step_ms: Stats,
     /// Graph runs per batched step (median of their sum).
     pub graphs_sum_ms_median: f64,
-    /// Median of (step - graph runs): data inputs, sampling, frames, churn.
+    /// Median of (step - graph runs): frontends, data inputs, sampling, frames, cohort moves, churn.
     pub overhead_ms_median: f64,
     /// Median step / N.
     pub per_stream_ms: f64,
-    /// N * token duration / median step: streams one core keeps in real time (graphs only).
+    /// Without the frontend: N * token / (median step - N * single-stream frontend per token).
     pub realtime_streams: f64,
-    /// Same with each stream's log-mel frontend added: N * token / (step + N * frontend).
+    /// N * token duration / median step: streams one core keeps in real time, frontend included.
     pub realtime_streams_with_frontend: f64,
     /// Per-graph times of the timed batched steps (each graph runs once per step on all N streams).
     pub graphs: Vec<GraphTiming>,
@@ -257,7 +271,7 @@ fn first_frame_once(
 }
 
 /// Runs the whole benchmark for `bundle` on `backend` (one thread).
-// long: the benchmark's measurements in the order the report prints them (each a short block); being reworked onto step_many (issue 37 item 3)
+// long: the benchmark's measurements in the order the report prints them (each a short block)
 pub fn run(
     bundle: &Bundle,
     backend: &dyn Backend,
@@ -300,11 +314,7 @@ pub fn run(
     let (mels, frontend_ms) = mel_blocks(bundle, &audio)?;
     ensure!(mels.len() > cfg.warmup + cfg.steps, "not enough mel blocks");
 
-    let opts = StreamOptions {
-        seed: cfg.seed,
-        guidance: cfg.guidance,
-        ..Default::default()
-    };
+    let opts = cfg.options.clone();
 
     // first frame on the freshly loaded pipeline (tract optimises its plans here)
     progress("first frame, cold pipeline");
@@ -374,15 +384,16 @@ pub fn run(
     };
     let peak_rss_single_bytes = peak_rss_bytes();
 
-    // batched stepping
+    // batched stepping: the model's `step_many` (the last use of the graphs)
+    let model = LiveGestureModel::from(pipe);
     let mut batched = Vec::new();
     for &n in &cfg.streams {
         progress(&format!("batched, {n} streams"));
         batched.push(run_batched(
-            &mut pipe,
+            &model,
             &rec,
             &opts,
-            &mels,
+            &audio,
             n,
             cfg,
             token_ms,
@@ -422,28 +433,91 @@ pub fn run(
     })
 }
 
+/// One stream of the batched measurement: a stream of the model, where it reads the audio, the
+/// samples pushed into it and the next token it completes.
+struct Fed {
+    stream: Box<dyn MotionStream>,
+    pos: usize,
+    pushed: u64,
+    token: u64,
+}
+
+impl Fed {
+    /// A fresh stream (cold start) whose frontend holds all of token 0's audio but its last sample,
+    /// read from `start` in `audio`.
+    fn new(
+        model: &LiveGestureModel,
+        opts: StreamOptions,
+        audio: &[f32],
+        start: usize,
+    ) -> Result<Self> {
+        let mut stream = model.new_stream(&opts)?;
+        let prime = model.graphs().frontend().token_end(0).saturating_sub(1) as usize;
+        ensure!(
+            audio.len() > 2 * prime,
+            "bench: the audio is shorter than two tokens"
+        );
+        let start = start % (audio.len() - prime);
+        let frames = stream.push_audio(&audio[start..start + prime])?;
+        ensure!(frames.is_empty(), "priming a stream completed a token");
+        Ok(Fed {
+            stream,
+            pos: start + prime,
+            pushed: prime as u64,
+            token: 0,
+        })
+    }
+
+    /// The samples that complete its next token (token ends fall on whole samples unevenly, so
+    /// their count varies by one), read on from where it is (from the start once `audio` ends).
+    fn next_token<'a>(
+        &mut self,
+        fe: &livegesture::frontend::FrontendConfig,
+        audio: &'a [f32],
+    ) -> &'a [f32] {
+        let n = (fe.token_end(self.token) - self.pushed) as usize;
+        if self.pos + n > audio.len() {
+            self.pos = 0;
+        }
+        let chunk = &audio[self.pos..self.pos + n];
+        self.pos += n;
+        self.pushed += n as u64;
+        self.token += 1;
+        chunk
+    }
+}
+
 #[allow(clippy::too_many_arguments)]
 fn run_batched(
-    pipe: &mut LiveGestureGraphs,
+    model: &LiveGestureModel,
     rec: &Recorder,
     opts: &StreamOptions,
-    mels: &[Array2<f32>],
+    audio: &[f32],
     n: usize,
     cfg: &BenchConfig,
     token_ms: f64,
     frontend_ms: f64,
 ) -> Result<Batched> {
-    // each stream starts at its own place in the audio and has its own seed; their caches stay
-    // stacked in one StreamBatch between steps
-    let mut batch = pipe.new_batch();
-    let mut pos: HashMap<StreamId, usize> = HashMap::with_capacity(n);
-    for i in 0..n {
-        let id = batch.add(pipe.new_stream(&StreamOptions {
-            seed: opts.seed.wrapping_add(i as u64),
-            ..opts.clone()
-        })?)?;
-        pos.insert(id, (i * 7) % mels.len());
-    }
+    // each stream starts at its own place in the audio and has its own seed; every step is one
+    // `step_many` call (what `serve` runs per tick) pushing one token's samples into every stream,
+    // so the streams' log-mel frontends are timed with the step; their caches stay stacked in the
+    // model's cohort between steps
+    let fe = model.graphs().frontend();
+    let with_seed = |seed: u64| StreamOptions {
+        seed,
+        ..opts.clone()
+    };
+    let per = fe.token_end(0) as usize;
+    let mut fed: Vec<Fed> = (0..n)
+        .map(|i| {
+            Fed::new(
+                model,
+                with_seed(opts.seed.wrapping_add(i as u64)),
+                audio,
+                i * 7 * per,
+            )
+        })
+        .collect::<Result<_>>()?;
     let mut next_seed = opts.seed.wrapping_add(n as u64);
     let mut times = Vec::new();
     let mut graph_sums = Vec::new();
@@ -464,31 +538,37 @@ fn run_batched(
             }
         }
         // with churn, the stream at position `step % n` leaves and a fresh one (cold start) joins:
-        // its creation is not timed, leaving and joining the batch are
-        let joining = if cfg.churn && step > 0 && n > 1 {
-            let s = pipe.new_stream(&StreamOptions {
-                seed: next_seed,
-                ..opts.clone()
-            })?;
-            next_seed = next_seed.wrapping_add(1);
-            Some((batch.ids()[step % n], s))
-        } else {
-            None
-        };
+        // its creation is not timed, dropping the leaving stream (its rows leave the cohort) and
+        // the joining stream's move into the cohort (in the step) are
         let mut dt = 0.0;
-        if let Some((leaving, s)) = joining {
+        if cfg.churn && step > 0 && n > 1 {
+            let joining = Fed::new(model, with_seed(next_seed), audio, step * 13 * per)?;
+            next_seed = next_seed.wrapping_add(1);
+            let leaving = std::mem::replace(&mut fed[step % n], joining);
             let t = Instant::now();
-            std::hint::black_box(batch.remove(leaving)?);
-            let id = batch.add(s)?;
+            drop(leaving);
             dt += ms(t.elapsed());
-            pos.remove(&leaving);
-            pos.insert(id, 0);
         }
-        let block: Vec<Array2<f32>> = batch.ids().iter().map(|id| mels[pos[id]].clone()).collect();
+        let chunks: Vec<&[f32]> = fed.iter_mut().map(|f| f.next_token(fe, audio)).collect();
+        let mut jobs: Vec<StreamJob<'_>> = fed
+            .iter_mut()
+            .zip(chunks)
+            .map(|(f, c)| StreamJob::push(f.stream.as_mut(), c))
+            .collect();
         let t = Instant::now();
-        let out = pipe.step_stream_batch(&mut batch, &block)?;
+        let out = model.step_many(&mut jobs);
         dt += ms(t.elapsed());
-        std::hint::black_box(&out);
+        drop(jobs);
+        for r in out {
+            let frames = r?;
+            ensure!(
+                frames.len() as u64 == fe.frames_per_token,
+                "a batched step gave a stream {} frames, expected one token's {}",
+                frames.len(),
+                fe.frames_per_token
+            );
+            std::hint::black_box(&frames);
+        }
         let mut step_graph = vec![0.0; names.len()];
         for (id, secs) in rec.drain() {
             step_graph[id] += secs * 1e3;
@@ -499,9 +579,6 @@ fn run_batched(
             for (v, x) in per_graph.iter_mut().zip(step_graph) {
                 v.push(x);
             }
-        }
-        for p in pos.values_mut() {
-            *p = (*p + 1) % mels.len();
         }
     }
     let st = Stats::of(&times);
@@ -516,8 +593,8 @@ fn run_batched(
         graphs_sum_ms_median: Stats::of(&graph_sums).median,
         overhead_ms_median: Stats::of(&over).median,
         per_stream_ms: st.median / nf,
-        realtime_streams: nf * token_ms / st.median,
-        realtime_streams_with_frontend: nf * token_ms / (st.median + nf * frontend_ms),
+        realtime_streams: nf * token_ms / (st.median - nf * frontend_ms).max(f64::MIN_POSITIVE),
+        realtime_streams_with_frontend: nf * token_ms / st.median,
         step_ms: st,
         graphs: graph_timings(&names, &per_graph),
     })
@@ -543,20 +620,17 @@ impl FamilyReport {
     }
 }
 
-/// Runs the benchmark of `bundle`'s family: [`run`] (LiveGesture) or [`diffsheg::run`] (DiffSHEG,
-/// which also reads `d`; the shared settings of `cfg` are the audio, seed, guidance and latency
-/// trials).
+/// Runs the benchmark of `bundle`'s family: [`run`] (LiveGesture) or [`diffsheg::run`] (DiffSHEG:
+/// the audio, options, latency trials, windows and table of `cfg`).
 pub fn run_family(
     bundle: &Bundle,
     backend: &dyn Backend,
     cfg: &BenchConfig,
-    d: &diffsheg::DiffshegBenchConfig,
     progress: impl FnMut(&str),
 ) -> Result<FamilyReport> {
     struct Bench<'a, P> {
         backend: &'a dyn Backend,
         cfg: &'a BenchConfig,
-        d: &'a diffsheg::DiffshegBenchConfig,
         progress: P,
     }
     impl<P: FnMut(&str)> FamilyTool for Bench<'_, P> {
@@ -574,7 +648,6 @@ pub fn run_family(
                 bundle,
                 self.backend,
                 self.cfg,
-                self.d,
                 self.progress,
             )?))
         }
@@ -584,7 +657,6 @@ pub fn run_family(
         Bench {
             backend,
             cfg,
-            d,
             progress,
         },
     )

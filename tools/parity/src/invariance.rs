@@ -69,7 +69,7 @@ pub(super) fn chunk_rows(
 }
 
 pub(super) fn batch_rows(
-    p: &mut LiveGestureGraphs,
+    model: &LiveGestureModel,
     kind: BackendKind,
     clip: &[f32],
     len: usize,
@@ -94,7 +94,7 @@ pub(super) fn batch_rows(
     let bound = batch_bound(kind);
     let mut single = Vec::new();
     for (o, a) in &streams {
-        match run_stream(p, o, a, 3200, false) {
+        match run_stream(model.graphs(), o, a, 3200, false) {
             Ok(s) => single.push(s),
             Err(e) => {
                 rows.push(Row::failed(
@@ -111,7 +111,7 @@ pub(super) fn batch_rows(
     }
     for b in BATCH_SIZES {
         let what = format!("batch {b}");
-        match run_batched(p, &streams[..b], 3200) {
+        match run_batched(model, &streams[..b], 3200) {
             Ok(batched) => {
                 let (mut differing, mut compared, mut first) = (0u64, 0u64, None);
                 let mut pairs = Vec::new();
@@ -167,33 +167,29 @@ pub(super) fn batch_rows(
     }
 }
 
-/// Steps `streams` together with [`LiveGestureGraphs::step_batch`], feeding each its audio in `chunk`s.
+/// Steps `streams` together with [`LiveGestureModel::step_many_steps`] (the path `serve` runs as
+/// `step_many`), feeding each its audio in `chunk`s: every call pushes one chunk into every stream.
 pub(super) fn run_batched(
-    p: &mut LiveGestureGraphs,
+    model: &LiveGestureModel,
     streams: &[(StreamOptions, Vec<f32>)],
     chunk: usize,
 ) -> Result<Vec<Vec<TokenStep>>> {
     let mut st = streams
         .iter()
-        .map(|(o, _)| p.new_stream(o))
+        .map(|(o, _)| model.new_stream(o))
         .collect::<Result<Vec<_>>>()?;
     let mut out: Vec<Vec<TokenStep>> = vec![Vec::new(); streams.len()];
     let len = streams.iter().map(|(_, a)| a.len()).min().unwrap_or(0);
     let mut pos = 0;
     while pos < len {
         let end = (pos + chunk).min(len);
-        let mels: Vec<_> = st
+        let mut jobs: Vec<StreamJob<'_>> = st
             .iter_mut()
             .zip(streams)
-            .map(|(s, (_, a))| s.push_audio(&a[pos..end]))
-            .collect::<Result<_>>()?;
-        let n = mels.iter().map(Vec::len).min().unwrap_or(0);
-        for k in 0..n {
-            let m: Vec<_> = mels.iter().map(|v| v[k].clone()).collect();
-            let mut refs: Vec<&mut _> = st.iter_mut().collect();
-            for (i, s) in p.step_batch(&mut refs, &m)?.into_iter().enumerate() {
-                out[i].push(s);
-            }
+            .map(|(s, (_, a))| StreamJob::push(s.as_mut(), &a[pos..end]))
+            .collect();
+        for (i, r) in model.step_many_steps(&mut jobs).into_iter().enumerate() {
+            out[i].extend(r?);
         }
         pos = end;
     }

@@ -14,7 +14,7 @@
 //! | `rollout` | a bundle with several forms (docs/bundle.md#forms-and-precision): on each backend that runs a form other than canonical (the manifest's `backend_forms`, or `--form`), the canonical form's rollout vs that form's: identical tokens, frames | [`ROLLOUT_FRAMES`] |
 //! | `logmel` | the Rust log-mel frontend on `reference/clip.wav` vs `reference/logmel.npy` | [`LOGMEL`] |
 //! | `chunks` | chunks of 1 sample, 160, 3200, 16000 samples and the whole prefix give identical frames, the stream finished at the end of the prefix as `generate` does (docs/output.md: last partial token completed with silence, `ceil(duration x 30)` frames) (on a prefix of the clip, [`ParityOptions::chunk_seconds`]) | exact |
-//! | `batch` | [`LiveGestureGraphs::step_batch`] with 1, 2 and 5 streams (different seeds, audio, one without guidance) vs separate runs: identical tokens, frames | [`BATCH_FRAMES`] (ort), [`TRACT_BATCH_FRAMES`] (tract) |
+//! | `batch` | [`LiveGestureModel::step_many_steps`] (the `step_many` that `serve` runs) with 1, 2 and 5 streams (different seeds, audio, one without guidance) vs separate runs: identical tokens, frames | [`BATCH_FRAMES`] (ort), [`TRACT_BATCH_FRAMES`] (tract) |
 //!
 //! Every comparison is one [`Row`]: the check, the graph (or what is compared), the comparison
 //! (`ort vs torch`, ...), the output, the step of the largest error, the error, the bound and the
@@ -71,8 +71,11 @@ use rollout::{frame_rows_steps, run_stream, token_row};
 use livegesture::audio::{read_wav_16k_mono, AudioSpan};
 use livegesture::backend::{self, Backend, BackendKind, BackendOptions, Tensor, TensorData};
 use livegesture::bundle::{Bundle, GraphSpec};
-use livegesture::model::livegesture::{LiveGestureGraphs, StepLogits, StreamOptions, TokenStep};
+use livegesture::model::livegesture::{
+    LiveGestureGraphs, LiveGestureModel, StepLogits, StreamOptions, TokenStep,
+};
 use livegesture::model::GraphForm;
+use livegesture::model::{MotionModel, StreamJob};
 use livegesture::output::Frame;
 use livegesture::sampling::{guide, Draw, SplitMix64, TokenDistribution};
 

@@ -14,7 +14,7 @@ use livegesture::audio::{read_wav_16k_mono, AudioSpan};
 use livegesture::backend::{Backend, BackendKind};
 use livegesture::bundle::Bundle;
 use livegesture::frontend::logmel;
-use livegesture::model::livegesture::LiveGestureGraphs;
+use livegesture::model::livegesture::{LiveGestureGraphs, LiveGestureModel};
 use livegesture::model::GraphForm;
 
 use super::compare::MaxAbs;
@@ -109,8 +109,9 @@ pub(super) fn run(
             prefix_len as f64 / 16000.0,
             BATCH_SIZES
         ));
-        for (k, p) in pipelines.iter_mut() {
-            batch_rows(p, *k, &clip, prefix_len, seed, rows);
+        // the last check: the pipelines become models (their `step_many`, the path `serve` runs)
+        for (k, p) in std::mem::take(&mut pipelines) {
+            batch_rows(&LiveGestureModel::from(p), k, &clip, prefix_len, seed, rows);
         }
         log(&format!("batch: {:.1} s", t.elapsed().as_secs_f64()));
     }

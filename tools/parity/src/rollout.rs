@@ -17,7 +17,7 @@ pub(super) fn field(f: &Frame, k: usize) -> &[f32] {
 /// Runs one stream over `audio` in chunks of `chunk` samples; with `finish`, ends it as `generate`
 /// does (docs/output.md: the last partial token completed with silence, frames cut at the audio's end).
 pub(super) fn run_stream(
-    p: &mut LiveGestureGraphs,
+    p: &LiveGestureGraphs,
     opts: &StreamOptions,
     audio: &[f32],
     chunk: usize,

@@ -1,5 +1,5 @@
 //! Where each graph's caches live during a token step: separately owned per stream (stacked before
-//! each graph run and split after it) or already stacked in a [`super::StreamBatch`].
+//! each graph run and split after it) or already stacked in a cohort (`super::cohorts`).
 
 use std::collections::HashMap;
 
@@ -28,7 +28,7 @@ impl Slot {
     }
 }
 
-/// Caches of every graph: one stream's, or the stacked caches of a [`StreamBatch`].
+/// Caches of every graph: one stream's, or the stacked caches of a cohort (`super::cohorts`).
 #[derive(Debug, Clone)]
 pub(super) struct Caches {
     pub(super) audio_encoder: Vec<Tensor>,
@@ -98,21 +98,6 @@ impl Caches {
             }
         }
         Ok(out)
-    }
-
-    /// Zero caches like `template`'s (same tensors and row shapes) with `rows` rows in the branched
-    /// graphs and one row in the others.
-    pub(super) fn zeros_like(template: &Caches, branch_rows: usize) -> Caches {
-        let mut out = template.clone();
-        for s in template.slots() {
-            let r = if s.branched() { branch_rows } else { 1 };
-            for t in out.slot_mut(s) {
-                let mut shape = t.shape.clone();
-                shape[0] = r;
-                *t = Tensor::zeros(t.dtype(), shape);
-            }
-        }
-        out
     }
 }
 
@@ -199,7 +184,7 @@ impl CacheStore for SeparateCaches<'_> {
     }
 }
 
-/// Caches already stacked on the batch axis ([`StreamBatch`]): handed to the graph and replaced by
+/// Caches already stacked on the batch axis (a cohort, `super::cohorts`): handed to the graph and replaced by
 /// its outputs, moved, never copied. Double-buffered: the graph writes its new caches into the
 /// buffers of the previous step's input caches (`spare`), so a steady batch allocates nothing.
 pub(super) struct StackedCaches<'a> {

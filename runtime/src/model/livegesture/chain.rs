@@ -187,7 +187,7 @@ struct Branches {
 
 impl LiveGestureGraphs {
     /// One token step of `streams` from their mel blocks (checked by the caller): steps 1-7 of the
-    /// module docs. Shared by [`LiveGestureGraphs::step_batch`] and [`LiveGestureGraphs::step_stream_batch`], which
+    /// module docs. Shared by [`LiveGestureGraphs::step_batch`] and the cohorts of `step_many` (`super::cohorts`), which
     /// differ only in where the caches live (`store`). On error the caches in `store` are incomplete.
     pub(super) fn step_inner(
         &self,

@@ -5,7 +5,7 @@
 //! A server steps the same streams together tick after tick (real-time sessions complete their
 //! tokens at steady phases). Stacking every stream's caches before each graph run and splitting them
 //! after it copied all of them twice per step; a cohort keeps them stacked, so a step of the same
-//! streams hands the graphs their caches as they are (moved, as in a [`super::StreamBatch`]). When the
+//! streams hands the graphs their caches as they are (moved). When the
 //! set of streams changes, only the streams that join or leave the cohort are copied.
 //!
 //! A stream whose caches are in a cohort is *away* ([`super::LiveGestureStream`] keeps a key and a

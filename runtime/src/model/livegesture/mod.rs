@@ -26,34 +26,34 @@
 //! PRNG, the token counter). Its size is fixed: it does not grow with the stream's length. A
 //! [`LiveGestureGraphs`] owns the loaded graphs and is shared by any number of streams.
 //!
-//! Two ways to step many streams at once, every graph running once for all of them:
+//! Two ways to step many streams at once, every graph running once for all of them, both on the same
+//! per-token chain (`chain`):
 //!
+//! - [`MotionModel::step_many`](crate::model::MotionModel::step_many) of a [`LiveGestureModel`] (what
+//!   `serve` runs, what `bench` measures and the parity `batch` check verifies;
+//!   [`LiveGestureModel::step_many_steps`] also returns the tokens): the caches of streams stepped
+//!   together stay stacked between calls (`cohorts`); only streams that join or leave are copied;
 //! - [`LiveGestureGraphs::step_batch`] on separately owned [`Stream`]s: their caches are copied into stacked
 //!   buffers before each graph run and back after it (every cache copied twice per step; the buffers are
-//!   reused, nothing is allocated; a single stream's caches are moved);
-//! - a [`StreamBatch`] ([`LiveGestureGraphs::new_batch`], [`LiveGestureGraphs::step_stream_batch`]) keeps the caches of
-//!   its streams stacked between steps: each graph gets them as they are and its new caches simply
-//!   replace them. Streams join and leave between steps ([`StreamBatch::add`], [`StreamBatch::remove`]).
+//!   reused, nothing is allocated; a single stream's caches are moved): the path of
+//!   [`LiveGestureGraphs::step`], one stream at a time.
 //!
-//! Stepping streams one by one, with `step_batch` or in a `StreamBatch` gives the same tokens and
-//! frames.
+//! Stepping streams one by one or together gives the same tokens and frames.
 //!
 //! After an error inside a graph the caches are incomplete: the stream refuses further work until
-//! [`LiveGestureGraphs::reset`], a batch until its streams have been removed.
+//! [`LiveGestureGraphs::reset`].
 //!
 //! # The end of the audio (docs/output.md)
 //!
 //! [`LiveGestureGraphs::finish`] completes the last partial token with silence and cuts its frames at the
 //! audio's end, so a stream emits exactly [`AudioSpan::frames`] frames, `ceil(duration * 30)`, in
-//! total. For a [`StreamBatch`] member, [`StreamBatch::finish_audio`] gives the silence-completed
-//! mel blocks and the frame count; step them with the batch and keep the frames below the count.
+//! total; a [`crate::model::StreamJob`] with an end does the same in a batched step.
 //!
 //! # Layout
 //!
 //! - here: [`LiveGestureGraphs`] (the loaded graphs; streams, steps, finish);
 //! - `stream`: [`Stream`], its options in use and counters, [`TokenStep`];
-//! - `batch`: [`StreamBatch`], streams whose caches stay stacked between steps;
-//! - `caches`: where each graph's caches live (separate per stream, or stacked in a batch);
+//! - `caches`: where each graph's caches live (separate per stream, or stacked in a cohort);
 //! - `cohorts`: the caches of a [`LiveGestureModel`]'s streams kept stacked between
 //!   [`MotionModel::step_many`](crate::model::MotionModel::step_many) calls;
 //! - `chain`: the per-token chain, one function per stage (audio encoder, experts, fusion, sampling,
@@ -74,7 +74,6 @@ use crate::output::Frame;
 
 pub use crate::model::StreamOptions;
 
-mod batch;
 mod caches;
 mod chain;
 mod cohorts;
@@ -82,14 +81,13 @@ mod layout;
 mod model;
 mod stream;
 
-pub use batch::{StreamBatch, StreamId};
 pub use layout::{describe, state_bytes};
 pub use model::{LiveGestureModel, LiveGestureStream};
 pub use stream::{cut_frames, StepLogits, Stream, TokenStep};
 
 use crate::model::regions::{resolve_layouts, RegionLayout};
 use crate::model::GraphForm;
-use caches::{Caches, SeparateCaches, StackedCaches};
+use caches::{Caches, SeparateCaches};
 use chain::Stage;
 use stream::StreamState;
 
@@ -306,11 +304,6 @@ impl LiveGestureGraphs {
         self.initial_caches(0, 0)
     }
 
-    /// An empty [`StreamBatch`] for these graphs; add streams with [`StreamBatch::add`].
-    pub fn new_batch(&self) -> StreamBatch {
-        StreamBatch::new(self.initial_caches(0, 0))
-    }
-
     /// Resets `stream` to a cold start with its original options (and seed).
     pub fn reset(&self, stream: &mut Stream) -> Result<()> {
         *stream = self.new_stream(&stream.state.opts.clone())?;
@@ -387,7 +380,7 @@ impl LiveGestureGraphs {
     /// One token step of several separately owned streams at once (`mels[i]` for `streams[i]`):
     /// every graph runs once with the streams' caches stacked on the batch axis before the run and
     /// split back after it. Streams may differ in guidance. For a set of streams stepped together
-    /// again and again, a [`StreamBatch`] ([`LiveGestureGraphs::step_stream_batch`]) avoids the stacking.
+    /// again and again, [`LiveGestureModel`]'s `step_many` avoids the stacking (its cohorts).
     pub fn step_batch(
         &self,
         streams: &mut [&mut Stream],
@@ -438,37 +431,6 @@ impl LiveGestureGraphs {
         }
         Ok(out)
     }
-
-    /// One token step of every stream of `batch` (`mels[i]` for the `i`-th of [`StreamBatch::ids`]):
-    /// every graph runs once on the batch's stacked caches, and the new caches it returns take their
-    /// place (moved, not copied). Returns the token steps in the same order. The tokens and frames of
-    /// each stream are those it would get stepped alone.
-    pub fn step_stream_batch(
-        &self,
-        batch: &mut StreamBatch,
-        mels: &[Array2<f32>],
-    ) -> Result<Vec<TokenStep>> {
-        self.check_mels(batch.len(), mels)
-            .context("step_stream_batch")?;
-        ensure!(
-            !batch.poisoned,
-            "a step of this batch failed earlier; remove its streams (and reset them) to use it again"
-        );
-        if batch.is_empty() {
-            return Ok(Vec::new());
-        }
-        let mut states: Vec<&mut StreamState> =
-            batch.members.iter_mut().map(|m| &mut m.state).collect();
-        let mut store = StackedCaches {
-            cur: &mut batch.caches,
-            spare: &mut batch.spare,
-        };
-        let r = self.step_inner(&mut states, &mut store, mels);
-        if r.is_err() {
-            batch.poison();
-        }
-        r
-    }
 }
 
 #[cfg(test)]
@@ -483,7 +445,6 @@ mod tests {
     fn streams_and_graphs_move_between_threads() {
         assert_send::<Stream>();
         assert_send::<LiveGestureGraphs>();
-        assert_send::<StreamBatch>();
         // shared by the streams of every thread (steps take `&self`)
         assert_sync::<LiveGestureGraphs>();
     }

@@ -6,7 +6,8 @@
 //! run with a run state or session of its own, `crate::backend::GraphRunner`). To step many
 //! streams in one graph run per graph per token, use [`MotionModel::step_many`] (the caches of
 //! streams stepped together stay stacked between calls, in the model's cohorts: see `cohorts`;
-//! `step_many` calls of one model run one at a time), or a [`super::StreamBatch`] directly.
+//! `step_many` calls of one model run one at a time; [`LiveGestureModel::step_many_steps`] is the same
+//! path returning the token steps: the parity `batch` check verifies it, `bench` measures it).
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -15,7 +16,7 @@ use anyhow::{anyhow, ensure, Result};
 use ndarray::Array2;
 
 use super::cohorts::{Cohorts, Member};
-use super::{LiveGestureGraphs, Stream};
+use super::{cut_frames, LiveGestureGraphs, Stream, TokenStep};
 use crate::audio::AudioSpan;
 use crate::backend::Backend;
 use crate::bundle::{Bundle, Family};
@@ -119,9 +120,44 @@ impl MotionModel for LiveGestureModel {
     /// kept stacked in a cohort between calls (`cohorts`: streams stepped together again are not
     /// copied; those that join or leave the cohort are). A job that ends its stream adds the
     /// silence-completed last token and its frames are cut at the end of the input, as
-    /// [`MotionStream::finish`] does.
+    /// [`MotionStream::finish`] does. The frames of [`LiveGestureModel::step_many_steps`].
     fn step_many(&self, jobs: &mut [StreamJob<'_>]) -> Vec<Result<Vec<Frame>>> {
-        let mut results: Vec<Option<Result<Vec<Frame>>>> = jobs.iter().map(|_| None).collect();
+        self.step_jobs(jobs, |job| {
+            Ok(vec![TokenStep {
+                token_index: 0,
+                tokens: Vec::new(),
+                logits: None,
+                frames: job.run_alone()?,
+            }])
+        })
+        .into_iter()
+        .map(|r| r.map(|steps| steps.into_iter().flat_map(|s| s.frames).collect()))
+        .collect()
+    }
+}
+
+impl LiveGestureModel {
+    /// [`MotionModel::step_many`] returning each job's token steps (tokens, frames; the frames of a
+    /// job that ends its stream cut at the end of its input): the one batched path, which `serve`
+    /// runs (as `step_many`), `bench` measures and the parity `batch` check verifies. Every job's
+    /// stream must be one of this model's (made by its `new_stream`); a job of another model
+    /// fails with an error saying so (`step_many` steps those on their own).
+    pub fn step_many_steps(&self, jobs: &mut [StreamJob<'_>]) -> Vec<Result<Vec<TokenStep>>> {
+        self.step_jobs(jobs, |_| {
+            Err(anyhow!(
+                "step_many_steps steps the streams of this model only; this job's stream was made by another model"
+            ))
+        })
+    }
+
+    /// The batched step of [`MotionModel::step_many`]; `foreign` runs a job whose stream is not
+    /// this model's.
+    fn step_jobs(
+        &self,
+        jobs: &mut [StreamJob<'_>],
+        mut foreign: impl FnMut(&mut StreamJob<'_>) -> Result<Vec<TokenStep>>,
+    ) -> Vec<Result<Vec<TokenStep>>> {
+        let mut results: Vec<Option<Result<Vec<TokenStep>>>> = jobs.iter().map(|_| None).collect();
         let mut mine: Vec<Pending<'_>> = Vec::new();
         for (i, job) in jobs.iter_mut().enumerate() {
             let ours = job
@@ -130,7 +166,7 @@ impl MotionModel for LiveGestureModel {
                 .downcast_mut::<LiveGestureStream>()
                 .is_some_and(|s| Arc::ptr_eq(&s.graphs, &self.graphs));
             if !ours {
-                results[i] = Some(job.run_alone());
+                results[i] = Some(foreign(job));
                 continue;
             }
             let (audio, end) = (job.audio, job.end);
@@ -145,7 +181,7 @@ impl MotionModel for LiveGestureModel {
                     stream: &mut s.stream,
                     mels,
                     total,
-                    frames: Vec::new(),
+                    steps: Vec::new(),
                     failed: None,
                 }),
                 Err(e) => results[i] = Some(Err(e)),
@@ -165,11 +201,11 @@ impl MotionModel for LiveGestureModel {
             results[m.job] = Some(match m.failed {
                 Some(e) => Err(anyhow!(e)),
                 None => {
-                    let mut frames = m.frames;
+                    let mut steps = m.steps;
                     if let Some(total) = m.total {
-                        frames.retain(|f| f.index < total);
+                        cut_frames(&mut steps, total);
                     }
-                    Ok(frames)
+                    Ok(steps)
                 }
             });
         }
@@ -180,7 +216,7 @@ impl MotionModel for LiveGestureModel {
     }
 }
 
-/// A stream of [`LiveGestureModel::step_many`] with its completed tokens' mel blocks.
+/// A stream of [`LiveGestureModel::step_many_steps`] with its completed tokens' mel blocks.
 struct Pending<'a> {
     job: usize,
     key: u64,
@@ -189,7 +225,7 @@ struct Pending<'a> {
     mels: VecDeque<Array2<f32>>,
     /// Frames that cover the input, when the job ends the stream.
     total: Option<u64>,
-    frames: Vec<Frame>,
+    steps: Vec<TokenStep>,
     failed: Option<String>,
 }
 
@@ -251,7 +287,7 @@ fn step_rounds(p: &LiveGestureGraphs, c: &mut Cohorts, mine: &mut [Pending<'_>])
         match r {
             Ok(steps) => {
                 for (k, st) in owners.into_iter().zip(steps) {
-                    mine[k].frames.extend(st.frames);
+                    mine[k].steps.push(st);
                 }
             }
             Err(e) => {

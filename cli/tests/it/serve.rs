@@ -9,7 +9,7 @@
 
 use livegesture_parity_tests as common;
 
-mod serve_common;
+use crate::serve_common;
 
 use std::net::SocketAddr;
 use std::time::Duration;
@@ -19,11 +19,11 @@ use livegesture::audio::AudioSpan;
 use livegesture::bundle::Bundle;
 use livegesture::model::livegesture::{LiveGestureGraphs, StreamOptions};
 use livegesture::output::{Frame, FPS};
-use livegesture_serve::{ServeConfig, Server};
+use livegesture_serve::ServeConfig;
 use serve_common::{
     assert_equal, assert_matches_generate, collect, connect, exited_ok, generate_binary,
-    generate_input, model_info, motion_of, pcm_bytes, read_frames, session, spawn_serve,
-    spawn_serve_with, speech_of, tract_backend, url, within, Outcome, Ws,
+    generate_input, http_get, metric, motion_of, pcm_bytes, read_frames, session, spawn_serve,
+    spawn_serve_with, speech_of, start_tiny, tract_backend, url, within, Outcome, Ws,
 };
 use tokio_tungstenite::tungstenite::Message;
 
@@ -32,15 +32,6 @@ fn make_pipeline() -> (Bundle, LiveGestureGraphs) {
     let be = tract_backend();
     let p = LiveGestureGraphs::new(&bundle, be.as_ref()).expect("pipeline");
     (bundle, p)
-}
-
-fn start(cfg: ServeConfig) -> Server {
-    Server::start("127.0.0.1:0".parse().unwrap(), cfg, || {
-        let (bundle, p) = make_pipeline();
-        let info = model_info("test", &bundle, p.backend_name());
-        Ok((p, info))
-    })
-    .expect("server starts")
 }
 
 /// `seconds` of the bundle's reference speech clip at 16 kHz (repeated if shorter).
@@ -82,7 +73,7 @@ fn reference(samples: &[f32], rate: u32, channels: u16, float: bool, seed: u64) 
 
 #[test]
 fn frames_equal_generate_whatever_the_split() {
-    let server = start(ServeConfig::default());
+    let server = start_tiny(ServeConfig::default());
     let addr = server.addr();
     let audio = speech(2.37); // not a whole number of tokens: the last one is completed with silence
     let want = reference(&audio, 16000, 1, false, 3);
@@ -149,7 +140,7 @@ fn the_serve_comparisons_fail_on_nan_either_side() {
 
 #[test]
 fn stereo_44k_f32_binary_equals_generate() {
-    let server = start(ServeConfig::default());
+    let server = start_tiny(ServeConfig::default());
     let addr = server.addr();
     let st = stereo(44100, 1.9);
     let inter: Vec<f32> = st.iter().flat_map(|f| *f).collect();
@@ -194,7 +185,7 @@ fn stereo_44k_f32_binary_equals_generate() {
 
 #[test]
 fn frames_equal_the_generate_binary() {
-    let server = start(ServeConfig::default());
+    let server = start_tiny(ServeConfig::default());
     let audio = speech(1.6);
     let m = generate_binary(&common::tiny_bundle(), &audio, 5);
     let got = within(
@@ -213,7 +204,7 @@ fn frames_equal_the_generate_binary() {
 
 #[test]
 fn two_sessions_joining_at_different_times_each_equal_their_generate() {
-    let server = start(ServeConfig {
+    let server = start_tiny(ServeConfig {
         batch_wait: Duration::from_millis(40),
         ..Default::default()
     });
@@ -277,14 +268,6 @@ fn two_sessions_joining_at_different_times_each_equal_their_generate() {
     server.join().unwrap();
 }
 
-fn metric(text: &str, name: &str) -> f64 {
-    text.lines()
-        .find_map(|l| l.strip_prefix(name).and_then(|r| r.strip_prefix(' ')))
-        .unwrap_or_else(|| panic!("{name} not in\n{text}"))
-        .parse()
-        .unwrap()
-}
-
 async fn http_status(addr: SocketAddr, q: &str) -> (u16, String) {
     match tokio_tungstenite::connect_async(url(addr, q)).await {
         Ok(_) => (101, String::new()),
@@ -298,7 +281,7 @@ async fn http_status(addr: SocketAddr, q: &str) -> (u16, String) {
 
 #[test]
 fn bad_parameters_are_refused_with_400_and_a_reason() {
-    let server = start(ServeConfig::default());
+    let server = start_tiny(ServeConfig::default());
     let addr = server.addr();
     within(30, async {
         for (q, word) in [
@@ -338,7 +321,7 @@ async fn close_of(ws: &mut Ws) -> (u16, String) {
 
 #[test]
 fn malformed_unknown_and_oversize_messages_are_closed_with_reasons() {
-    let server = start(ServeConfig {
+    let server = start_tiny(ServeConfig {
         max_message_bytes: 4096,
         ..Default::default()
     });
@@ -393,7 +376,7 @@ fn malformed_unknown_and_oversize_messages_are_closed_with_reasons() {
 
 #[test]
 fn capacity_idle_and_health() {
-    let server = start(ServeConfig {
+    let server = start_tiny(ServeConfig {
         max_sessions: 2,
         idle_timeout: Duration::from_millis(700),
         ..Default::default()
@@ -412,9 +395,9 @@ fn capacity_idle_and_health() {
         // a slot is free again once the idle session is gone
         tokio::time::sleep(Duration::from_millis(300)).await;
         let _c = connect(addr, "").await;
-        let body = reqwest_like(addr, "/healthz").await;
+        let body = http_get(addr, "/healthz").await;
         assert!(body.starts_with("HTTP/1.1 200"), "{body}");
-        let body = reqwest_like(addr, "/metrics").await;
+        let body = http_get(addr, "/metrics").await;
         assert!(
             body.contains("livegesture_refusals_total{reason=\"idle\"} "),
             "{body}"
@@ -430,18 +413,6 @@ fn capacity_idle_and_health() {
     });
     server.shutdown();
     server.join().unwrap();
-}
-
-/// A minimal HTTP/1.1 GET over a raw socket (the test needs no HTTP client crate).
-async fn reqwest_like(addr: SocketAddr, path: &str) -> String {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
-    s.write_all(format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").as_bytes())
-        .await
-        .unwrap();
-    let mut buf = Vec::new();
-    s.read_to_end(&mut buf).await.unwrap();
-    String::from_utf8_lossy(&buf).into_owned()
 }
 
 /// Resident memory of process `pid` in KiB (`VmRSS` of `/proc/<pid>/status`).
@@ -508,7 +479,7 @@ fn slow_client(queue_frames: usize, seconds: f64, wait: f64) -> SlowClient {
         // one that has is sent nothing more: data on a closed connection is answered with a TCP reset,
         // which discards what the client has not read yet, the close frame included
         let refused = metric(
-            &reqwest_like(addr, "/metrics").await,
+            &http_get(addr, "/metrics").await,
             "livegesture_refusals_total{reason=\"slow_client\"}",
         );
         if refused == 0.0 {

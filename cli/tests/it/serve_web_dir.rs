@@ -2,27 +2,13 @@
 //! WebAssembly runtime and a bundle, so `/?engine=wasm` runs in the browser); only plain relative
 //! paths inside the folder, nothing without the option, the server's own routes first.
 
-use livegesture_parity_tests as common;
-
-mod serve_common;
+use crate::serve_common;
 
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream};
 
-use livegesture::bundle::Bundle;
-use livegesture::model::livegesture::LiveGestureGraphs;
-use livegesture_serve::{ServeConfig, Server};
-use serve_common::{model_info, tract_backend};
-
-fn start(cfg: ServeConfig) -> Server {
-    Server::start("127.0.0.1:0".parse().unwrap(), cfg, || {
-        let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
-        let p = LiveGestureGraphs::new(&bundle, tract_backend().as_ref()).expect("pipeline");
-        let info = model_info("test", &bundle, p.backend_name());
-        Ok((p, info))
-    })
-    .expect("server starts")
-}
+use livegesture_serve::ServeConfig;
+use serve_common::start_tiny;
 
 /// `GET path` over a raw connection (the path is sent as given, unnormalised): (status, content type, body).
 fn get(addr: SocketAddr, path: &str) -> (u16, String, Vec<u8>) {
@@ -56,7 +42,7 @@ fn web_dir_files_are_served_and_nothing_outside_it() {
     std::fs::write(site.join("wasm/x_bg.wasm"), b"\0asm-test").unwrap();
     std::fs::write(site.join("wasm/x.js"), b"export {};").unwrap();
     std::fs::write(root.path().join("secret.txt"), b"outside").unwrap();
-    let server = start(ServeConfig {
+    let server = start_tiny(ServeConfig {
         web_dir: Some(site.clone()),
         ..Default::default()
     });
@@ -91,7 +77,7 @@ fn web_dir_files_are_served_and_nothing_outside_it() {
     server.join().unwrap();
 
     // without --web-dir: nothing beyond the page
-    let server = start(ServeConfig::default());
+    let server = start_tiny(ServeConfig::default());
     let (st, _, _) = get(server.addr(), "/wasm/x.js");
     assert_eq!(st, 404);
     server.shutdown();

@@ -5,29 +5,15 @@
 //! The bundle is the fixture's tiny DiffSHEG bundle (`livegesture_parity_tests::diffsheg_tiny_bundle`:
 //! `$LIVEGESTURE_DIFFSHEG_TINY_BUNDLE`, set by `scripts/test.sh`, else exported once).
 
+use crate::support::{run, text};
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
 use livegesture::output::read_beat2_npz;
 
 fn bundle() -> PathBuf {
     livegesture_parity_tests::diffsheg_tiny_bundle()
-}
-
-fn run(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_livegesture"))
-        .env_remove("LIVEGESTURE_BUNDLE")
-        .args(args)
-        .output()
-        .expect("run livegesture")
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
 }
 
 /// A 16 kHz mono 16-bit WAV of `n` samples of the bundle's reference clip.

@@ -11,7 +11,7 @@
 //! `target/test-bundles/diffsheg-tiny`: window 24 frames, overlap 4, so a few seconds of audio run
 //! several windows.
 
-mod serve_common;
+use crate::serve_common;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;

@@ -6,7 +6,7 @@
 use livegesture_parity_tests as common;
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 use gltf_json as json;
 use livegesture::compare::{diff, Diff};
@@ -14,8 +14,7 @@ use livegesture::output::read_beat2_npz;
 use livegesture::skeleton::{rest_offsets, JOINT_NAMES, N_JOINTS};
 
 fn generate(wav: &Path, out: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_livegesture"))
-        .env_remove("LIVEGESTURE_BUNDLE")
+    crate::support::livegesture()
         .args([
             "generate",
             wav.to_str().unwrap(),

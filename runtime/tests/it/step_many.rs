@@ -404,3 +404,88 @@ fn diffsheg_streams_on_two_threads_equal_each_alone() {
     common::require_ort();
     check_two_threads(&bundle, backend::BackendKind::Ort, few);
 }
+
+/// [`LiveGestureModel::step_many_steps`], the token steps of `step_many` (what the parity `batch`
+/// check compares): the same tokens as each stream stepped alone, the frames `step_many` gives (cut
+/// at the end of an ended job's input), and a stream of another model refused for its job only.
+#[test]
+fn step_many_steps_gives_the_tokens_of_each_stream_alone() {
+    use livegesture::model::livegesture::{LiveGestureGraphs, LiveGestureModel};
+    let bundle = Bundle::load(common::tiny_bundle()).expect("test bundle loads");
+    let be = backend::create(&BackendOptions::default()).expect("tract");
+    let m = LiveGestureModel::from(LiveGestureGraphs::new(&bundle, be.as_ref()).unwrap());
+    let g = LiveGestureGraphs::new(&bundle, be.as_ref()).unwrap();
+    let plans: Vec<(StreamOptions, Vec<f32>)> = (0..3)
+        .map(|i| {
+            (
+                opts(30 + i, (i == 2).then_some(1.0)),
+                audio(&bundle, i as usize * 5003, 16000 * 2 + 777),
+            )
+        })
+        .collect();
+    let mut streams: Vec<Box<dyn MotionStream>> = plans
+        .iter()
+        .map(|(o, _)| m.new_stream(o).unwrap())
+        .collect();
+    let mut got = vec![Vec::new(); plans.len()];
+    let n = plans[0].1.len();
+    let mut pos = 0;
+    while pos < n {
+        let end = (pos + 4000).min(n);
+        let mut jobs: Vec<StreamJob<'_>> = streams
+            .iter_mut()
+            .zip(&plans)
+            .map(|(s, (_, a))| {
+                if end == n {
+                    StreamJob::push_and_finish(
+                        s.as_mut(),
+                        &a[pos..end],
+                        AudioSpan::at_16k(n as u64),
+                    )
+                } else {
+                    StreamJob::push(s.as_mut(), &a[pos..end])
+                }
+            })
+            .collect();
+        for (i, r) in m.step_many_steps(&mut jobs).into_iter().enumerate() {
+            got[i].extend(r.expect("job"));
+        }
+        pos = end;
+    }
+    for (i, (o, a)) in plans.iter().enumerate() {
+        let mut s = g.new_stream(o).unwrap();
+        let mut want = g.push_steps(&mut s, a).unwrap();
+        want.extend(g.finish_steps(&mut s, AudioSpan::at_16k(n as u64)).unwrap());
+        let tokens = |v: &[livegesture::model::livegesture::TokenStep]| -> Vec<Vec<i64>> {
+            v.iter().map(|s| s.tokens.clone()).collect()
+        };
+        assert!(want.len() >= 10, "stream {i}: {} tokens", want.len());
+        assert_eq!(tokens(&got[i]), tokens(&want), "stream {i}: tokens");
+        let frames = |v: &[livegesture::model::livegesture::TokenStep]| -> Vec<Frame> {
+            v.iter().flat_map(|s| s.frames.clone()).collect()
+        };
+        assert_eq!(
+            frames(&got[i]).len() as u64,
+            AudioSpan::at_16k(n as u64).frames(30),
+            "stream {i}: frames cut at the end of the input"
+        );
+        assert!(
+            max_diff(&frames(&got[i]), &frames(&want)) <= BOUND,
+            "stream {i}: {}",
+            common::frames_diff(&frames(&got[i]), &frames(&want)).1
+        );
+    }
+    // a stream of another model: refused for its job, the other job steps
+    let other = LiveGestureModel::from(LiveGestureGraphs::new(&bundle, be.as_ref()).unwrap());
+    let mut foreign = other.new_stream(&opts(1, None)).unwrap();
+    let mut own = m.new_stream(&opts(1, None)).unwrap();
+    let a = audio(&bundle, 0, 16000);
+    let mut jobs = vec![
+        StreamJob::push(foreign.as_mut(), &a),
+        StreamJob::push(own.as_mut(), &a),
+    ];
+    let r = m.step_many_steps(&mut jobs);
+    let e = r[0].as_ref().expect_err("a foreign stream");
+    assert!(format!("{e:#}").contains("another model"), "{e:#}");
+    assert!(!r[1].as_ref().expect("own stream").is_empty());
+}

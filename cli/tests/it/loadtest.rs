@@ -6,41 +6,10 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
-use livegesture::bundle::Bundle;
-use livegesture::model::livegesture::LiveGestureGraphs;
 use livegesture_parity_tests as common;
-use livegesture_serve::{ModelInfo, ServeConfig, Server};
+use livegesture_serve::ServeConfig;
 
-fn start() -> Server {
-    Server::start(
-        "127.0.0.1:0".parse().unwrap(),
-        ServeConfig::default(),
-        || {
-            let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
-            let be = livegesture::backend::create(&livegesture::backend::BackendOptions {
-                kind: livegesture::backend::BackendKind::Tract,
-                execution_provider: "cpu".into(),
-                intra_threads: 1,
-                ort_library: None,
-            })
-            .expect("backend");
-            let p = LiveGestureGraphs::new(&bundle, be.as_ref()).expect("pipeline");
-            let info = ModelInfo {
-                model: "test".into(),
-                family: bundle.family(),
-                bundle_sha256: "0".repeat(64),
-                backend: p.backend_name().into(),
-                fps: bundle.frontend().fps,
-                frames_per_token: bundle.frontend().frames_per_token,
-                frontend: bundle.frontend().clone(),
-                // the test servers run the family's graphs without a face wrapper
-                face: false,
-            };
-            Ok((p, info))
-        },
-    )
-    .expect("server starts")
-}
+use crate::serve_common::start_tiny;
 
 fn loadtest(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_livegesture"))
@@ -64,7 +33,7 @@ fn text(b: &[u8]) -> String {
 
 #[test]
 fn a_short_ramp_completes_its_sessions_and_reports() {
-    let server = start();
+    let server = start_tiny(ServeConfig::default());
     let url = format!("ws://{}", server.addr());
     let dir = tempfile::tempdir().unwrap();
     let (json, svg) = (dir.path().join("r.json"), dir.path().join("r.svg"));
@@ -125,7 +94,7 @@ fn a_short_ramp_completes_its_sessions_and_reports() {
 
 #[test]
 fn a_bound_no_level_meets_is_not_held() {
-    let server = start();
+    let server = start_tiny(ServeConfig::default());
     let url = format!("ws://{}", server.addr());
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("r.json");

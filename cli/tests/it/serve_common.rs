@@ -1,13 +1,13 @@
-//! What the `serve` tests of both families share (`tests/serve.rs`, `tests/serve_diffsheg.rs`):
-//! the tract backend and the server's [`ModelInfo`], test audio as WAV files and PCM messages, the
+//! What the `serve` tests of both families share (`serve`, `serve_diffsheg`, `serve_access`,
+//! `serve_web_dir`, `loadtest`): a server on the tiny bundle, the tract backend and the server's [`ModelInfo`], test audio as WAV files and PCM messages, the
 //! WebSocket client (connect, send a session, collect what the server sends) and the frame comparison.
-//! Included by each of them with `mod serve_common;`; not every test file uses every helper.
+//! Declared once in `main.rs`; each serve module uses it (`use crate::serve_common`), not every one every helper.
 #![allow(dead_code)]
 
 use std::io::{BufRead, BufReader};
 use std::net::SocketAddr;
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Stdio};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
@@ -16,9 +16,10 @@ use livegesture::audio::{read_wav_16k_mono, AudioSpan};
 use livegesture::backend::{self, Backend, BackendKind, BackendOptions};
 use livegesture::bundle::Bundle;
 use livegesture::compare::{self, Diff};
+use livegesture::model::livegesture::LiveGestureGraphs;
 use livegesture::output::{Beat2Motion, Frame};
 use livegesture_parity_tests as common;
-use livegesture_serve::ModelInfo;
+use livegesture_serve::{ModelInfo, ServeConfig, Server};
 use tokio_tungstenite::tungstenite::Message;
 
 /// The backend the tests run on: tract, CPU, one thread.
@@ -45,6 +46,17 @@ pub fn model_info(model: &str, bundle: &Bundle, backend: &str) -> ModelInfo {
         // the test servers run the family's graphs without a face wrapper
         face: false,
     }
+}
+
+/// A server on a free local port running the tiny LiveGesture test bundle on tract (model `test`).
+pub fn start_tiny(cfg: ServeConfig) -> Server {
+    Server::start("127.0.0.1:0".parse().unwrap(), cfg, || {
+        let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
+        let p = LiveGestureGraphs::new(&bundle, tract_backend().as_ref()).expect("pipeline");
+        let info = model_info("test", &bundle, p.backend_name());
+        Ok((p, info))
+    })
+    .expect("server starts")
 }
 
 /// `seconds` of the bundle at `dir`'s reference speech clip at 16 kHz (repeated if shorter).
@@ -117,8 +129,7 @@ pub fn generate_binary(bundle: &Path, audio: &[f32], seed: u64) -> Beat2Motion {
     let wav = dir.path().join("a.wav");
     write_wav(&wav, 16000, 1, false, audio);
     let npz = dir.path().join("a.npz");
-    let st = Command::new(env!("CARGO_BIN_EXE_livegesture"))
-        .env_remove("LIVEGESTURE_BUNDLE")
+    let st = crate::support::livegesture()
         .arg("generate")
         .arg(&wav)
         .arg("-o")
@@ -309,8 +320,7 @@ pub fn spawn_serve(bundle: &Path) -> (Child, SocketAddr, JoinHandle<String>) {
 
 /// [`spawn_serve`] with other options (`extra`, e.g. `--queue-frames 8`).
 pub fn spawn_serve_with(bundle: &Path, extra: &[&str]) -> (Child, SocketAddr, JoinHandle<String>) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_livegesture"))
-        .env_remove("LIVEGESTURE_BUNDLE")
+    let mut child = crate::support::livegesture()
         .args(["serve", "--addr", "127.0.0.1:0", "--backend", "tract"])
         .args(extra)
         .arg("--bundle")
@@ -359,4 +369,25 @@ pub fn exited_ok(mut child: Child, log: JoinHandle<String>) -> String {
     let log = log.join().unwrap();
     assert!(status.success(), "serve exited with {status}\n{log}");
     log
+}
+
+/// The value of `name` in a Prometheus text exposition (`/metrics`).
+pub fn metric(text: &str, name: &str) -> f64 {
+    text.lines()
+        .find_map(|l| l.strip_prefix(name).and_then(|r| r.strip_prefix(' ')))
+        .unwrap_or_else(|| panic!("{name} not in\n{text}"))
+        .parse()
+        .unwrap()
+}
+
+/// `GET path` over HTTP/1.1 with `Connection: close`: the whole response (head and body) as text.
+pub async fn http_get(addr: SocketAddr, path: &str) -> String {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    s.write_all(format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").as_bytes())
+        .await
+        .unwrap();
+    let mut buf = Vec::new();
+    s.read_to_end(&mut buf).await.unwrap();
+    String::from_utf8_lossy(&buf).into_owned()
 }

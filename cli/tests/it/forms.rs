@@ -2,7 +2,7 @@
 //! (one graph per region), the fused form (`experts_fused`, the four eXperts on a region axis;
 //! `decoders_fused`, the four decoders side by side) and the attention form (the canonical eXperts
 //! and decoders, the fusion as `fusion_attention` with the ONNX `Attention` op). The forms give
-//! identical tokens and frames on both backends, alone and in a [`StreamBatch`]; a bundle whose
+//! identical tokens and frames on both backends, alone and stepped together (`step_many`); a bundle whose
 //! fused or attention graph has one perturbed weight fails parity, naming that graph; a bundle
 //! exported before `decoders_fused` runs its fused form with the canonical decoders, one exported
 //! before the attention form runs the canonical fusion; `--form` chooses the form.
@@ -15,8 +15,10 @@ use std::process::{Command, Output};
 use livegesture::audio::read_wav_16k_mono;
 use livegesture::backend::{self, BackendKind, BackendOptions};
 use livegesture::bundle::Bundle;
-use livegesture::model::livegesture::{LiveGestureGraphs, StreamOptions, TokenStep};
-use livegesture::model::GraphForm;
+use livegesture::model::livegesture::{
+    LiveGestureGraphs, LiveGestureModel, StreamOptions, TokenStep,
+};
+use livegesture::model::{GraphForm, MotionModel, StreamJob};
 use livegesture_parity::{batch_bound, Check};
 
 fn pipeline(bundle: &Bundle, kind: BackendKind, form: GraphForm) -> LiveGestureGraphs {
@@ -135,8 +137,9 @@ fn forms_agree(kind: BackendKind) {
             &format!("{kind} attention vs canonical, seed {}", opts.seed),
         );
     }
-    // several streams stepped together in the fused form (stacked caches) = each alone
-    let mut batch = fused.new_batch();
+    // several streams stepped together in the fused form (the model's step_many, caches stacked in
+    // its cohort) = each alone in the canonical form
+    let fused = LiveGestureModel::from(fused);
     let opts: Vec<StreamOptions> = (0..3)
         .map(|i| StreamOptions {
             seed: 20 + i,
@@ -144,31 +147,31 @@ fn forms_agree(kind: BackendKind) {
             ..Default::default()
         })
         .collect();
-    for o in &opts {
-        batch.add(fused.new_stream(o).unwrap()).unwrap();
-    }
-    let fpt = bundle.frontend().mel_frames_per_token as usize;
+    let mut together: Vec<_> = opts.iter().map(|o| fused.new_stream(o).unwrap()).collect();
     let mut alone: Vec<_> = opts
         .iter()
         .map(|o| canonical.new_stream(o).unwrap())
         .collect();
-    let mut mel = livegesture::frontend::StreamingLogMel::new(bundle.frontend()).unwrap();
-    let mels = mel.push(&audio[..16000 * 6]).unwrap();
-    for m in &mels {
-        assert_eq!(m.nrows(), fpt);
-        let steps = fused
-            .step_stream_batch(&mut batch, &vec![m.clone(); opts.len()])
-            .unwrap();
-        for (i, st) in steps.iter().enumerate() {
-            let want = canonical.step(&mut alone[i], m).unwrap();
-            // decoders at batch 3 vs 1: the batch check's bound (tract plans per batch size)
-            assert_same(
-                std::slice::from_ref(st),
-                std::slice::from_ref(&want),
-                batch_bound(kind),
-                &format!("{kind} fused batch vs canonical alone, stream {i}"),
-            );
+    let (mut got, mut want) = (vec![Vec::new(); 3], vec![Vec::new(); 3]);
+    for c in audio[..16000 * 6].chunks(3200) {
+        let mut jobs: Vec<StreamJob<'_>> = together
+            .iter_mut()
+            .map(|s| StreamJob::push(s.as_mut(), c))
+            .collect();
+        for (i, r) in fused.step_many_steps(&mut jobs).into_iter().enumerate() {
+            got[i].extend(r.unwrap());
+            want[i].extend(canonical.push_steps(&mut alone[i], c).unwrap());
         }
+    }
+    for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+        assert!(g.len() >= 40, "stream {i}: {} steps", g.len());
+        // decoders at batch 3 vs 1: the batch check's bound (tract plans per batch size)
+        assert_same(
+            g,
+            w,
+            batch_bound(kind),
+            &format!("{kind} fused step_many vs canonical alone, stream {i}"),
+        );
     }
 }
 

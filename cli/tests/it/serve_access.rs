@@ -5,34 +5,22 @@
 
 use livegesture_parity_tests as common;
 
-mod serve_common;
+use crate::serve_common;
 
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
 use futures_util::SinkExt;
-use livegesture::bundle::Bundle;
-use livegesture::model::livegesture::LiveGestureGraphs;
 use livegesture_serve::access::AccessConfig;
-use livegesture_serve::{ServeConfig, Server};
-use serve_common::{model_info, pcm_bytes, speech_of, tract_backend, within};
+use livegesture_serve::ServeConfig;
+use serve_common::{http_get, metric, pcm_bytes, speech_of, start_tiny, within};
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 use tokio_tungstenite::tungstenite::http::{HeaderName, HeaderValue};
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::WebSocketStream;
 
 const TOKEN: &str = "s3cret-token-0123456789";
-
-fn start(cfg: ServeConfig) -> Server {
-    Server::start("127.0.0.1:0".parse().unwrap(), cfg, || {
-        let bundle = Bundle::load(common::tiny_bundle()).expect("bundle");
-        let p = LiveGestureGraphs::new(&bundle, tract_backend().as_ref()).expect("pipeline");
-        let info = model_info("test", &bundle, p.backend_name());
-        Ok((p, info))
-    })
-    .expect("server starts")
-}
 
 fn with_access(access: AccessConfig) -> ServeConfig {
     ServeConfig {
@@ -64,26 +52,6 @@ async fn open(
         )),
         Err(e) => panic!("{e}"),
     }
-}
-
-/// A plain HTTP GET over a raw socket: status line and body.
-async fn get(addr: SocketAddr, path: &str) -> String {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
-    s.write_all(format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").as_bytes())
-        .await
-        .unwrap();
-    let mut out = String::new();
-    s.read_to_string(&mut out).await.unwrap();
-    out
-}
-
-fn metric(text: &str, name: &str) -> f64 {
-    text.lines()
-        .find_map(|l| l.strip_prefix(name).and_then(|r| r.strip_prefix(' ')))
-        .unwrap_or_else(|| panic!("{name} not in\n{text}"))
-        .parse()
-        .unwrap()
 }
 
 /// What a session got: frames, the `done` message, the close code.
@@ -137,7 +105,7 @@ fn completed(g: &Got) -> bool {
 
 #[test]
 fn a_token_is_required_as_bearer_or_query_and_compared_exactly() {
-    let server = start(with_access(AccessConfig {
+    let server = start_tiny(with_access(AccessConfig {
         token: Some(TOKEN.into()),
         ..Default::default()
     }));
@@ -168,8 +136,8 @@ fn a_token_is_required_as_bearer_or_query_and_compared_exactly() {
             .expect("query token accepted");
         assert!(completed(&run_session(&mut ws, 0.5).await));
         // /healthz and /metrics stay open
-        assert!(get(addr, "/healthz").await.starts_with("HTTP/1.1 200"));
-        let m = get(addr, "/metrics").await;
+        assert!(http_get(addr, "/healthz").await.starts_with("HTTP/1.1 200"));
+        let m = http_get(addr, "/metrics").await;
         assert_eq!(
             metric(&m, "livegesture_refusals_total{reason=\"unauthorized\"}"),
             5.0
@@ -182,7 +150,7 @@ fn a_token_is_required_as_bearer_or_query_and_compared_exactly() {
 
 #[test]
 fn foreign_origins_are_refused_listed_and_own_origins_accepted() {
-    let server = start(with_access(AccessConfig {
+    let server = start_tiny(with_access(AccessConfig {
         allowed_origins: vec![AccessConfig::parse_origin("https://app.example.org").unwrap()],
         ..Default::default()
     }));
@@ -216,7 +184,7 @@ fn foreign_origins_are_refused_listed_and_own_origins_accepted() {
 
 #[test]
 fn one_client_cannot_take_more_than_its_sessions() {
-    let server = start(with_access(AccessConfig {
+    let server = start_tiny(with_access(AccessConfig {
         max_sessions_per_client: 2,
         trust_forwarded_for: true,
         ..Default::default()
@@ -253,13 +221,13 @@ fn one_client_cannot_take_more_than_its_sessions() {
 
 #[test]
 fn draining_turns_healthz_503_at_once_and_lets_live_sessions_finish() {
-    let server = start(ServeConfig {
+    let server = start_tiny(ServeConfig {
         drain_delay: Duration::from_secs(3),
         ..Default::default()
     });
     let addr = server.addr();
     let server = within(60, async move {
-        let m = get(addr, "/metrics").await;
+        let m = http_get(addr, "/metrics").await;
         assert_eq!(metric(&m, "livegesture_draining"), 0.0);
         assert_eq!(metric(&m, "livegesture_sessions_capacity"), 64.0);
         assert!(m.contains("livegesture_tick_lag_seconds "), "{m}");
@@ -267,9 +235,9 @@ fn draining_turns_healthz_503_at_once_and_lets_live_sessions_finish() {
         let mut b = open(addr, "", &[]).await.expect("b");
         server.shutdown();
         tokio::time::sleep(Duration::from_millis(100)).await;
-        let h = get(addr, "/healthz").await;
+        let h = http_get(addr, "/healthz").await;
         assert!(h.starts_with("HTTP/1.1 503"), "{h}");
-        let m = get(addr, "/metrics").await;
+        let m = http_get(addr, "/metrics").await;
         assert_eq!(metric(&m, "livegesture_draining"), 1.0);
         assert_eq!(metric(&m, "livegesture_sessions_slots"), 2.0);
         let (status, body) = open(addr, "", &[]).await.err().expect("no new session");
@@ -309,7 +277,7 @@ fn sessions_over_tls_with_a_certificate_made_here() {
     assert!(format!("{e:#}").contains("--tls-key"), "{e:#}");
     let e = livegesture_serve::tls::load_config(&key, &key).unwrap_err();
     assert!(format!("{e:#}").contains("--tls-cert"), "{e:#}");
-    let server = start(ServeConfig {
+    let server = start_tiny(ServeConfig {
         tls: Some(tls),
         access: AccessConfig {
             token: Some(TOKEN.into()),
@@ -354,7 +322,7 @@ fn sessions_over_tls_with_a_certificate_made_here() {
             assert!(page.starts_with("HTTP/1.1 200"), "{page}");
         }
         // plain HTTP on the TLS port: the handshake fails and is counted
-        let _ = tokio::time::timeout(Duration::from_secs(5), get(addr, "/healthz")).await;
+        let _ = tokio::time::timeout(Duration::from_secs(5), http_get(addr, "/healthz")).await;
         for _ in 0..50 {
             if server.metrics().refusals("tls_handshake") > 0 {
                 break;

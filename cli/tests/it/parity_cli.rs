@@ -1,30 +1,20 @@
 //! `livegesture parity` end to end: the JUnit report (`--junit`), the runtime versions it prints,
 //! export against export (`--against`) and its exit codes. The library side of `--against` is
-//! tested in `parity-tests/tests/against.rs`.
+//! tested in `parity-tests/tests/it/against.rs`.
 
 use livegesture_parity_tests as common;
 
+use crate::support::text;
+
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 use quick_xml::events::Event;
 use quick_xml::Reader;
 
 fn run(args: &[&str]) -> Output {
     common::require_ort();
-    Command::new(env!("CARGO_BIN_EXE_livegesture"))
-        .env_remove("LIVEGESTURE_BUNDLE")
-        .args(args)
-        .output()
-        .expect("run livegesture")
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
+    crate::support::run(args)
 }
 
 /// (classname, name, failure message) of every testcase of a JUnit file, parsed back with quick-xml.

@@ -2,23 +2,15 @@
 
 use livegesture_parity_tests as common;
 
+use crate::support::{livegesture, run};
+
 use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Output, Stdio};
 
 use livegesture::audio::AudioSpan;
 use livegesture::frontend::FrontendConfig;
 use livegesture::output::{read_beat2_npz, BinaryFrameReader, Frame};
-
-fn bin() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_livegesture"));
-    c.env_remove("LIVEGESTURE_BUNDLE");
-    c
-}
-
-fn run(args: &[&str]) -> Output {
-    bin().args(args).output().expect("run livegesture")
-}
 
 fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
@@ -133,7 +125,7 @@ fn generate(wav: &Path, out: &Path, extra: &[&str]) -> Output {
 /// Runs `livegesture stream ARGS --bundle <test bundle>` with `pcm` written to its stdin in pieces of
 /// `piece` bytes (from a thread: the child's stdout must be drained meanwhile or both block).
 fn stream_stdin(args: &[&str], pcm: Vec<u8>, piece: usize) -> Output {
-    let mut child = bin()
+    let mut child = livegesture()
         .arg("stream")
         .args(args)
         .args(["--bundle", &bundle_arg()])
@@ -456,7 +448,7 @@ fn a_corrupted_bundle_is_refused_by_the_cli() {
     std::fs::write(&p, bytes).unwrap();
     let (wav, _) = short_wav(tmp.path(), 1.0);
     let out = tmp.path().join("o.npz");
-    let o = bin()
+    let o = livegesture()
         .args([
             "generate",
             wav.to_str().unwrap(),
@@ -475,7 +467,7 @@ fn a_corrupted_bundle_is_refused_by_the_cli() {
     );
     assert!(!out.exists());
     // the same bundle through the environment variable, with info
-    let o = bin()
+    let o = livegesture()
         .args(["info"])
         .env("LIVEGESTURE_BUNDLE", &dir)
         .output()
