@@ -30,6 +30,11 @@ pub struct Args {
     /// Most concurrent sessions; more are refused with HTTP 503.
     #[arg(long, default_value_t = 64)]
     pub max_sessions: usize,
+    /// Before the first session, step this many throw-away streams together (at most
+    /// --max-sessions), so that a burst of sessions on a fresh server does not wait while memory is
+    /// touched for the first time (docs/serve.md#the-start-up-transient). 0: no warm-up.
+    #[arg(long, default_value_t = 48)]
+    pub warm_sessions: usize,
     /// Largest client message in bytes (larger: close 1009).
     #[arg(long, default_value_t = 1 << 20)]
     pub max_message_bytes: usize,
@@ -168,6 +173,7 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
         },
         access,
         tls,
+        warm_sessions: a.warm_sessions,
     };
     if let Some(d) = &a.web_dir {
         if !d.join("wasm").is_dir() {
