@@ -32,9 +32,10 @@ pub struct Args {
     pub max_sessions: usize,
     /// Before the first session, step this many throw-away streams together (at most
     /// --max-sessions), so that a burst of sessions on a fresh server does not wait while memory is
-    /// touched for the first time (docs/serve.md#the-start-up-transient). 0: no warm-up.
-    #[arg(long, default_value_t = 48)]
-    pub warm_sessions: usize,
+    /// touched for the first time (docs/serve.md#the-start-up-transient). 0: no warm-up. Default:
+    /// 48 for a LiveGesture bundle, 0 for DiffSHEG (whose windows cost far more to warm up).
+    #[arg(long)]
+    pub warm_sessions: Option<usize>,
     /// Largest client message in bytes (larger: close 1009).
     #[arg(long, default_value_t = 1 << 20)]
     pub max_message_bytes: usize,
@@ -173,7 +174,7 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
         },
         access,
         tls,
-        warm_sessions: a.warm_sessions,
+        warm_sessions: 0,
     };
     if let Some(d) = &a.web_dir {
         if !d.join("wasm").is_dir() {
@@ -186,6 +187,14 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
     }
     let bundle = a.model.bundle()?;
     check_form(&bundle, form)?;
+    let mut cfg = cfg;
+    cfg.warm_sessions = a.warm_sessions.unwrap_or(
+        if bundle.family() == livegesture::bundle::Family::LiveGesture {
+            48
+        } else {
+            0
+        },
+    );
     let backend_opts = a.model.backend_options()?;
     let manifest = std::fs::read(bundle.manifest_path())
         .with_context(|| format!("reading {}", bundle.manifest_path().display()))?;
