@@ -158,7 +158,7 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
         eprintln!("livegesture serve: warning: listening on {} beyond loopback without --auth-token-file: anyone who reaches it may open sessions", a.addr);
     }
     let scheme = if tls.is_some() { "https" } else { "http" };
-    let cfg = ServeConfig {
+    let mut cfg = ServeConfig {
         max_sessions: a.max_sessions,
         max_message_bytes: a.max_message_bytes,
         queue_frames: a.queue_frames,
@@ -187,7 +187,6 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
     }
     let bundle = a.model.bundle()?;
     check_form(&bundle, form)?;
-    let mut cfg = cfg;
     cfg.warm_sessions = a.warm_sessions.unwrap_or(
         if bundle.family() == livegesture::bundle::Family::LiveGesture {
             48
