@@ -15,6 +15,7 @@ use super::common::InputError;
   taskset -c 0 livegesture serve --backend ort --max-sessions 256 &
   taskset -c 1 livegesture loadtest --server-pid $! --levels 16,32,48,64 --plot load.svg
   livegesture loadtest ws://replica:8765 --audio speech/ --cores 4 --json report.json
+  taskset -c 1 livegesture loadtest --server-pid $! --pattern burst --levels 48 --require 48
 
 Exit status: 0 when the ramp ran (whatever it held), 1 when fewer sessions than --require were
 held or the test could not run, 2 for bad arguments or unreadable audio.")]
@@ -35,9 +36,17 @@ pub struct Args {
         default_value = "8,16,24,32,40,48,56,64"
     )]
     pub levels: Vec<usize>,
-    /// Seconds of audio every session streams at each level (in real time).
-    #[arg(long, default_value_t = 20.0)]
-    pub hold: f64,
+    /// How each level's sessions start: `ramp` (start phases spread over one token) or `burst`
+    /// (opened one after another within --burst-spread seconds; defaults: --hold 8, --chunk-ms 10,
+    /// JSON frames; run it on a fresh server).
+    #[arg(long, value_enum, default_value = "ramp")]
+    pub pattern: PatternArg,
+    /// Burst: the seconds over which each level's sessions open.
+    #[arg(long, default_value_t = 1.0)]
+    pub burst_spread: f64,
+    /// Seconds of audio every session streams at each level (in real time) [default: 20, burst: 8].
+    #[arg(long)]
+    pub hold: Option<f64>,
     /// A level is held when no session failed and the p99 token latency is below this (ms).
     #[arg(long, default_value_t = 150.0)]
     pub p99_ms: f64,
@@ -47,12 +56,15 @@ pub struct Args {
     /// Seconds between levels.
     #[arg(long, default_value_t = 2.0)]
     pub pause: f64,
-    /// Milliseconds of audio per message.
-    #[arg(long, default_value_t = 20)]
-    pub chunk_ms: u32,
-    /// Ask for JSON frames (`output=json`) instead of binary records.
+    /// Milliseconds of audio per message [default: 20, burst: 10].
+    #[arg(long)]
+    pub chunk_ms: Option<u32>,
+    /// Ask for JSON frames (`output=json`) instead of binary records (the burst's default).
     #[arg(long)]
     pub json_frames: bool,
+    /// Ask for binary records (`output=binary`; the ramp's default).
+    #[arg(long, conflicts_with = "json_frames")]
+    pub binary_frames: bool,
     /// Process id of a server on this machine: its CPU from /proc/PID/stat, its cores from its
     /// affinity (taskset).
     #[arg(long, value_name = "PID")]
@@ -85,20 +97,45 @@ pub struct Args {
     pub quiet: bool,
 }
 
+/// `--pattern`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum PatternArg {
+    Ramp,
+    Burst,
+}
+
 // long: the command's steps in order (options, audio, the ramp or soak, the report files, the bound)
 pub fn run(a: Args) -> Result<()> {
     let bad = |m: String| anyhow::Error::new(InputError::new(m));
+    let burst = a.pattern == PatternArg::Burst;
+    let hold = a.hold.unwrap_or(if burst { 8.0 } else { 20.0 });
+    let chunk_ms = a.chunk_ms.unwrap_or(if burst { 10 } else { 20 });
+    let binary = if burst {
+        a.binary_frames
+    } else {
+        !a.json_frames
+    };
+    if !(a.burst_spread.is_finite() && a.burst_spread >= 0.0 && a.burst_spread <= 600.0) {
+        return Err(bad(format!(
+            "--burst-spread {}: expected 0 <= seconds <= 600",
+            a.burst_spread
+        )));
+    }
+    let pattern = if burst {
+        loadtest::Pattern::Burst {
+            spread: Duration::from_secs_f64(a.burst_spread),
+        }
+    } else {
+        loadtest::Pattern::Ramp
+    };
     if a.levels.is_empty() || a.levels.contains(&0) || a.levels.windows(2).any(|w| w[0] >= w[1]) {
         return Err(bad(format!(
             "--levels {:?}: expected increasing positive session counts",
             a.levels
         )));
     }
-    if !(a.hold.is_finite() && a.hold > 0.0 && a.hold <= 3600.0) {
-        return Err(bad(format!(
-            "--hold {}: expected 0 < seconds <= 3600",
-            a.hold
-        )));
+    if !(hold.is_finite() && hold > 0.0 && hold <= 3600.0) {
+        return Err(bad(format!("--hold {hold}: expected 0 < seconds <= 3600")));
     }
     if !(a.p99_ms.is_finite() && a.p99_ms > 0.0) {
         return Err(bad(format!(
@@ -109,11 +146,8 @@ pub fn run(a: Args) -> Result<()> {
     if !(a.pause.is_finite() && a.pause >= 0.0) {
         return Err(bad(format!("--pause {}: expected seconds >= 0", a.pause)));
     }
-    if a.chunk_ms == 0 || a.chunk_ms > 1000 {
-        return Err(bad(format!(
-            "--chunk-ms {}: expected 1 to 1000",
-            a.chunk_ms
-        )));
+    if chunk_ms == 0 || chunk_ms > 1000 {
+        return Err(bad(format!("--chunk-ms {chunk_ms}: expected 1 to 1000")));
     }
     if a.cores == Some(0) {
         return Err(bad("--cores 0: expected at least one core".into()));
@@ -168,23 +202,26 @@ pub fn run(a: Args) -> Result<()> {
         url: a.url.clone(),
         token,
         levels: a.levels.clone(),
-        hold: Duration::from_secs_f64(a.hold),
+        hold: Duration::from_secs_f64(hold),
         p99_ms: a.p99_ms,
-        chunk: (a.chunk_ms as usize * 16).max(1),
-        binary: !a.json_frames,
+        chunk: (chunk_ms as usize * 16).max(1),
+        binary,
         pause: Duration::from_secs_f64(a.pause),
         keep_going: a.keep_going,
         cpu,
         cores,
         metrics_url: Some(metrics_url),
+        pattern,
     };
     if !a.quiet {
         eprintln!(
-            "loadtest: {} recordings ({:.1} s), levels {:?}, {} s each, p99 bound {} ms, server CPU from {}",
+            "loadtest: {} recordings ({:.1} s), {} of levels {:?}, {} s each in {} ms messages, p99 bound {} ms, server CPU from {}",
             clips.len(),
             clips.iter().map(|c| c.samples.len()).sum::<usize>() as f64 / 16000.0,
+            cfg.pattern.name(),
             cfg.levels,
-            a.hold,
+            hold,
+            chunk_ms,
             a.p99_ms,
             cfg.cpu.describe()
         );
@@ -226,17 +263,16 @@ pub fn run(a: Args) -> Result<()> {
     }
     if let Some(p) = &a.plot {
         let title = format!(
-            "livegesture loadtest {}: {} s per level, p99 bound {} ms",
-            a.url, a.hold, a.p99_ms
+            "livegesture loadtest {} ({}): {} s per level, p99 bound {} ms",
+            a.url,
+            cfg.pattern.name(),
+            hold,
+            a.p99_ms
         );
         std::fs::write(p, report.svg(&title)).with_context(|| format!("--plot {}", p.display()))?;
     }
     if let Some(n) = a.require {
-        ensure!(
-            report.sessions_held >= n,
-            "held {} sessions, fewer than --require {n}",
-            report.sessions_held
-        );
+        loadtest::require(&report, n)?;
     }
     Ok(())
 }

@@ -30,6 +30,12 @@ pub struct Args {
     /// Most concurrent sessions; more are refused with HTTP 503.
     #[arg(long, default_value_t = 64)]
     pub max_sessions: usize,
+    /// Before the first session, step this many throw-away streams together (at most
+    /// --max-sessions), so that a burst of sessions on a fresh server does not wait while memory is
+    /// touched for the first time (docs/serve.md#the-start-up-transient). 0: no warm-up. Default:
+    /// 48 for a LiveGesture bundle, 0 for DiffSHEG (whose windows cost far more to warm up).
+    #[arg(long)]
+    pub warm_sessions: Option<usize>,
     /// Largest client message in bytes (larger: close 1009).
     #[arg(long, default_value_t = 1 << 20)]
     pub max_message_bytes: usize,
@@ -152,7 +158,7 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
         eprintln!("livegesture serve: warning: listening on {} beyond loopback without --auth-token-file: anyone who reaches it may open sessions", a.addr);
     }
     let scheme = if tls.is_some() { "https" } else { "http" };
-    let cfg = ServeConfig {
+    let mut cfg = ServeConfig {
         max_sessions: a.max_sessions,
         max_message_bytes: a.max_message_bytes,
         queue_frames: a.queue_frames,
@@ -168,6 +174,7 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
         },
         access,
         tls,
+        warm_sessions: 0,
     };
     if let Some(d) = &a.web_dir {
         if !d.join("wasm").is_dir() {
@@ -180,6 +187,13 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
     }
     let bundle = a.model.bundle()?;
     check_form(&bundle, form)?;
+    cfg.warm_sessions = a.warm_sessions.unwrap_or(
+        if bundle.family() == livegesture::bundle::Family::LiveGesture {
+            48
+        } else {
+            0
+        },
+    );
     let backend_opts = a.model.backend_options()?;
     let manifest = std::fs::read(bundle.manifest_path())
         .with_context(|| format!("reading {}", bundle.manifest_path().display()))?;

@@ -84,6 +84,10 @@ pub struct ServeConfig {
     pub access: access::AccessConfig,
     /// TLS in the process ([`tls::load_config`]); `None`: plain TCP.
     pub tls: Option<Arc<tokio_rustls::rustls::ServerConfig>>,
+    /// Before the first session, step this many throw-away streams together through two units of
+    /// silence ([`scheduler::warm_up`]): the memory a burst of that many sessions first touches
+    /// is touched at start, not while they wait (docs/serve.md#the-start-up-transient). 0: none.
+    pub warm_sessions: usize,
 }
 
 impl Default for ServeConfig {
@@ -100,6 +104,7 @@ impl Default for ServeConfig {
             drain_delay: Duration::ZERO,
             access: access::AccessConfig::default(),
             tls: None,
+            warm_sessions: 0,
         }
     }
 }
@@ -165,6 +170,7 @@ impl Server {
         };
         let m2 = metrics.clone();
         let max_sessions = cfg.max_sessions;
+        let warm = cfg.warm_sessions.min(cfg.max_sessions);
         let sched = std::thread::Builder::new()
             .name("livegesture-scheduler".into())
             .spawn(move || {
@@ -174,6 +180,8 @@ impl Server {
                     let m: Box<dyn MotionModel> = m.into();
                     m.prepare_batches(max_sessions)
                         .context("preparing the model's batch sizes")?;
+                    scheduler::warm_up(m.as_ref(), warm)
+                        .with_context(|| format!("warming up with {warm} streams"))?;
                     Ok((m, info))
                 });
                 match loaded {

@@ -26,6 +26,7 @@
 //! `max_pending_tokens` tokens' worth of a session's audio waits here.
 
 use std::collections::HashMap;
+use std::io::Write as _;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -74,8 +75,64 @@ struct Sess {
     dead: bool,
 }
 
+/// The scheduler's own trace (`$LIVEGESTURE_SERVE_TRACE=FILE`, docs/serve.md#the-scheduler-trace):
+/// one line per join and per tick, times in ms from the first join. Where a session's latency goes
+/// on the scheduler thread: joining, pushing audio, waiting for a tick and the step itself.
+struct Trace {
+    out: std::io::BufWriter<std::fs::File>,
+    t0: Option<Instant>,
+    /// Since the last tick: time pushing audio that completes no unit, and its messages.
+    audio: Duration,
+    audio_msgs: u64,
+}
+
+impl Trace {
+    fn from_env() -> Option<Trace> {
+        let path = std::env::var_os("LIVEGESTURE_SERVE_TRACE")?;
+        match std::fs::File::create(&path) {
+            Ok(f) => {
+                let mut out = std::io::BufWriter::new(f);
+                let _ = writeln!(
+                    out,
+                    "# event t_ms dur_ms | tick: t_ms late_ms step_ms batch live wait_ms audio_ms audio_msgs"
+                );
+                Some(Trace {
+                    out,
+                    t0: None,
+                    audio: Duration::ZERO,
+                    audio_msgs: 0,
+                })
+            }
+            Err(e) => {
+                eprintln!(
+                    "livegesture serve: LIVEGESTURE_SERVE_TRACE={}: cannot write it ({e}); no trace",
+                    std::path::Path::new(&path).display()
+                );
+                None
+            }
+        }
+    }
+
+    fn ms(&self, t: Instant) -> f64 {
+        self.t0.map_or(0.0, |t0| {
+            t.saturating_duration_since(t0).as_secs_f64() * 1e3
+        })
+    }
+
+    fn join(&mut self, at: Instant, took: Duration) {
+        let t0 = *self.t0.get_or_insert(at);
+        let _ = writeln!(
+            self.out,
+            "join {:.3} {:.3}",
+            at.saturating_duration_since(t0).as_secs_f64() * 1e3,
+            took.as_secs_f64() * 1e3
+        );
+    }
+}
+
 /// Steps the sessions' streams, due ones together (see the module docs).
 pub struct BatchScheduler {
+    trace: Option<Trace>,
     model: Box<dyn MotionModel>,
     /// The grid the sessions' readers take credits on (the bundle's frontend).
     frontend: FrontendConfig,
@@ -94,6 +151,7 @@ impl BatchScheduler {
         cfg: SchedConfig,
     ) -> Self {
         Self {
+            trace: Trace::from_env(),
             model,
             sessions: HashMap::new(),
             metrics,
@@ -144,7 +202,7 @@ impl BatchScheduler {
                         match rx.try_recv() {
                             Ok(c) => Some(c),
                             Err(_) => {
-                                self.tick();
+                                self.tick(deadline);
                                 continue;
                             }
                         }
@@ -175,10 +233,21 @@ impl BatchScheduler {
                 credits,
                 reply,
             } => {
+                let t = Instant::now();
                 let r = self.join(sid, &opts, out, ctl, credits);
+                if let Some(tr) = &mut self.trace {
+                    tr.join(t, t.elapsed());
+                }
                 let _ = reply.send(r.map_err(|e| format!("{e:#}")));
             }
-            Cmd::Audio { sid, samples, at } => self.audio(sid, samples, at),
+            Cmd::Audio { sid, samples, at } => {
+                let t = self.trace.is_some().then(Instant::now);
+                self.audio(sid, samples, at);
+                if let (Some(tr), Some(t)) = (&mut self.trace, t) {
+                    tr.audio += t.elapsed();
+                    tr.audio_msgs += 1;
+                }
+            }
             Cmd::End { sid, input } => self.end(sid, input),
             Cmd::Drain { sid } => {
                 if let Some(s) = self.sessions.get_mut(&sid) {
@@ -290,8 +359,8 @@ impl BatchScheduler {
         }
     }
 
-    /// One [`MotionModel::step_many`] call for every due session.
-    fn tick(&mut self) {
+    /// One [`MotionModel::step_many`] call for every due session (`deadline`: when it was due).
+    fn tick(&mut self, deadline: Instant) {
         let mut sids = Vec::new();
         let mut jobs = Vec::new();
         for (sid, s) in self.sessions.iter_mut() {
@@ -316,6 +385,26 @@ impl BatchScheduler {
         let results = self.model.step_many(&mut jobs);
         drop(jobs);
         let done = Instant::now();
+        if let Some(tr) = &mut self.trace {
+            let oldest = sids.iter().map(|s| s.1).min().unwrap_or(t0);
+            let ms = |d: Duration| d.as_secs_f64() * 1e3;
+            let _ = writeln!(
+                tr.out,
+                "tick {:.3} {:.3} {:.3} {} {} {:.3} {:.3} {}",
+                tr.ms(t0),
+                ms(t0.saturating_duration_since(deadline)),
+                ms(done - t0),
+                sids.len(),
+                self.sessions.values().filter(|s| !s.dead).count(),
+                ms(t0.saturating_duration_since(oldest)),
+                ms(tr.audio),
+                tr.audio_msgs
+            );
+            tr.audio = Duration::ZERO;
+            tr.audio_msgs = 0;
+            // a server killed hard keeps its trace so far
+            let _ = tr.out.flush();
+        }
         self.metrics.step_seconds.observe((done - t0).as_secs_f64());
         self.metrics.steps_total.fetch_add(1, Ordering::Relaxed);
         self.metrics.batch_size.observe(sids.len() as f64);
@@ -436,6 +525,43 @@ impl BatchScheduler {
             "client too slow: its outbound frame queue is full".into(),
         );
     }
+}
+
+/// Steps `n` throw-away streams (default options) together through two units of silence in
+/// [`MotionModel::step_many`] calls, then drops them (0: nothing). A fresh server's first burst of
+/// sessions otherwise spends its first second touching memory for the first time (the stacked
+/// caches of its cohorts and the backend's buffers for their batch sizes: page faults, measured
+/// in docs/serve.md#the-start-up-transient) while its sessions wait; this touches it before the
+/// first session. A pure function of nothing the sessions see: their frames are unchanged.
+pub fn warm_up(model: &dyn MotionModel, n: usize) -> Result<()> {
+    if n == 0 {
+        return Ok(());
+    }
+    let mut streams = (0..n)
+        .map(|_| livegesture::generate::new_stream(model, &StreamOptions::default()))
+        .collect::<Result<Vec<_>>>()?;
+    for _ in 0..2 {
+        let audio: Vec<Vec<f32>> = streams
+            .iter()
+            .map(|s| {
+                let need = s.next_unit_samples().saturating_sub(s.samples_received());
+                vec![0.0; need as usize]
+            })
+            .collect();
+        let mut jobs: Vec<StreamJob<'_>> = streams
+            .iter_mut()
+            .zip(&audio)
+            .map(|(s, a)| StreamJob {
+                stream: s.as_mut(),
+                audio: a,
+                end: None,
+            })
+            .collect();
+        for r in model.step_many(&mut jobs) {
+            r?;
+        }
+    }
+    Ok(())
 }
 
 /// The slot of the tick grid: the token's duration divided into a whole number of slots of about

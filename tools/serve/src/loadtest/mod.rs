@@ -224,6 +224,35 @@ async fn http_get(url: &str) -> Result<String> {
     Ok(body.to_string())
 }
 
+/// How a level's sessions start.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Pattern {
+    /// Start phases spread over one token (133 ms): the sessions' token boundaries fall evenly
+    /// over the token, as long-running sessions' do.
+    Ramp,
+    /// Sessions opened one after another, evenly over `spread` (a room of users joining at once):
+    /// run it on a fresh server for its start-up.
+    Burst { spread: Duration },
+}
+
+impl Pattern {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Pattern::Ramp => "ramp",
+            Pattern::Burst { .. } => "burst",
+        }
+    }
+
+    /// When session `i` of `n` opens, after the level starts.
+    fn delay(&self, i: usize, n: usize) -> Duration {
+        let over = match self {
+            Pattern::Ramp => Duration::from_nanos(133_333_333),
+            Pattern::Burst { spread } => *spread,
+        };
+        over.mul_f64(i as f64 / n.max(1) as f64)
+    }
+}
+
 /// A load test's settings.
 #[derive(Debug, Clone)]
 pub struct LoadConfig {
@@ -248,6 +277,7 @@ pub struct LoadConfig {
     pub cores: Option<usize>,
     /// The server's Prometheus page (its steps: mean batch, share of the time in steps).
     pub metrics_url: Option<String>,
+    pub pattern: Pattern,
 }
 
 /// Runs the ramp (see the module docs); `progress` gets one line per level as it ends.
@@ -260,7 +290,10 @@ pub async fn run(cfg: &LoadConfig, clips: &[Clip], progress: impl Fn(&str)) -> R
         cfg.url
     );
     let n = (cfg.hold.as_secs_f64() * RATE as f64) as usize;
-    let token_us = 133_333u64;
+    let rss_before = match cfg.cpu {
+        CpuSource::Pid(pid) => soak::proc_rss_bytes(pid).map(|b| b as f64 / 1048576.0),
+        _ => None,
+    };
     let mut levels = Vec::new();
     for (li, &sessions) in cfg.levels.iter().enumerate() {
         if li > 0 {
@@ -272,6 +305,22 @@ pub async fn run(cfg: &LoadConfig, clips: &[Clip], progress: impl Fn(&str)) -> R
             None => None,
         };
         let t0 = Instant::now();
+        // the server's peak resident size over the level (a local server)
+        let rss_peak = Arc::new(std::sync::atomic::AtomicU64::new(0));
+        let sampler = match cfg.cpu {
+            CpuSource::Pid(pid) => {
+                let peak = rss_peak.clone();
+                Some(tokio::spawn(async move {
+                    loop {
+                        if let Some(b) = soak::proc_rss_bytes(pid) {
+                            peak.fetch_max(b, std::sync::atomic::Ordering::Relaxed);
+                        }
+                        tokio::time::sleep(Duration::from_millis(200)).await;
+                    }
+                }))
+            }
+            _ => None,
+        };
         let mut hs = Vec::with_capacity(sessions);
         for i in 0..sessions {
             let plan = SessionPlan {
@@ -279,8 +328,7 @@ pub async fn run(cfg: &LoadConfig, clips: &[Clip], progress: impl Fn(&str)) -> R
                 token: cfg.token.clone(),
                 audio: Arc::new(session_audio(clips, li * 7 + i, n)),
                 chunk: cfg.chunk,
-                // start phases spread over one token
-                delay: Duration::from_micros(i as u64 * token_us / sessions as u64),
+                delay: cfg.pattern.delay(i, sessions),
                 seed: i as u64,
                 binary: cfg.binary,
                 timeout: cfg.hold * 2 + Duration::from_secs(30),
@@ -296,6 +344,10 @@ pub async fn run(cfg: &LoadConfig, clips: &[Clip], progress: impl Fn(&str)) -> R
         }
         let wall = t0.elapsed().as_secs_f64();
         let cpu1 = cfg.cpu.seconds().await;
+        if let Some(h) = sampler {
+            h.abort();
+        }
+        let rss = rss_peak.load(std::sync::atomic::Ordering::Relaxed);
         let cpu_pct = match (cpu0, cpu1) {
             (Some(a), Some(b)) if wall > 0.0 => Some((b - a) / wall * 100.0),
             _ => None,
@@ -305,6 +357,7 @@ pub async fn run(cfg: &LoadConfig, clips: &[Clip], progress: impl Fn(&str)) -> R
             None => None,
         };
         let mut l = LevelReport::new(sessions, &results, cpu_pct, wall, cfg.p99_ms);
+        l.server_rss_mib = (rss > 0).then(|| rss as f64 / 1048576.0);
         if let (Some(a), Some(b)) = (steps0, steps1) {
             let n = b.steps - a.steps;
             if n > 0.0 {
@@ -319,7 +372,33 @@ pub async fn run(cfg: &LoadConfig, clips: &[Clip], progress: impl Fn(&str)) -> R
             break;
         }
     }
-    Ok(Report::new(cfg, levels))
+    let mut r = Report::new(cfg, levels);
+    r.server_rss_before_mib = rss_before;
+    Ok(r)
+}
+
+/// `--require N`: an error unless at least `n` sessions were held (the level's p99 under the bound,
+/// every session completed).
+pub fn require(report: &Report, n: usize) -> Result<()> {
+    ensure!(
+        report.sessions_held >= n,
+        "held {} sessions, fewer than --require {n}{}",
+        report.sessions_held,
+        report
+            .levels
+            .iter()
+            .find(|l| !l.held)
+            .map_or_else(String::new, |l| format!(
+                " ({} sessions: p99 {} ms, first second {} ms, after it {} ms, bound {} ms, {} failed)",
+                l.sessions,
+                l.p99_ms.map_or("-".into(), |v| format!("{v:.1}")),
+                l.first_second.p99_ms.map_or("-".into(), |v| format!("{v:.1}")),
+                l.after_first_second.p99_ms.map_or("-".into(), |v| format!("{v:.1}")),
+                report.p99_bound_ms,
+                l.failed
+            ))
+    );
+    Ok(())
 }
 
 /// The real-speech recordings' folder: `$LIVEGESTURE_REAL_SPEECH`, else `shared/data/real-speech`
@@ -363,6 +442,108 @@ mod tests {
         assert_eq!(session_audio(&clips, 0, 7), vec![1, 2, 3, 7, 8, 1, 2]);
         assert_eq!(session_audio(&clips, 1, 4), vec![7, 8, 1, 2]);
         assert_eq!(session_audio(&clips, 0, 2), vec![1, 2]);
+    }
+
+    #[test]
+    fn patterns_spread_the_starts() {
+        let ms = |d: Duration| d.as_secs_f64() * 1e3;
+        assert_eq!(Pattern::Ramp.delay(0, 4), Duration::ZERO);
+        assert!((ms(Pattern::Ramp.delay(3, 4)) - 100.0).abs() < 1e-3);
+        let b = Pattern::Burst {
+            spread: Duration::from_secs(1),
+        };
+        assert!((ms(b.delay(47, 48)) - 979.1667).abs() < 1e-3);
+        assert!(ms(b.delay(47, 48)) < 1000.0, "all open within the spread");
+        assert_eq!((Pattern::Ramp.name(), b.name()), ("ramp", "burst"));
+    }
+
+    /// A burst of 4 sessions on a fresh in-process server (models/default on tract, its reference
+    /// clip, warmed up with 4 streams): every session completes, every token is measured and falls in the first second or
+    /// after it, the level holds a generous bound; a bound it cannot meet fails `--require`.
+    #[test]
+    fn a_burst_on_a_fresh_server_is_measured_and_bounded() {
+        use crate::{ModelInfo, ServeConfig, Server};
+        use livegesture::backend::{BackendKind, BackendOptions};
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let dir = root.join("models/default");
+        let server = Server::start(
+            "127.0.0.1:0".parse().unwrap(),
+            ServeConfig {
+                max_sessions: 8,
+                // as `serve` does by default (scheduler::warm_up), with this burst's size
+                warm_sessions: 4,
+                ..ServeConfig::default()
+            },
+            move || {
+                let bundle = livegesture::bundle::Bundle::load(&dir)?;
+                let be = livegesture::backend::create(&BackendOptions {
+                    kind: BackendKind::Tract,
+                    execution_provider: "cpu".into(),
+                    intra_threads: 1,
+                    ort_library: None,
+                })?;
+                let model = livegesture::model::load(&bundle, be.as_ref())?;
+                let info = ModelInfo {
+                    model: "default".into(),
+                    family: bundle.family(),
+                    bundle_sha256: "0".repeat(64),
+                    backend: model.backend_name().into(),
+                    fps: bundle.frontend().fps,
+                    frames_per_token: bundle.frontend().frames_per_token,
+                    frontend: bundle.frontend().clone(),
+                    face: model.has_face(),
+                };
+                Ok((model, info))
+            },
+        )
+        .expect("the server starts");
+        let clips = load_clips(&[root.join("models/default/reference/clip.wav")]).unwrap();
+        let mut cfg = LoadConfig {
+            url: format!("ws://{}", server.addr()),
+            token: None,
+            levels: vec![4],
+            hold: Duration::from_secs(3),
+            p99_ms: 2000.0,
+            chunk: 160,
+            binary: false,
+            pause: Duration::ZERO,
+            keep_going: false,
+            cpu: CpuSource::Pid(std::process::id()),
+            cores: None,
+            metrics_url: None,
+            pattern: Pattern::Burst {
+                spread: Duration::from_millis(500),
+            },
+        };
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        let report = rt.block_on(run(&cfg, &clips, |_| {})).unwrap();
+        let l = &report.levels[0];
+        assert_eq!((l.completed, l.failed), (4, 0), "{l:?}");
+        // 3 s of audio: 22 full tokens per session (the frontend's grid), each measured once
+        assert_eq!(l.units, 4 * 22, "{l:?}");
+        assert_eq!(l.first_second.units + l.after_first_second.units, l.units);
+        assert_eq!(
+            l.first_second.units,
+            4 * 7,
+            "tokens 0-6 end within 1 s: {l:?}"
+        );
+        assert!(l.held, "4 sessions on tract within 2 s: {l:?}");
+        assert_eq!(report.pattern, "burst");
+        require(&report, 4).unwrap();
+        // must fail: a bound the burst cannot meet (a second burst, on the now warm server)
+        cfg.p99_ms = 0.001;
+        let report = rt.block_on(run(&cfg, &clips, |_| {})).unwrap();
+        assert!(!report.levels[0].held);
+        let e = require(&report, 4).unwrap_err().to_string();
+        assert!(
+            e.contains("held 0 sessions, fewer than --require 4") && e.contains("first second"),
+            "{e}"
+        );
+        server.shutdown();
+        server.join().unwrap();
     }
 
     #[test]

@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 use serde::Serialize;
 
 use super::session::SessionResult;
-use super::LoadConfig;
+use super::{LoadConfig, Pattern};
 
 /// One level of the ramp.
 #[derive(Debug, Clone, Serialize)]
@@ -21,12 +21,19 @@ pub struct LevelReport {
     pub p50_ms: Option<f64>,
     pub p99_ms: Option<f64>,
     pub max_ms: Option<f64>,
+    /// The tokens of every session's first second (completing message sent less than 1 s after the
+    /// session's first audio message): a fresh session's start-up.
+    pub first_second: Split,
+    /// The tokens after every session's first second.
+    pub after_first_second: Split,
     /// Server CPU over the level, % of one core (`None`: not measured).
     pub server_cpu_pct: Option<f64>,
     /// Sessions per step, on average (the server's `/metrics`; `None`: not read).
     pub mean_batch: Option<f64>,
     /// Time in steps (the batched model calls), % of the level's wall time (`/metrics`).
     pub step_pct: Option<f64>,
+    /// The server's peak resident size during the level, MiB (`--server-pid`; `None`: not measured).
+    pub server_rss_mib: Option<f64>,
     /// Seconds the level took.
     pub wall_s: f64,
     /// Every session completed and p99 is under the bound.
@@ -34,6 +41,29 @@ pub struct LevelReport {
     /// The first failed session's reason.
     pub first_failure: Option<String>,
 }
+
+/// Percentiles of a part of a level's tokens (the same quantile as the level's).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Split {
+    pub units: usize,
+    pub p50_ms: Option<f64>,
+    pub p99_ms: Option<f64>,
+}
+
+impl Split {
+    fn of(mut lat: Vec<f64>) -> Self {
+        lat.sort_by(f64::total_cmp);
+        Split {
+            units: lat.len(),
+            p50_ms: quantile(&lat, 0.5),
+            p99_ms: quantile(&lat, 0.99),
+        }
+    }
+}
+
+/// Where a session's start-up ends: tokens sent before this (seconds after its first audio message)
+/// are its first second.
+pub const FIRST_SECOND_S: f64 = 1.0;
 
 /// The quantile of the project's figures (linear interpolation, as `livegesture bench`).
 pub use livegesture::stats::quantile;
@@ -53,6 +83,17 @@ impl LevelReport {
         lat.sort_by(f64::total_cmp);
         let failed = results.iter().filter(|r| r.failed.is_some()).count();
         let p99 = quantile(&lat, 0.99);
+        let (mut early, mut late) = (Vec::new(), Vec::new());
+        for r in results {
+            for (i, &l) in r.latencies_ms.iter().enumerate() {
+                // a latency without its send time (not measured) counts after the first second
+                if r.sent_s.get(i).is_some_and(|&t| t < FIRST_SECOND_S) {
+                    early.push(l);
+                } else {
+                    late.push(l);
+                }
+            }
+        }
         LevelReport {
             sessions,
             completed: results.len() - failed,
@@ -61,9 +102,12 @@ impl LevelReport {
             p50_ms: quantile(&lat, 0.5),
             p99_ms: p99,
             max_ms: lat.last().copied(),
+            first_second: Split::of(early),
+            after_first_second: Split::of(late),
             server_cpu_pct,
             mean_batch: None,
             step_pct: None,
+            server_rss_mib: None,
             wall_s,
             held: failed == 0 && p99.is_some_and(|p| p < bound_ms),
             first_failure: results.iter().find_map(|r| r.failed.clone()),
@@ -72,13 +116,15 @@ impl LevelReport {
 
     pub fn progress_line(&self) -> String {
         let mut s = format!(
-            "loadtest: {} sessions: {} completed, {} failed, {} tokens, p50 {} ms, p99 {} ms, server CPU {}: {}",
+            "loadtest: {} sessions: {} completed, {} failed, {} tokens, p50 {} ms, p99 {} ms (first second {} ms, after it {} ms), server CPU {}: {}",
             self.sessions,
             self.completed,
             self.failed,
             self.units,
             opt(self.p50_ms, 1),
             opt(self.p99_ms, 1),
+            opt(self.first_second.p99_ms, 1),
+            opt(self.after_first_second.p99_ms, 1),
             opt(self.server_cpu_pct, 0).replace('-', "n/a") + "%",
             if self.held { "held" } else { "not held" }
         );
@@ -97,6 +143,11 @@ fn opt(v: Option<f64>, prec: usize) -> String {
 #[derive(Debug, Clone, Serialize)]
 pub struct Report {
     pub url: String,
+    /// `ramp` or `burst` (docs/serve.md#load-test).
+    pub pattern: &'static str,
+    /// Burst: the seconds over which each level's sessions open.
+    pub burst_spread_s: Option<f64>,
+    pub chunk_ms: f64,
     pub p99_bound_ms: f64,
     pub hold_s: f64,
     pub output: &'static str,
@@ -105,6 +156,8 @@ pub struct Report {
     /// Cores the server runs on (`None`: not known).
     pub cores: Option<usize>,
     pub levels: Vec<LevelReport>,
+    /// The server's resident size before the first level, MiB (`--server-pid`).
+    pub server_rss_before_mib: Option<f64>,
     /// The largest level held (0: none).
     pub sessions_held: usize,
     /// `sessions_held / cores`.
@@ -121,12 +174,19 @@ impl Report {
             .unwrap_or(0);
         Report {
             url: cfg.url.clone(),
+            pattern: cfg.pattern.name(),
+            burst_spread_s: match cfg.pattern {
+                Pattern::Burst { spread } => Some(spread.as_secs_f64()),
+                Pattern::Ramp => None,
+            },
+            chunk_ms: cfg.chunk as f64 / 16.0,
             p99_bound_ms: cfg.p99_ms,
             hold_s: cfg.hold.as_secs_f64(),
             output: if cfg.binary { "binary" } else { "json" },
             cpu_source: cfg.cpu.describe(),
             cores: cfg.cores,
             levels,
+            server_rss_before_mib: None,
             sessions_held: held,
             sessions_per_core: cfg.cores.map(|c| held as f64 / c as f64),
         }
@@ -135,13 +195,13 @@ impl Report {
     /// The Markdown table and the summary line.
     pub fn table(&self) -> String {
         let mut s = String::from(
-            "| sessions | completed | failed | tokens | p50 ms | p99 ms | max ms | server CPU % | in steps % | sessions per step | held |\n\
-             |---|---|---|---|---|---|---|---|---|---|---|\n",
+            "| sessions | completed | failed | tokens | p50 ms | p99 ms | max ms | p99 first s ms | p99 after ms | server CPU % | in steps % | sessions per step | server RSS MiB | held |\n\
+             |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         );
         for l in &self.levels {
             let _ = writeln!(
                 s,
-                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
                 l.sessions,
                 l.completed,
                 l.failed,
@@ -149,9 +209,12 @@ impl Report {
                 opt(l.p50_ms, 1),
                 opt(l.p99_ms, 1),
                 opt(l.max_ms, 1),
+                opt(l.first_second.p99_ms, 1),
+                opt(l.after_first_second.p99_ms, 1),
                 opt(l.server_cpu_pct, 0),
                 opt(l.step_pct, 0),
                 opt(l.mean_batch, 1),
+                opt(l.server_rss_mib, 0),
                 if l.held { "yes" } else { "no" }
             );
         }
@@ -161,9 +224,24 @@ impl Report {
         };
         let _ = writeln!(
             s,
-            "\nheld: {} real-time sessions with p99 token latency < {} ms ({per_core}); {} s per level, output={}, server CPU from {}",
-            self.sessions_held, self.p99_bound_ms, self.hold_s, self.output, self.cpu_source
+            "\nheld: {} real-time sessions with p99 token latency < {} ms ({per_core}); {}, {} s per level, {} ms messages, output={}, server CPU from {}",
+            self.sessions_held,
+            self.p99_bound_ms,
+            match self.burst_spread_s {
+                Some(s) => format!("burst (each level's sessions opened within {s} s)"),
+                None => "ramp".into(),
+            },
+            self.hold_s,
+            self.chunk_ms,
+            self.output,
+            self.cpu_source
         );
+        if let Some(m) = self.server_rss_before_mib {
+            let _ = writeln!(
+                s,
+                "server RSS before the first level: {m:.0} MiB (peak of each level in the table)"
+            );
+        }
         s
     }
 
@@ -341,6 +419,7 @@ mod tests {
     fn res(lat: &[f64], failed: bool) -> SessionResult {
         SessionResult {
             latencies_ms: lat.to_vec(),
+            sent_s: (0..lat.len()).map(|i| 0.5 * i as f64).collect(),
             frames: 8,
             failed: failed.then(|| "closed before done".to_string()),
         }
@@ -365,6 +444,19 @@ mod tests {
         let failed = LevelReport::new(2, &[res(&[10.0], false), res(&[], true)], None, 3.0, 100.0);
         assert!(!failed.held);
         assert_eq!(failed.first_failure.as_deref(), Some("closed before done"));
+        // the first second (sent at 0 and 0.5 s) and after it (1.0 s on)
+        let split = LevelReport::new(
+            1,
+            &[res(&[300.0, 200.0, 10.0, 20.0], false)],
+            None,
+            3.0,
+            100.0,
+        );
+        assert_eq!(split.first_second.units, 2);
+        assert_eq!(split.first_second.p50_ms, Some(250.0));
+        assert_eq!(split.after_first_second.units, 2);
+        assert_eq!(split.after_first_second.p50_ms, Some(15.0));
+        assert!(!split.held, "the first second counts in the level's p99");
         // nothing measured is not held
         assert!(!LevelReport::new(1, &[res(&[], false)], None, 3.0, 100.0).held);
     }

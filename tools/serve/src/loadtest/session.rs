@@ -38,6 +38,9 @@ pub struct SessionResult {
     /// Unit latencies: from sending the message that completed a unit's audio to receiving the
     /// unit's last frame.
     pub latencies_ms: Vec<f64>,
+    /// For each latency: when its unit's completing message was sent, in seconds after the
+    /// session's first audio message (the first second of a session is its start-up).
+    pub sent_s: Vec<f64>,
     pub frames: u64,
     /// `None`: the session sent all its audio and got `done` with every frame.
     pub failed: Option<String>,
@@ -87,9 +90,12 @@ impl Ready {
 fn frame_index(m: &Message) -> Option<u64> {
     match m {
         Message::Binary(b) if b.len() >= 8 => Some(u64::from_le_bytes(b[..8].try_into().ok()?)),
-        Message::Text(t) if t.starts_with("{\"index\"") => {
-            let v: serde_json::Value = serde_json::from_str(t).ok()?;
-            v.get("index")?.as_u64()
+        // the index leads the frame's JSON object (docs/serve.md): read it without parsing the
+        // poses, so that the client's own work stays out of the latency it measures
+        Message::Text(t) => {
+            let rest = t.strip_prefix("{\"index\":")?;
+            let end = rest.find(|c: char| !c.is_ascii_digit())?;
+            (end > 0 && rest[end..].starts_with(',')).then(|| rest[..end].parse().ok())?
         }
         _ => None,
     }
@@ -214,9 +220,11 @@ async fn run_inner(plan: SessionPlan) -> SessionResult {
                 let now = Instant::now();
                 let l = log.lock().unwrap_or_else(|e| e.into_inner());
                 let k = l.partition_point(|&(c, _)| c < need);
-                if let Some(&(_, at)) = l.get(k) {
+                if let (Some(&(_, at)), Some(&(_, first))) = (l.get(k), l.first()) {
                     r.latencies_ms
                         .push(now.saturating_duration_since(at).as_secs_f64() * 1e3);
+                    r.sent_s
+                        .push(at.saturating_duration_since(first).as_secs_f64());
                 }
             }
             continue;
