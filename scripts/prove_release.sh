@@ -110,8 +110,10 @@ CMAKE
   { cmake -S . -B cm -DCMAKE_PREFIX_PATH="$sdk" -DCMAKE_BUILD_TYPE=Release >/dev/null && cmake --build cm >/dev/null; } \
     || { cd "$repo"; echo "c-sdk: CMake could not build the example"; return 1; }
   cd "$repo"
-  ldd "$d/build/pc-shared" | grep -q "$sdk/lib/liblivegesture_c.so" || { ldd "$d/build/pc-shared"; echo "c-sdk: pc-shared does not load the SDK's .so"; return 1; }
-  ! ldd "$d/build/pc-static" | grep -q liblivegesture_c || { echo "c-sdk: pc-static loads liblivegesture_c.so"; return 1; }
+  local l; l="$(ldd "$d/build/pc-shared")"   # (not piped into grep -q: with pipefail, ldd's SIGPIPE fails it)
+  [[ $l == *"$sdk/lib/liblivegesture_c.so"* ]] || { echo "$l"; echo "c-sdk: pc-shared does not load the SDK's .so"; return 1; }
+  l="$(ldd "$d/build/pc-static")"
+  [[ $l != *liblivegesture_c* ]] || { echo "$l"; echo "c-sdk: pc-static loads liblivegesture_c.so"; return 1; }
   for exe in pc-shared pc-static cm/cmake-shared cm/cmake-static; do
     (cd "$work" && env -i PATH=/usr/bin:/bin HOME="$work" "$d/build/$exe" "$d/bundle" speech.wav 3 tract > "$d/$(basename "$exe").f32") \
       || { echo "c-sdk: $exe failed"; return 1; }

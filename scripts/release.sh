@@ -175,7 +175,8 @@ add_library(livegesture::static STATIC IMPORTED)
 set_target_properties(livegesture::static PROPERTIES
   IMPORTED_LOCATION "${_lg_prefix}/lib/liblivegesture_c.a"
   INTERFACE_INCLUDE_DIRECTORIES "${_lg_prefix}/include"
-  INTERFACE_LINK_LIBRARIES "gcc_s;util;rt;pthread;m;dl;c")
+  INTERFACE_LINK_LIBRARIES "gcc_s;util;rt;pthread;m;dl;c"
+  INTERFACE_LINK_OPTIONS "-Wl,-z,noexecstack")
 set(livegesture_FOUND TRUE)
 EOF
   cat > "$stage/lib/pkgconfig/livegesture-static.pc" <<EOF
@@ -185,7 +186,7 @@ includedir=\${prefix}/include
 Name: livegesture-static
 Description: Streaming speech-to-gesture runtime (C API), linked statically
 Version: $VERSION
-Libs: \${libdir}/liblivegesture_c.a -lgcc_s -lutil -lrt -lpthread -lm -ldl -lc
+Libs: \${libdir}/liblivegesture_c.a -lgcc_s -lutil -lrt -lpthread -lm -ldl -lc -Wl,-z,noexecstack
 Cflags: -I\${includedir}
 EOF
   echo "set(PACKAGE_VERSION \"$VERSION\")" > "$stage/lib/cmake/livegesture/livegestureConfigVersion.cmake"
