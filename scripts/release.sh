@@ -5,7 +5,9 @@
 #
 # TARGET: a Rust triple that scripts/cross.sh builds (x86_64-unknown-linux-musl, aarch64-unknown-linux-musl,
 # armv7-unknown-linux-gnueabihf, x86_64-unknown-linux-gnu, aarch64-unknown-linux-gnu, x86_64-pc-windows-gnu),
-# `c-sdk` (the C SDK for x86-64 Linux), `web` (the static web build, scripts/build_web_static.sh), or none: all.
+# `c-sdk` (the C SDK for x86-64 Linux), `web` (the static web build, scripts/build_web_static.sh),
+# `wheel-x86_64` / `wheel-aarch64` (the Python module as a manylinux2014 abi3 wheel, CPython >= 3.10: maturin
+# --zig, checked by auditwheel), or none: all.
 # For each CLI target: livegesture-VERSION-TARGET.tar.gz (.zip for Windows) holding
 #   bin/livegesture[.exe]                     the CLI (profile dist: no debug info, stripped)
 #   share/livegesture/models/{default,diffsheg}  the shipped bundles (default found next to the executable)
@@ -20,13 +22,13 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/env.sh >/dev/null
 
-ALL="x86_64-unknown-linux-musl aarch64-unknown-linux-musl armv7-unknown-linux-gnueabihf x86_64-unknown-linux-gnu aarch64-unknown-linux-gnu x86_64-pc-windows-gnu c-sdk web"
+ALL="x86_64-unknown-linux-musl aarch64-unknown-linux-musl armv7-unknown-linux-gnueabihf x86_64-unknown-linux-gnu aarch64-unknown-linux-gnu x86_64-pc-windows-gnu c-sdk web wheel-x86_64 wheel-aarch64"
 prove=0
 targets=()
 for a in "$@"; do
   case "$a" in
     --prove) prove=1 ;;
-    -h|--help) sed -n '2,20p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
     -*) echo "release.sh: unknown option $a" >&2; exit 2 ;;
     *) targets+=("$a") ;;
   esac
@@ -57,7 +59,7 @@ common_files() {  # STAGE_DIR
     scripts/copy_bundle.py "models/$b" "$s/share/livegesture/models/$b" >/dev/null
   done
   cp models/README.md "$s/share/livegesture/models/README.md"
-  cp /work/shared/data/real-speech/SOURCES.md "$s/LICENSES/real-speech-SOURCES.md" 2>/dev/null || true
+  cp models/real-speech-SOURCES.md "$s/LICENSES/real-speech-SOURCES.md"
   cp LICENSE "$s/LICENSES/livegesture-LICENSE"
   cat > "$s/LICENSES/README.md" <<EOF
 Licences of livegesture $VERSION (commit $COMMIT)
@@ -67,7 +69,7 @@ Licences of livegesture $VERSION (commit $COMMIT)
   (collected from \`cargo metadata\` of this exact build by scripts/release.sh).
 - The bundles in share/livegesture/models: trained by this project on synthetic motion and speech; the
   training data and its licences are described in share/livegesture/models/README.md and each bundle's
-  manifest.json (training_data); real-speech-SOURCES.md (where present) lists the real recordings used in
+  manifest.json (training_data); real-speech-SOURCES.md lists the real recordings used in
   training and their licences.
 - onnxruntime-LICENSE (gnu archives only): ONNX Runtime (MIT), shipped in lib/.
 EOF
@@ -126,13 +128,31 @@ build_cli() {  # TRIPLE
 build_c_sdk() {  # the C SDK for x86-64 Linux (gnu): header, stripped shared and static library, pkg-config, CMake
   local name="livegesture-c-$VERSION-x86_64-unknown-linux-gnu" stage
   stage="$dist/stage/$name"
-  cargo build --profile dist -p livegesture-c >&2
+  # the release profile, as the test command's workspace build makes it (target/release/liblivegesture_c.*): no
+  # second compile of the whole dependency tree; its debug info is stripped below
+  cargo build --release -p livegesture-c >&2
   rm -rf "$stage"; mkdir -p "$stage/include" "$stage/lib/pkgconfig" "$stage/lib/cmake/livegesture" "$stage/share/livegesture/examples" "$stage/LICENSES"
   cp bindings/c/include/*.h "$stage/include/"
-  cp target/dist/liblivegesture_c.so target/dist/liblivegesture_c.a "$stage/lib/"
+  cp target/release/liblivegesture_c.so target/release/liblivegesture_c.a "$stage/lib/"
   strip --strip-unneeded "$stage/lib/liblivegesture_c.so"
   strip --strip-debug "$stage/lib/liblivegesture_c.a"
   cp examples/c/generate.c "$stage/share/livegesture/examples/"
+  cat > "$stage/README.md" <<EOF_README
+# livegesture C SDK $VERSION for x86_64-unknown-linux-gnu (commit $COMMIT)
+
+include/livegesture.h, lib/liblivegesture_c.so (shared) and lib/liblivegesture_c.a (static); backends tract
+and ort (ONNX Runtime loaded at run time: the path the API is given, ORT_DYLIB_PATH, or the system's). The
+bundles (models/default, models/diffsheg) are in the CLI archives (share/livegesture/models) or the repository.
+
+    # pkg-config: shared (livegesture) or static (livegesture-static)
+    export PKG_CONFIG_PATH=\$PWD/lib/pkgconfig
+    cc share/livegesture/examples/generate.c \$(pkg-config --cflags --libs livegesture) -Wl,-rpath,\$PWD/lib -o generate
+    cc share/livegesture/examples/generate.c \$(pkg-config --cflags --libs livegesture-static) -o generate-static
+    ./generate-static BUNDLE speech.wav 7 tract > poses.f32    # float32 little-endian, frames x 165
+
+    # CMake: find_package(livegesture) with CMAKE_PREFIX_PATH=<this folder>;
+    # imported targets livegesture::livegesture (shared) and livegesture::static
+EOF_README
   cat > "$stage/lib/pkgconfig/livegesture.pc" <<EOF
 prefix=\${pcfiledir}/../..
 libdir=\${prefix}/lib
@@ -155,12 +175,24 @@ add_library(livegesture::static STATIC IMPORTED)
 set_target_properties(livegesture::static PROPERTIES
   IMPORTED_LOCATION "${_lg_prefix}/lib/liblivegesture_c.a"
   INTERFACE_INCLUDE_DIRECTORIES "${_lg_prefix}/include"
-  INTERFACE_LINK_LIBRARIES "gcc_s;util;rt;pthread;m;dl;c")
+  INTERFACE_LINK_LIBRARIES "gcc_s;util;rt;pthread;m;dl;c"
+  INTERFACE_LINK_OPTIONS "-Wl,-z,noexecstack")
 set(livegesture_FOUND TRUE)
+EOF
+  cat > "$stage/lib/pkgconfig/livegesture-static.pc" <<EOF
+prefix=\${pcfiledir}/../..
+libdir=\${prefix}/lib
+includedir=\${prefix}/include
+Name: livegesture-static
+Description: Streaming speech-to-gesture runtime (C API), linked statically
+Version: $VERSION
+Libs: \${libdir}/liblivegesture_c.a -lgcc_s -lutil -lrt -lpthread -lm -ldl -lc -Wl,-z,noexecstack
+Cflags: -I\${includedir}
 EOF
   echo "set(PACKAGE_VERSION \"$VERSION\")" > "$stage/lib/cmake/livegesture/livegestureConfigVersion.cmake"
   licences x86_64-unknown-linux-gnu "" livegesture-c "$stage/LICENSES/crates.txt"
   cp LICENSE "$stage/LICENSES/livegesture-LICENSE"
+  rm -f "$dist/$name.tar.gz"
   tar -C "$dist/stage" --owner=0 --group=0 --sort=name -czf "$dist/$name.tar.gz" "$name"
   echo "release.sh: $name: static library $(du -h "$stage/lib/liblivegesture_c.a" | cut -f1), shared $(du -h "$stage/lib/liblivegesture_c.so" | cut -f1)" >&2
 }
@@ -171,18 +203,55 @@ build_web() {  # the static web build (page, wasm, bundles) as one archive
   rm -rf "$dist/stage/$name"; mkdir -p "$dist/stage"
   cp -r target/web-static "$dist/stage/$name"
   rm -rf "$dist/stage/$name/bundles/broken"   # the test command's negative case, not a release file
+  local lic="$dist/stage/$name/LICENSES" p f
+  mkdir -p "$lic"
+  cp LICENSE "$lic/livegesture-LICENSE"
+  cp models/real-speech-SOURCES.md "$lic/real-speech-SOURCES.md"
+  # the Rust crates in the wasm (bindings/wasm is a workspace of its own) and the npm packages in the page
+  (cd bindings/wasm && "$LIVEGESTURE_PY" ../../scripts/licences.py livegesture-wasm wasm32-unknown-unknown "" "$lic/crates.txt")
+  for p in three @pixiv/three-vrm onnxruntime-web; do
+    f="$(ls runtime/web/node_modules/$p/LICENSE* 2>/dev/null | head -n1)"
+    [ -n "$f" ] || { echo "release.sh: web: no licence file for the npm package $p (cd runtime/web && npm install)" >&2; exit 1; }
+    cp "$f" "$lic/npm-${p//\//-}-LICENSE"
+  done
+  rm -f "$dist/$name.tar.gz"
   tar -C "$dist/stage" --owner=0 --group=0 --sort=name -czf "$dist/$name.tar.gz" "$name"
   echo "release.sh: $name: $(du -h "$dist/$name.tar.gz" | cut -f1)" >&2
+}
+
+build_wheel() {  # ARCH: the Python module as a manylinux2014 abi3 wheel (CPython >= 3.10) for ARCH-unknown-linux-gnu
+  local arch="$1" triple="$1-unknown-linux-gnu" out="$dist/stage/wheel-$1" whl
+  # zig (PyPI's ziglang) links against glibc 2.17's symbols, so the wheel runs on any manylinux2014 system;
+  # auditwheel (PyPI) reads the .so's symbol versions and names the tag
+  "$LIVEGESTURE_PY" -c 'import ziglang' 2>/dev/null || "$LIVEGESTURE_VENV/bin/pip" install -q ziglang==0.17.1
+  "$LIVEGESTURE_VENV/bin/auditwheel" --version >/dev/null 2>&1 || "$LIVEGESTURE_VENV/bin/pip" install -q auditwheel==6.8.2
+  "$LIVEGESTURE_VENV/bin/maturin" --version 2>/dev/null | grep -qx "maturin 1.16.0" || \
+    "$LIVEGESTURE_VENV/bin/pip" install -q maturin==1.16.0
+  rustup target list --installed | grep -qx "$triple" || rustup target add "$triple" >&2
+  rm -rf "$out"; mkdir -p "$out"
+  # the venv first on PATH: maturin finds its python-zig; no PYO3_CONFIG_FILE: abi3-py310 needs no interpreter
+  env -u PYO3_CONFIG_FILE PATH="$LIVEGESTURE_VENV/bin:$PATH" nice -n "${CROSS_NICE:-0}" \
+    "$LIVEGESTURE_VENV/bin/maturin" build --release --zig --target "$triple" --compatibility manylinux2014 \
+    --manifest-path bindings/python/Cargo.toml --out "$out" >&2
+  whl="$(ls "$out"/livegesture_runtime-*-cp310-abi3-manylinux*_"$arch".whl)"
+  "$LIVEGESTURE_VENV/bin/auditwheel" show "$whl" | tee "$out/auditwheel.txt" >&2
+  grep -q "manylinux_2_17_$arch" "$out/auditwheel.txt" || {
+    echo "release.sh: auditwheel does not name manylinux_2_17_$arch for $whl" >&2; exit 1; }
+  rm -f "$dist"/livegesture_runtime-*_"$arch".whl
+  cp "$whl" "$dist/"
+  echo "release.sh: $(basename "$whl"): $(du -h "$whl" | cut -f1)" >&2
 }
 
 for t in "${targets[@]}"; do
   case "$t" in
     c-sdk) build_c_sdk ;;
     web) build_web ;;
+    wheel-x86_64) build_wheel x86_64 ;;
+    wheel-aarch64) build_wheel aarch64 ;;
     *) build_cli "$t" ;;
   esac
 done
-(cd "$dist" && shopt -s nullglob && sha256sum livegesture-*.tar.gz livegesture-*.zip > SHA256SUMS)
+(cd "$dist" && shopt -s nullglob && sha256sum livegesture-*.tar.gz livegesture-*.zip livegesture_runtime-*.whl > SHA256SUMS)
 rm -rf "$dist/stage"
 echo "release.sh: target/dist/ written in $(( SECONDS - t0 )) s:"
 cat "$dist/SHA256SUMS"

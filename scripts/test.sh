@@ -20,7 +20,8 @@
 #      perturbed weight; report in target/browser-ortweb/);
 #  11. the x86-64 levels (the release binary under qemu-x86_64 -cpu Haswell / Nehalem: AVX2+FMA and SSE-only
 #      kernels of tract and ONNX Runtime) and the targets matrix (docs/targets.md); the aarch64 musl and x86-64
-#      musl release archives proven from the archive alone (under qemu-aarch64, natively: docs/install.md);
+#      musl release archives and the Windows one proven from the archive alone (under qemu-aarch64, natively,
+#      under wine: docs/install.md);
 # and first, the docs check (scripts/check_docs.py: relative links in the Markdown resolve).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -68,13 +69,17 @@ CROSS_NICE=10 scripts/cross.sh aarch64-unknown-linux-musl > target/cross/build.l
 cross_pid=$!
 # then, once that one is done (not beside it: two cargo builds would only share the two cores and cargo's lock on
 # target/dist), the x86-64 musl release build (static, tract, profile dist), waited for at the stage "release"
-# below. The Windows build (scripts/cross.sh x86_64-pc-windows-gnu) is not here yet: never built and proven in a
-# session so far (docs/install.md)
+# below; then, after that one, the Windows build (x86_64-pc-windows-gnu: mingw-w64, tract), also waited for there
 ( # done: gone, or a zombie not yet reaped
   while [ -r "/proc/$cross_pid/stat" ] && [ "$(cut -d' ' -f3 "/proc/$cross_pid/stat" 2>/dev/null)" != Z ]; do sleep 5; done
   CROSS_NICE=10 scripts/cross.sh x86_64-unknown-linux-musl
 ) > target/cross/build-x86.log 2>&1 &
 cross_x86_pid=$!
+(
+  while [ -r "/proc/$cross_x86_pid/stat" ] && [ "$(cut -d' ' -f3 "/proc/$cross_x86_pid/stat" 2>/dev/null)" != Z ]; do sleep 5; done
+  CROSS_NICE=10 scripts/cross.sh x86_64-pc-windows-gnu
+) > target/cross/build-windows.log 2>&1 &
+cross_win_pid=$!
 
 # every parity run also writes its JUnit report (target/parity/*.xml) for CI systems to read; an earlier
 # run's reports are removed first, so none can be read as this run's
@@ -301,5 +306,11 @@ wait "$cross_x86_pid" || { tail -n 40 target/cross/build-x86.log; echo "the x86-
 grep "built in" target/cross/build-x86.log
 # static (file, ldd); its generate output, with no --bundle, the same bytes as the native gnu build's tract output
 scripts/release.sh --prove x86_64-unknown-linux-musl
+
+stage "release: the Windows archive (.zip), proven from the archive alone under wine (docs/install.md)"
+wait "$cross_win_pid" || { tail -n 40 target/cross/build-windows.log; echo "the Windows build failed (target/cross/build-windows.log)" >&2; exit 1; }
+grep "built in" target/cross/build-windows.log
+# livegesture.exe under Debian's wine, no --bundle: ceil(duration x 30) frames, the native build's tokens
+scripts/release.sh --prove x86_64-pc-windows-gnu
 
 stage "all tests passed"
