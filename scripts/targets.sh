@@ -7,7 +7,8 @@
 # TARGET: x86-64-v4 (this machine, native), x86-64-v3 (`qemu-x86_64 -cpu Haswell`: AVX2+FMA, no AVX-512),
 # x86-64-v2 (`qemu-x86_64 -cpu Nehalem`: SSE4.2, no AVX), aarch64 (the aarch64 gnu build under qemu-aarch64,
 # tract and ONNX Runtime from PyPI's aarch64 wheel), aarch64-musl (the static aarch64 build, tract), armv7 (tract,
-# qemu-arm), windows (the x86-64 Windows build under wine, tract), aarch64-neon and aarch64-musl-neon (aarch64 and
+# qemu-arm: tract's VFP kernels), armv7-neon (the same under an armv7 /proc/cpuinfo and `-cpu cortex-a7`: tract's
+# NEON kernels), windows (the x86-64 Windows build under wine, tract), aarch64-neon and aarch64-musl-neon (aarch64 and
 # aarch64-musl under `qemu-aarch64 -cpu cortex-a72`: NEON, no SVE), or all (x86-64-v4 x86-64-v3 x86-64-v2 aarch64 armv7).
 # openvino, webgpu, wasm-tract and wasm-ort-web run through scripts/targets_providers.sh (same report, same exit).
 #
@@ -36,13 +37,13 @@ while [ $# -gt 0 ]; do
     --bundle) bundle="${2:?--bundle needs a folder}"; shift 2 ;;
     --checks) checks="${2:?--checks needs a list}"; shift 2 ;;
     --out) out="${2:?--out needs a folder}"; shift 2 ;;
-    -h|--help) sed -n '2,25p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,26p' "$0"; exit 0 ;;
     all) targets+=($ALL); shift ;;
     -*) echo "targets.sh: unknown option $1" >&2; exit 2 ;;
     *) targets+=("$1"); shift ;;
   esac
 done
-[ ${#targets[@]} -gt 0 ] || { echo "targets.sh: name at least one target (or all): $ALL aarch64-musl aarch64-neon aarch64-musl-neon windows openvino webgpu wasm-tract wasm-ort-web" >&2; exit 2; }
+[ ${#targets[@]} -gt 0 ] || { echo "targets.sh: name at least one target (or all): $ALL aarch64-musl aarch64-neon aarch64-musl-neon armv7-neon windows openvino webgpu wasm-tract wasm-ort-web" >&2; exit 2; }
 [ -f "$bundle/manifest.json" ] || { echo "targets.sh: --bundle $bundle: no manifest.json there (expected a bundle folder)" >&2; exit 2; }
 source scripts/env.sh >/dev/null
 mkdir -p "$out"
@@ -87,6 +88,12 @@ target_armv7() {
   BIN="$(scripts/cross.sh armv7-unknown-linux-gnueabihf)"; RUNNER="$(scripts/cross.sh --runner armv7-unknown-linux-gnueabihf)"
   ORT_LIB=""; BACKENDS=tract; EMULATED=1
 }
+# armv7 with NEON (Raspberry Pi 2, Cortex-A7): tract reads NEON from /proc/cpuinfo on 32-bit ARM, and qemu-arm shows it
+# this x86-64 host's, so plain `armv7` runs tract's VFP-only kernels (armvfpv2); scripts/qemu_armv7_cpuinfo.sh gives
+# it a Cortex-A7's, and tract takes its armv7neon kernels
+target_armv7_neon() {
+  target_armv7; RUNNER="$PWD/scripts/qemu_armv7_cpuinfo.sh -L /usr/arm-linux-gnueabihf -cpu cortex-a7"
+}
 target_windows() {
   BIN="$(scripts/cross.sh x86_64-pc-windows-gnu)"; RUNNER="wine"; ORT_LIB=""; BACKENDS=tract; EMULATED=1
   export WINEDEBUG=-all WINEPREFIX="${WINEPREFIX:-$(dirname "$LIVEGESTURE_VENV")/wine}"   # created once (wineboot)
@@ -100,7 +107,7 @@ for t in "${targets[@]}"; do
   esac
   fn="target_${t//-/_}"
   if ! declare -F "$fn" >/dev/null; then
-    echo "targets.sh: unknown target '$t'; expected: $ALL aarch64-musl aarch64-neon aarch64-musl-neon windows openvino webgpu wasm-tract wasm-ort-web all" >&2; exit 2
+    echo "targets.sh: unknown target '$t'; expected: $ALL aarch64-musl aarch64-neon aarch64-musl-neon armv7-neon windows openvino webgpu wasm-tract wasm-ort-web all" >&2; exit 2
   fi
   echo "=== target $t on $bundle"
   if ! "$fn"; then failed+=("$t (could not start)"); continue; fi
