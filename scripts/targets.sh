@@ -22,8 +22,8 @@
 # --checks: the parity checks (default: all on x86-64-v4; graph,rollout,logmel under emulation, where the chunk and
 # batch invariance checks, which do not depend on the instruction set, would take many times longer).
 # x86-64 targets run target/release/livegesture (build it first: cargo build --release -p livegesture); the
-# others build once with scripts/cross.sh (profile dist). Add a target: write a function `target_NAME` that sets
-# BIN, RUNNER, BACKENDS (and ORT_LIB for ort) like those below, and add NAME to ALL.
+# others build once with scripts/cross.sh (profile dist; TARGETS_NO_BUILD=1: use the binary already built).
+# Add a target: a function `target_NAME` setting BIN, RUNNER, BACKENDS (and ORT_LIB for ort) like those below.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -52,6 +52,17 @@ host_bin() {
   BIN="$PWD/target/release/livegesture"
   [ -x "$BIN" ] || { echo "targets.sh: $BIN is missing (cargo build --release -p livegesture)" >&2; exit 2; }
 }
+# the cross build of a triple: built (once) by scripts/cross.sh, or with TARGETS_NO_BUILD=1 the binary already
+# there (cross.sh --path), so that a run does not wait on cargo's lock while another cross build holds it
+cross_bin() {
+  if [ "${TARGETS_NO_BUILD:-0}" = 1 ]; then
+    local p; p="$(scripts/cross.sh --path "$1")"
+    [ -x "$p" ] || { echo "targets.sh: TARGETS_NO_BUILD=1 and $p is missing (scripts/cross.sh $1)" >&2; return 1; }
+    echo "$p"
+  else
+    scripts/cross.sh "$1"
+  fi
+}
 need_qemu() {
   command -v "$1" >/dev/null 2>&1 || DEBIAN_FRONTEND=noninteractive apt-get install -y -qq qemu-user >/dev/null
 }
@@ -68,11 +79,11 @@ target_x86_64_v2() {
   host_bin; need_qemu qemu-x86_64; RUNNER="qemu-x86_64 -cpu Nehalem"; BACKENDS=ort,tract; ORT_LIB="$ORT_DYLIB_PATH"; EMULATED=1
 }
 target_aarch64() {
-  BIN="$(scripts/cross.sh aarch64-unknown-linux-gnu)"; RUNNER="$(scripts/cross.sh --runner aarch64-unknown-linux-gnu)"
+  BIN="$(cross_bin aarch64-unknown-linux-gnu)" || return 1; RUNNER="$(scripts/cross.sh --runner aarch64-unknown-linux-gnu)"
   ORT_LIB="$(scripts/cross.sh --ort-lib aarch64-unknown-linux-gnu)"; BACKENDS=ort,tract; EMULATED=1
 }
 target_aarch64_musl() {
-  BIN="$(scripts/cross.sh aarch64-unknown-linux-musl)"; RUNNER="$(scripts/cross.sh --runner aarch64-unknown-linux-musl)"
+  BIN="$(cross_bin aarch64-unknown-linux-musl)" || return 1; RUNNER="$(scripts/cross.sh --runner aarch64-unknown-linux-musl)"
   ORT_LIB=""; BACKENDS=tract; EMULATED=1
 }
 # NEON-only aarch64 (Graviton 2 / Neoverse N1, Raspberry Pi 4, Ampere Altra): qemu's default CPU model (`max`) offers
@@ -85,7 +96,7 @@ target_aarch64_musl_neon() {
   target_aarch64_musl; RUNNER="$RUNNER -cpu cortex-a72"
 }
 target_armv7() {
-  BIN="$(scripts/cross.sh armv7-unknown-linux-gnueabihf)"; RUNNER="$(scripts/cross.sh --runner armv7-unknown-linux-gnueabihf)"
+  BIN="$(cross_bin armv7-unknown-linux-gnueabihf)" || return 1; RUNNER="$(scripts/cross.sh --runner armv7-unknown-linux-gnueabihf)"
   ORT_LIB=""; BACKENDS=tract; EMULATED=1
 }
 # armv7 with NEON (Raspberry Pi 2, Cortex-A7): tract reads NEON from /proc/cpuinfo on 32-bit ARM, and qemu-arm shows it
@@ -95,7 +106,7 @@ target_armv7_neon() {
   target_armv7; RUNNER="$PWD/scripts/qemu_armv7_cpuinfo.sh -L /usr/arm-linux-gnueabihf -cpu cortex-a7"
 }
 target_windows() {
-  BIN="$(scripts/cross.sh x86_64-pc-windows-gnu)"; RUNNER="wine"; ORT_LIB=""; BACKENDS=tract; EMULATED=1
+  BIN="$(cross_bin x86_64-pc-windows-gnu)" || return 1; RUNNER="wine"; ORT_LIB=""; BACKENDS=tract; EMULATED=1
   export WINEDEBUG=-all WINEPREFIX="${WINEPREFIX:-$(dirname "$LIVEGESTURE_VENV")/wine}"   # created once (wineboot)
 }
 
