@@ -7,7 +7,8 @@
 # TARGET: x86-64-v4 (this machine, native), x86-64-v3 (`qemu-x86_64 -cpu Haswell`: AVX2+FMA, no AVX-512),
 # x86-64-v2 (`qemu-x86_64 -cpu Nehalem`: SSE4.2, no AVX), aarch64 (the aarch64 gnu build under qemu-aarch64,
 # tract and ONNX Runtime from PyPI's aarch64 wheel), aarch64-musl (the static aarch64 build, tract), armv7 (tract,
-# qemu-arm), windows (the x86-64 Windows build under wine, tract), aarch64-neon and aarch64-musl-neon (aarch64 and
+# qemu-arm: tract's VFP kernels), armv7-neon (the same under an armv7 /proc/cpuinfo and `-cpu cortex-a7`: tract's
+# NEON kernels), windows (the x86-64 Windows build under wine, tract), aarch64-neon and aarch64-musl-neon (aarch64 and
 # aarch64-musl under `qemu-aarch64 -cpu cortex-a72`: NEON, no SVE), or all (x86-64-v4 x86-64-v3 x86-64-v2 aarch64 armv7).
 # openvino, webgpu, wasm-tract and wasm-ort-web run through scripts/targets_providers.sh (same report, same exit).
 #
@@ -21,8 +22,8 @@
 # --checks: the parity checks (default: all on x86-64-v4; graph,rollout,logmel under emulation, where the chunk and
 # batch invariance checks, which do not depend on the instruction set, would take many times longer).
 # x86-64 targets run target/release/livegesture (build it first: cargo build --release -p livegesture); the
-# others build once with scripts/cross.sh (profile dist). Add a target: write a function `target_NAME` that sets
-# BIN, RUNNER, BACKENDS (and ORT_LIB for ort) like those below, and add NAME to ALL.
+# others build once with scripts/cross.sh (profile dist; TARGETS_NO_BUILD=1: use the binary already built).
+# Add a target: a function `target_NAME` setting BIN, RUNNER, BACKENDS (and ORT_LIB for ort) like those below.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -36,13 +37,13 @@ while [ $# -gt 0 ]; do
     --bundle) bundle="${2:?--bundle needs a folder}"; shift 2 ;;
     --checks) checks="${2:?--checks needs a list}"; shift 2 ;;
     --out) out="${2:?--out needs a folder}"; shift 2 ;;
-    -h|--help) sed -n '2,25p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,26p' "$0"; exit 0 ;;
     all) targets+=($ALL); shift ;;
     -*) echo "targets.sh: unknown option $1" >&2; exit 2 ;;
     *) targets+=("$1"); shift ;;
   esac
 done
-[ ${#targets[@]} -gt 0 ] || { echo "targets.sh: name at least one target (or all): $ALL aarch64-musl aarch64-neon aarch64-musl-neon windows openvino webgpu wasm-tract wasm-ort-web" >&2; exit 2; }
+[ ${#targets[@]} -gt 0 ] || { echo "targets.sh: name at least one target (or all): $ALL aarch64-musl aarch64-neon aarch64-musl-neon armv7-neon windows openvino webgpu wasm-tract wasm-ort-web" >&2; exit 2; }
 [ -f "$bundle/manifest.json" ] || { echo "targets.sh: --bundle $bundle: no manifest.json there (expected a bundle folder)" >&2; exit 2; }
 source scripts/env.sh >/dev/null
 mkdir -p "$out"
@@ -50,6 +51,17 @@ mkdir -p "$out"
 host_bin() {
   BIN="$PWD/target/release/livegesture"
   [ -x "$BIN" ] || { echo "targets.sh: $BIN is missing (cargo build --release -p livegesture)" >&2; exit 2; }
+}
+# the cross build of a triple: built (once) by scripts/cross.sh, or with TARGETS_NO_BUILD=1 the binary already
+# there (cross.sh --path), so that a run does not wait on cargo's lock while another cross build holds it
+cross_bin() {
+  if [ "${TARGETS_NO_BUILD:-0}" = 1 ]; then
+    local p; p="$(scripts/cross.sh --path "$1")"
+    [ -x "$p" ] || { echo "targets.sh: TARGETS_NO_BUILD=1 and $p is missing (scripts/cross.sh $1)" >&2; return 1; }
+    echo "$p"
+  else
+    scripts/cross.sh "$1"
+  fi
 }
 need_qemu() {
   command -v "$1" >/dev/null 2>&1 || DEBIAN_FRONTEND=noninteractive apt-get install -y -qq qemu-user >/dev/null
@@ -67,11 +79,11 @@ target_x86_64_v2() {
   host_bin; need_qemu qemu-x86_64; RUNNER="qemu-x86_64 -cpu Nehalem"; BACKENDS=ort,tract; ORT_LIB="$ORT_DYLIB_PATH"; EMULATED=1
 }
 target_aarch64() {
-  BIN="$(scripts/cross.sh aarch64-unknown-linux-gnu)"; RUNNER="$(scripts/cross.sh --runner aarch64-unknown-linux-gnu)"
+  BIN="$(cross_bin aarch64-unknown-linux-gnu)" || return 1; RUNNER="$(scripts/cross.sh --runner aarch64-unknown-linux-gnu)"
   ORT_LIB="$(scripts/cross.sh --ort-lib aarch64-unknown-linux-gnu)"; BACKENDS=ort,tract; EMULATED=1
 }
 target_aarch64_musl() {
-  BIN="$(scripts/cross.sh aarch64-unknown-linux-musl)"; RUNNER="$(scripts/cross.sh --runner aarch64-unknown-linux-musl)"
+  BIN="$(cross_bin aarch64-unknown-linux-musl)" || return 1; RUNNER="$(scripts/cross.sh --runner aarch64-unknown-linux-musl)"
   ORT_LIB=""; BACKENDS=tract; EMULATED=1
 }
 # NEON-only aarch64 (Graviton 2 / Neoverse N1, Raspberry Pi 4, Ampere Altra): qemu's default CPU model (`max`) offers
@@ -84,11 +96,17 @@ target_aarch64_musl_neon() {
   target_aarch64_musl; RUNNER="$RUNNER -cpu cortex-a72"
 }
 target_armv7() {
-  BIN="$(scripts/cross.sh armv7-unknown-linux-gnueabihf)"; RUNNER="$(scripts/cross.sh --runner armv7-unknown-linux-gnueabihf)"
+  BIN="$(cross_bin armv7-unknown-linux-gnueabihf)" || return 1; RUNNER="$(scripts/cross.sh --runner armv7-unknown-linux-gnueabihf)"
   ORT_LIB=""; BACKENDS=tract; EMULATED=1
 }
+# armv7 with NEON (Raspberry Pi 2, Cortex-A7): tract reads NEON from /proc/cpuinfo on 32-bit ARM, and qemu-arm shows it
+# this x86-64 host's, so plain `armv7` runs tract's VFP-only kernels (armvfpv2); scripts/qemu_armv7_cpuinfo.sh gives
+# it a Cortex-A7's, and tract takes its armv7neon kernels
+target_armv7_neon() {
+  target_armv7; RUNNER="$PWD/scripts/qemu_armv7_cpuinfo.sh -L /usr/arm-linux-gnueabihf -cpu cortex-a7"
+}
 target_windows() {
-  BIN="$(scripts/cross.sh x86_64-pc-windows-gnu)"; RUNNER="wine"; ORT_LIB=""; BACKENDS=tract; EMULATED=1
+  BIN="$(cross_bin x86_64-pc-windows-gnu)" || return 1; RUNNER="wine"; ORT_LIB=""; BACKENDS=tract; EMULATED=1
   export WINEDEBUG=-all WINEPREFIX="${WINEPREFIX:-$(dirname "$LIVEGESTURE_VENV")/wine}"   # created once (wineboot)
 }
 
@@ -100,7 +118,7 @@ for t in "${targets[@]}"; do
   esac
   fn="target_${t//-/_}"
   if ! declare -F "$fn" >/dev/null; then
-    echo "targets.sh: unknown target '$t'; expected: $ALL aarch64-musl aarch64-neon aarch64-musl-neon windows openvino webgpu wasm-tract wasm-ort-web all" >&2; exit 2
+    echo "targets.sh: unknown target '$t'; expected: $ALL aarch64-musl aarch64-neon aarch64-musl-neon armv7-neon windows openvino webgpu wasm-tract wasm-ort-web all" >&2; exit 2
   fi
   echo "=== target $t on $bundle"
   if ! "$fn"; then failed+=("$t (could not start)"); continue; fi

@@ -297,6 +297,10 @@ import json, sys
 cpu = json.load(open(sys.argv[1]))["target"]["cpu"]
 if cpu["tract_rung"] != "neon" or any("sve" in t for t in cpu["tract_mmm_tiers"]):
     sys.exit(f"aarch64-musl-neon: tract took {cpu['tract_rung']} {cpu['tract_mmm_tiers']}, not the NEON-only arm64simd path")
+# and it names the f32 kernels it picked: arm64simd's, for every matmul shape
+picks = cpu.get("tract_f32_mmm_picks") or {}
+if not picks or not all(str(k).startswith("arm64simd_") for k in picks.values()):
+    sys.exit(f"aarch64-musl-neon: tract's f32 matmul picks {picks} are not all arm64simd kernels")
 PY
 # the release archive for aarch64 Linux (static), proven from the archive alone under qemu-aarch64
 scripts/release.sh --prove aarch64-unknown-linux-musl

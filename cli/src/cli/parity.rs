@@ -300,13 +300,33 @@ fn cpu_report() -> serde_json::Value {
     use serde_json::json;
     use tract_onnx::tract_core::tract_linalg as linalg;
     let isa = linalg::isa::native();
+    let f32 = tract_onnx::prelude::DatumType::F32;
+    // the f32 kernels written for this architecture that this build compiled and this CPU runs (the
+    // portable Rust ones left out). Not "needs a feature": NEON is aarch64's baseline, so arm64simd's
+    // kernels need nothing and a filter on that dropped them all.
     let mmm: Vec<String> = linalg::mmm_routines::runnable_for(&isa)
         .iter()
-        .filter(|k| {
-            k.internal_type() == tract_onnx::prelude::DatumType::F32 && !k.isa().needs.is_empty()
-        })
+        .filter(|k| k.internal_type() == f32 && k.arch().is_some() && k.built())
         .map(|k| k.name().to_string())
         .collect();
+    // the kernel tract's dispatch picks for plain f32 matmuls of the shapes a step graph runs: a
+    // matrix times one column (one frame), a few columns, a block, and a column count unknown
+    // when the plan is made
+    let picks: serde_json::Map<String, serde_json::Value> = [
+        ("m256_k256_n1", Some(1)),
+        ("m256_k256_n8", Some(8)),
+        ("m256_k256_n64", Some(64)),
+        ("m256_k256_n?", None),
+    ]
+    .into_iter()
+    .map(|(label, n)| {
+        let q = linalg::mmm::Query::plain(f32, Some(256), Some(256), n);
+        let pick = linalg::MmmDispatch::native()
+            .pick(&q)
+            .map(|(k, _, _)| k.name().to_string());
+        (label.to_string(), json!(pick))
+    })
+    .collect();
     let routines: serde_json::Map<String, serde_json::Value> = [
         ("sigmoid", linalg::Func::Sigmoid),
         ("tanh", linalg::Func::Tanh),
@@ -366,6 +386,7 @@ fn cpu_report() -> serde_json::Value {
         "tract_rung": isa.nickname(),
         "tract_mmm_tiers": linalg::mmm_tiers::for_isa(&isa).iter().map(|t| t.name).collect::<Vec<_>>(),
         "tract_f32_mmm_kernels": mmm,
+        "tract_f32_mmm_picks": picks,
         "tract_f32_routines": routines,
         "ort": "MLAS dispatches on cpu_features (CPUID); it does not report its kernels",
     })
