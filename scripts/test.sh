@@ -5,7 +5,8 @@
 #   2. fresh exports of the tiny configs of both families (the exporter verifies every graph against torch);
 #   3. the Rust build and the parity checks (torch vs ort vs tract) on those exports and on the shipped bundles
 #      with the oldest supported and the newest ONNX Runtime (JUnit reports in target/parity/);
-#   4. the Rust tests (runtime numerics, bundles, pipeline, CLI, serve, parity suite incl. its must-fail cases);
+#   4. the Rust tests (runtime numerics, bundles, pipeline, CLI, serve, parity suite incl. its must-fail cases),
+#      clippy -D warnings and rustdoc -D warnings on the whole workspace;
 #   5. the bindings: the Python module's wheel, the C example and C# declarations (mono) against the CLI;
 #   6. the serve protocol with independent Python/JS clients, BVH read back with a PyPI reader, and
 #      a rolling restart of serve replicas behind HAProxy, the deployment files checked statically;
@@ -133,6 +134,12 @@ if command -v cargo-nextest >/dev/null 2>&1; then
 else
   cargo test --workspace --release --no-fail-fast
 fi
+
+stage "lints: clippy -D warnings on every crate and target, rustdoc -D warnings (broken or private doc links)"
+# (clippy checks the dependencies once, without code generation; rustdoc reuses that check; about 6 min on the
+# loaded 2-core VM for both, a few seconds once they are checked)
+cargo clippy --release --workspace --all-targets -- -D warnings
+RUSTDOCFLAGS="-D warnings" cargo doc --release --workspace --no-deps
 
 stage "face: lip sync of the runtime's face channel on the held-out real speech (docs/face.md)"
 # pocketsphinx (its wheel's en-us acoustic model and phone LM) labels the recordings; not in

@@ -47,7 +47,7 @@ pub fn open_model(
     backend: &BackendOptions,
     form: GraphForm,
 ) -> Result<Box<dyn MotionModel>> {
-    let bundle = Bundle::load(&default_bundle_dir(dir))?;
+    let bundle = Bundle::load(default_bundle_dir(dir))?;
     let be = backend::create(backend)?;
     let loaded = model::load_with(&bundle, be.as_ref(), &LoadOptions { form });
     loaded.with_context(|| {

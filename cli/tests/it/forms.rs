@@ -421,8 +421,7 @@ fn a_bundle_without_the_attention_form_runs_the_canonical_fusion() {
         })
         .unwrap();
         let e = LiveGestureGraphs::with_form(&b, be.as_ref(), GraphForm::Attention)
-            .err()
-            .expect("the attention form is refused");
+            .expect_err("the attention form is refused");
         let e = format!("{e:#}");
         assert!(e.contains("no 'attention' form"), "{e}");
     }

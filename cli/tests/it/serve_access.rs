@@ -121,7 +121,7 @@ fn a_token_is_required_as_bearer_or_query_and_compared_exactly() {
             ), // longer
             ("", vec![("authorization", "Basic czNjcmV0")]),
         ] {
-            let (status, body) = open(addr, q, &h).await.err().expect("refused");
+            let (status, body) = open(addr, q, &h).await.expect_err("refused");
             assert_eq!(status, 401, "{q} {h:?}");
             assert!(body.contains("token"), "{body}");
         }
@@ -158,14 +158,12 @@ fn foreign_origins_are_refused_listed_and_own_origins_accepted() {
     within(60, async {
         let (status, body) = open(addr, "", &[("origin", "https://evil.example")])
             .await
-            .err()
-            .expect("foreign origin refused");
+            .expect_err("foreign origin refused");
         assert_eq!(status, 403);
         assert!(body.contains("Origin"), "{body}");
         let (status, _) = open(addr, "", &[("origin", "https://app.example.org.evil")])
             .await
-            .err()
-            .expect("a suffix is not the listed origin");
+            .expect_err("a suffix is not the listed origin");
         assert_eq!(status, 403);
         let _a = open(addr, "", &[("origin", "https://app.example.org")])
             .await
@@ -193,7 +191,7 @@ fn one_client_cannot_take_more_than_its_sessions() {
     within(60, async {
         let mut a = open(addr, "", &[]).await.expect("first");
         let _b = open(addr, "", &[]).await.expect("second");
-        let (status, body) = open(addr, "", &[]).await.err().expect("third refused");
+        let (status, body) = open(addr, "", &[]).await.expect_err("third refused");
         assert_eq!(status, 429);
         assert!(body.contains("max-sessions-per-client"), "{body}");
         // another client (behind the proxy: its X-Forwarded-For) is not affected
@@ -240,7 +238,7 @@ fn draining_turns_healthz_503_at_once_and_lets_live_sessions_finish() {
         let m = http_get(addr, "/metrics").await;
         assert_eq!(metric(&m, "livegesture_draining"), 1.0);
         assert_eq!(metric(&m, "livegesture_sessions_slots"), 2.0);
-        let (status, body) = open(addr, "", &[]).await.err().expect("no new session");
+        let (status, body) = open(addr, "", &[]).await.expect_err("no new session");
         assert_eq!(status, 503);
         assert!(body.contains("shutting down"), "{body}");
         // a live session that ends within the delay completes

@@ -26,7 +26,7 @@ fn assert_complete_and_passing(report: &Report, graphs: usize) {
         );
     }
     for comparison in ["ort vs torch", "tract vs torch", "tract vs ort"] {
-        let tokens = rollout_tokens_row(&report, comparison);
+        let tokens = rollout_tokens_row(report, comparison);
         assert_eq!(tokens.metric, Metric::DifferingSteps);
         assert!(
             tokens.compared >= 1000,

@@ -33,9 +33,9 @@
 //!
 //! # Layout
 //!
-//! - [`resample`]: [`Resampler16k`], any rate to 16 kHz, independent of the caller's chunking;
-//! - [`wav`]: [`WavStream`] and [`read_wav_16k_mono`];
-//! - [`raw`]: [`RawPcmDecoder`] and [`RawPcmStream`] for headerless PCM;
+//! - `resample`: [`Resampler16k`], any rate to 16 kHz, independent of the caller's chunking;
+//! - `wav`: [`WavStream`] and [`read_wav_16k_mono`];
+//! - `raw`: [`RawPcmDecoder`] and [`RawPcmStream`] for headerless PCM;
 //! - here: the errors, the mono mix, and [`AudioSpan`] (how much input a source delivered, which
 //!   fixes the number of frames that cover it, docs/output.md).
 
@@ -148,7 +148,7 @@ impl AudioSpan {
     /// rate counts as 1 Hz.
     pub fn frames(&self, fps: u64) -> u64 {
         let rate = u128::from(self.sample_rate.max(1));
-        ((u128::from(self.samples) * u128::from(fps) + rate - 1) / rate) as u64
+        (u128::from(self.samples) * u128::from(fps)).div_ceil(rate) as u64
     }
 
     /// Duration in seconds.

@@ -9,9 +9,9 @@
 //!
 //! Two implementations:
 //!
-//! - [`tract`](self::tract) (default, pure Rust): one optimised plan per batch size, built on first
+//! - [`tract`] (default, pure Rust): one optimised plan per batch size, built on first
 //!   use and cached;
-//! - [`ort`](self::ort) (feature `ort`): ONNX Runtime loaded at run time from `ORT_DYLIB_PATH` or an
+//! - [`ort`] (feature `ort`): ONNX Runtime loaded at run time from `ORT_DYLIB_PATH` or an
 //!   installed `onnxruntime` Python package, with a selectable execution provider.
 
 use std::fmt;

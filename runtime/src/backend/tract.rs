@@ -310,7 +310,7 @@ impl GraphRunner for TractGraph {
                         format!("tract: a run state for graph '{name}' ({})", self.path)
                     })
                 },
-                |state| Ok(super::flush_denormals(|| state.run(tv))?),
+                |state| super::flush_denormals(|| state.run(tv)),
             )
             .with_context(|| format!("tract: running graph '{name}' (batch {batch})"))?;
         let specs = self.spec.all_outputs();

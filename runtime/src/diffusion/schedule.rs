@@ -60,7 +60,7 @@ impl Schedule {
     /// divides T (the paper's spacing).
     pub fn check_steps(&self, steps: usize) -> Result<()> {
         let t = self.train_steps();
-        if steps == 0 || steps > t || t % steps != 0 {
+        if steps == 0 || steps > t || !t.is_multiple_of(steps) {
             bail!(
                 "DDIM steps must divide {t} (1, 2, 4, 5, 8, 10, 20, 25, 40, 50, ...), got {steps}"
             );

@@ -155,7 +155,7 @@ pub trait MotionModel: Send + Sync {
     fn push_many(&self, jobs: &mut [(&mut dyn MotionStream, &[f32])]) -> Vec<Result<Vec<Frame>>> {
         let mut js: Vec<StreamJob<'_>> = jobs
             .iter_mut()
-            .map(|(s, a)| StreamJob::push(&mut **s, *a))
+            .map(|(s, a)| StreamJob::push(&mut **s, a))
             .collect();
         self.step_many(&mut js)
     }

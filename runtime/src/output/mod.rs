@@ -65,7 +65,7 @@
 //!
 //! # Layout
 //!
-//! [`Frame`] and [`FrameSink`] here; the sinks in [`jsonl`], [`binary`] and [`npz`]; glTF 2.0 files
+//! [`Frame`] and [`FrameSink`] here; the sinks in `jsonl`, `binary` and `npz`; glTF 2.0 files
 //! (`.glb`, `.gltf`: the project's skeleton and one animation, docs/avatars.md) in [`gltf`].
 
 use anyhow::{bail, ensure, Context, Result};

@@ -102,15 +102,18 @@ fn options(cfg: &BenchConfig, steps: Option<usize>, jumps: Option<usize>) -> Str
     }
 }
 
-/// Pushes one window step of audio at a time; returns (first window ms, outpainting window ms,
-/// graph events per outpainting window, state bytes after the run).
+/// What [`run_windows`] measures: (first window ms, outpainting window ms, graph events per
+/// outpainting window, state bytes after the run, the sampler options the stream ran with).
+type WindowRun = (f64, Vec<f64>, Vec<Vec<(usize, f64)>>, usize, SamplerOptions);
+
+/// Pushes one window step of audio at a time; returns [`WindowRun`].
 fn run_windows(
     model: &DiffshegModel,
     opts: &StreamOptions,
     audio: &[f32],
     timed: usize,
     rec: &Recorder,
-) -> Result<(f64, Vec<f64>, Vec<Vec<(usize, f64)>>, usize, SamplerOptions)> {
+) -> Result<WindowRun> {
     let mut s = model.stream(opts, false)?;
     let so = *s.foppas().options();
     let fe = &model.shared().frontend;

@@ -13,7 +13,7 @@
 //! - per-client limit (`--max-sessions-per-client`): live sessions per client IP (the TCP peer, or
 //!   the last `X-Forwarded-For` entry with `--trust-forwarded-for`, for a server behind a proxy that
 //!   sets it); more get HTTP 429, reason `client_limit`. The slot is held by the connection itself
-//!   ([`ConnIo`]), so it is released whenever the session's socket goes away, however it ended.
+//!   ([`ConnIo`](crate::tls::ConnIo)), so it is released whenever the session's socket goes away, however it ended.
 
 use std::collections::HashMap;
 use std::net::{IpAddr, SocketAddr};
@@ -131,7 +131,7 @@ impl Drop for ClientGuard {
 /// What a connection holds for as long as it is open (the per-client slot of its session).
 pub(crate) type Hold = Arc<Mutex<Option<ClientGuard>>>;
 
-/// The connect info of every request: the TCP peer and the connection's [`Hold`].
+/// The connect info of every request: the TCP peer and the connection's hold on its client slot (`Hold`).
 #[derive(Debug, Clone)]
 pub struct ClientAddr {
     pub peer: SocketAddr,
@@ -201,7 +201,7 @@ fn origin_allowed(cfg: &AccessConfig, headers: &HeaderMap) -> bool {
         return false;
     };
     let o = origin.trim_end_matches('/').to_ascii_lowercase();
-    if cfg.allowed_origins.iter().any(|a| *a == o) {
+    if cfg.allowed_origins.contains(&o) {
         return true;
     }
     let host = headers
@@ -223,7 +223,7 @@ fn client_key(cfg: &AccessConfig, peer: SocketAddr, headers: &HeaderMap) -> IpAd
             .filter_map(|v| v.to_str().ok())
             .flat_map(|v| v.split(','))
             .filter_map(|s| s.trim().parse::<IpAddr>().ok())
-            .last();
+            .next_back();
         if let Some(ip) = last {
             return ip;
         }

@@ -233,7 +233,7 @@ impl MotionModel for DiffshegModel {
 
     /// The windows due in several streams run together: windows of the same length share each
     /// `speech_encoder` and `denoiser` call, every stream's rows (both guidance rows with guidance)
-    /// on the batch axis ([`batch`]).
+    /// on the batch axis (`batch`).
     fn step_many(&self, jobs: &mut [StreamJob<'_>]) -> Vec<Result<Vec<Frame>>> {
         batch::step_many(self, jobs)
     }

@@ -219,7 +219,7 @@ impl FoppasStream {
 
     /// The sample at whose arrival the window starting at `start` runs: `(start + N) * 16000 // 30`.
     fn window_ready_sample(&self, start: usize) -> u64 {
-        let sr = self.analyzer.config().sample_rate as u64;
+        let sr = self.analyzer.config().sample_rate;
         let fps = self.analyzer.config().fps;
         (start + self.opts.window) as u64 * sr / fps
     }
@@ -319,7 +319,7 @@ impl FoppasStream {
             return Ok(None);
         }
         let cfg = self.analyzer.config();
-        let need = t as u64 * cfg.sample_rate as u64 / cfg.fps;
+        let need = t as u64 * cfg.sample_rate / cfg.fps;
         let have = self.buf_offset + self.buf.len() as u64;
         if need > have {
             self.buf

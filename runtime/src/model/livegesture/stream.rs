@@ -218,7 +218,7 @@ impl Stream {
         self.state.frames_done()
     }
 
-    /// Audio samples received so far (not counting the silence added by [`LiveGestureGraphs::finish`]).
+    /// Audio samples received so far (not counting the silence added by [`LiveGestureGraphs::finish`](super::LiveGestureGraphs::finish)).
     pub fn samples_received(&self) -> u64 {
         self.state.samples_received()
     }
@@ -229,7 +229,7 @@ impl Stream {
         self.state.next_token_samples()
     }
 
-    /// True once [`LiveGestureGraphs::finish`] (or [`Stream::finish_audio`]) ended the stream.
+    /// True once [`LiveGestureGraphs::finish`](super::LiveGestureGraphs::finish) (or [`Stream::finish_audio`]) ended the stream.
     pub fn is_finished(&self) -> bool {
         self.state.end.is_some()
     }
@@ -239,21 +239,21 @@ impl Stream {
         &self.state.prev
     }
 
-    /// True after a failed step: the stream refuses further work until [`LiveGestureGraphs::reset`].
+    /// True after a failed step: the stream refuses further work until [`LiveGestureGraphs::reset`](super::LiveGestureGraphs::reset).
     pub fn is_poisoned(&self) -> bool {
         self.poisoned
     }
 
     /// Feeds audio to the stream's frontend only, returning the mel frames of each completed token.
-    /// Use with [`LiveGestureGraphs::step_batch`] to step many streams together.
+    /// Use with [`LiveGestureGraphs::step_batch`](super::LiveGestureGraphs::step_batch) to step many streams together.
     pub fn push_audio(&mut self, chunk: &[f32]) -> Result<Vec<Array2<f32>>> {
         self.state.push_audio(chunk)
     }
 
-    /// Ends the stream's audio for stepping with [`LiveGestureGraphs::step_batch`] (docs/output.md): the mel blocks of
+    /// Ends the stream's audio for stepping with [`LiveGestureGraphs::step_batch`](super::LiveGestureGraphs::step_batch) (docs/output.md): the mel blocks of
     /// the silence-completed last token (none when the audio ended on a token boundary) and the
     /// number of frames that covers `input`; keep only frames whose index is below it
-    /// ([`cut_frames`]). [`LiveGestureGraphs::finish`] does all of this for one stream.
+    /// ([`cut_frames`]). [`LiveGestureGraphs::finish`](super::LiveGestureGraphs::finish) does all of this for one stream.
     pub fn finish_audio(&mut self, input: AudioSpan) -> Result<(Vec<Array2<f32>>, u64)> {
         self.state.finish_audio(input)
     }
