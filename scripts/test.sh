@@ -138,6 +138,7 @@ fi
 stage "lints: clippy -D warnings on every crate and target, rustdoc -D warnings (broken or private doc links)"
 # (clippy checks the dependencies once, without code generation; rustdoc reuses that check; about 6 min on the
 # loaded 2-core VM for both, a few seconds once they are checked)
+cargo clippy --version >/dev/null 2>&1 || rustup component add clippy
 cargo clippy --release --workspace --all-targets -- -D warnings
 RUSTDOCFLAGS="-D warnings" cargo doc --release --workspace --no-deps
 
