@@ -21,9 +21,9 @@ use livegesture::model::livegesture::{LiveGestureGraphs, StreamOptions};
 use livegesture::output::{Frame, FPS};
 use livegesture_serve::ServeConfig;
 use serve_common::{
-    assert_equal, assert_matches_generate, collect, connect, exited_ok, generate_binary,
-    generate_input, http_get, metric, motion_of, pcm_bytes, read_frames, session, spawn_serve,
-    spawn_serve_with, speech_of, start_tiny, tract_backend, url, within, Outcome, Ws,
+    assert_equal, assert_matches_generate, assert_stereo_f32_splits, collect, connect, exited_ok,
+    generate_binary, generate_input, http_get, metric, motion_of, pcm_bytes, read_frames, session,
+    spawn_serve, spawn_serve_with, speech_of, start_tiny, tract_backend, url, within, Outcome, Ws,
 };
 use tokio_tungstenite::tungstenite::Message;
 
@@ -150,23 +150,7 @@ fn stereo_44k_f32_binary_equals_generate() {
         AudioSpan::new(st.len() as u64, 44100).frames(30)
     );
     let bytes = pcm_bytes(&inter, true);
-    for cuts in [vec![4410 * 8], vec![8191, 5, 3]] {
-        let got = within(
-            60,
-            session(
-                addr,
-                "?rate=44100&channels=2&format=f32le&output=binary&seed=9",
-                &bytes,
-                &cuts,
-            ),
-        );
-        assert_equal(
-            &got.frames,
-            &want,
-            &format!("44.1 kHz stereo f32le, split {cuts:?}"),
-        );
-        assert_eq!(got.close.as_ref().map(|c| c.0), Some(1000));
-    }
+    assert_stereo_f32_splits(addr, &bytes, &want, 60);
     // s16le stereo 44.1 kHz, JSON
     let want16 = reference(&inter, 44100, 2, false, 9);
     let got = within(

@@ -286,6 +286,28 @@ pub fn max_diff(got: &[Frame], want: &[Frame], what: &str) -> f64 {
 
 /// The session's frames equal `want` within 1e-4 (scaled, docs/parity.md); a failure names the field,
 /// the error, the scale and where.
+/// 44.1 kHz stereo f32le `bytes` sent in two ways of cutting them into messages (binary records, seed 9):
+/// each gives `want` exactly and closes normally (1000), within `secs`.
+pub fn assert_stereo_f32_splits(addr: SocketAddr, bytes: &[u8], want: &[Frame], secs: u64) {
+    for cuts in [vec![4410 * 8], vec![8191, 5, 3]] {
+        let got = within(
+            secs,
+            session(
+                addr,
+                "?rate=44100&channels=2&format=f32le&output=binary&seed=9",
+                bytes,
+                &cuts,
+            ),
+        );
+        assert_equal(
+            &got.frames,
+            want,
+            &format!("44.1 kHz stereo f32le, split {cuts:?}"),
+        );
+        assert_eq!(got.close.as_ref().map(|c| c.0), Some(1000));
+    }
+}
+
 pub fn assert_equal(got: &[Frame], want: &[Frame], what: &str) {
     let (field, d) = frames_diff(got, want, what);
     if let Err(e) = d.ensure(

@@ -24,9 +24,9 @@ use livegesture::model::{self, MotionModel, StreamOptions};
 use livegesture::output::{Frame, FPS};
 use livegesture_serve::{ServeConfig, Server};
 use serve_common::{
-    assert_equal, assert_matches_generate, collect, connect, exited_ok, generate_binary,
-    generate_input, max_diff, model_info, pcm_bytes, read_frames, session, spawn_serve, speech_of,
-    tract_backend, within, Outcome, Ws,
+    assert_equal, assert_matches_generate, assert_stereo_f32_splits, collect, connect, exited_ok,
+    generate_binary, generate_input, max_diff, model_info, pcm_bytes, read_frames, session,
+    spawn_serve, speech_of, tract_backend, within, Outcome, Ws,
 };
 use tokio_tungstenite::tungstenite::Message;
 
@@ -155,23 +155,7 @@ fn stereo_44k_f32_binary_equals_generate() {
         AudioSpan::new(n44 as u64, 44100).frames(30)
     );
     let bytes = pcm_bytes(&inter, true);
-    for cuts in [vec![4410 * 8], vec![8191, 5, 3]] {
-        let got = within(
-            120,
-            session(
-                addr,
-                "?rate=44100&channels=2&format=f32le&output=binary&seed=9",
-                &bytes,
-                &cuts,
-            ),
-        );
-        assert_equal(
-            &got.frames,
-            &want,
-            &format!("44.1 kHz stereo f32le, split {cuts:?}"),
-        );
-        assert_eq!(got.close.as_ref().map(|c| c.0), Some(1000));
-    }
+    assert_stereo_f32_splits(addr, &bytes, &want, 120);
     server.shutdown();
     server.join().unwrap();
 }
