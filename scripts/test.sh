@@ -164,7 +164,14 @@ stage "bindings: the Python module (wheel), the C example and the C# P/Invoke de
   "$LIVEGESTURE_VENV/bin/pip" install -q maturin==1.16.0
 rm -rf target/wheels
 "$LIVEGESTURE_VENV/bin/maturin" build --release --manifest-path bindings/python/Cargo.toml \
-  --interpreter "$LIVEGESTURE_PY" --out target/wheels
+  --interpreter "$LIVEGESTURE_PY" --out target/wheels 2>&1 | tee target/maturin.log
+# a crate compiled again here means the package-alone build resolved other features than the workspace build
+# (bindings/python/Cargo.toml names them); that costs ~4 minutes of this command, so it fails instead
+if grep -E '^ *Compiling ' target/maturin.log | grep -v 'livegesture-python'; then
+  echo "maturin compiled the crates above again: their features differ from the workspace build's" \
+    "(compare \`cargo tree --workspace -e features\` with \`cargo tree -p livegesture-python -e features\`)" >&2
+  exit 1
+fi
 "$LIVEGESTURE_VENV/bin/pip" install -q --no-deps --force-reinstall target/wheels/livegesture_runtime-*.whl
 # the C library was built by the workspace build above (target/release/liblivegesture_c.{a,so})
 scripts/build_c_example.sh --prebuilt
