@@ -29,7 +29,7 @@ targets=()
 for a in "$@"; do
   case "$a" in
     --prove) prove=1 ;;
-    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
     -*) echo "release.sh: unknown option $a" >&2; exit 2 ;;
     *) targets+=("$a") ;;
   esac
