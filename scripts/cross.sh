@@ -6,6 +6,7 @@
 #   scripts/cross.sh --features TARGET prints the cargo features the CLI is built with for TARGET
 #   scripts/cross.sh --runner TARGET   prints the command prefix that runs it on this x86-64 machine
 #                                      (empty: native; qemu-aarch64 ...; wine)
+#   scripts/cross.sh --c-lib TARGET    (aarch64 gnu) prints the folder of the C library built with the CLI
 #   scripts/cross.sh --ort-lib TARGET  (aarch64 gnu) fetches ONNX Runtime's library for TARGET from PyPI's
 #                                      wheel of the venv's onnxruntime version (cached) and prints its path
 #
@@ -37,6 +38,9 @@ t_aarch64_unknown_linux_gnu() {
   # qemu-aarch64 with an aarch64 /proc/cpuinfo: ONNX Runtime's aarch64 library segfaults while loading under plain
   # qemu-user on an x86-64 host (scripts/qemu_aarch64_cpuinfo.sh says why)
   FEATURES=$FEATURES_FULL; RUNNER="$PWD/scripts/qemu_aarch64_cpuinfo.sh -L /usr/aarch64-linux-gnu"
+  # the C library (the C SDK, scripts/release.sh c-sdk-aarch64) in the same cargo build: one feature resolution,
+  # so the dependencies compile once for both
+  WITH_C=1
   export CARGO_TARGET_AARCH64_UNKNOWN_LINUX_GNU_LINKER=aarch64-linux-gnu-gcc
   export CC_aarch64_unknown_linux_gnu=aarch64-linux-gnu-gcc
 }
@@ -50,11 +54,15 @@ t_aarch64_unknown_linux_musl() {
   export CC_aarch64_unknown_linux_musl=aarch64-linux-gnu-gcc
 }
 t_armv7_unknown_linux_gnueabihf() {
-  # gnueabihf, not musleabihf: rustup's rust-std for armv7-unknown-linux-musleabihf is not downloadable for
-  # this toolchain (HTTP 404, measured 2026-11-27); Debian ships the gnueabihf cross compiler
+  # gnueabihf, not musleabihf: rustup's rust-std for armv7-unknown-linux-musleabihf (and armv7-musleabi,
+  # arm-musleabihf) is not downloadable for this toolchain (HTTP 404, measured 2026-11-27 and 2026-11-28); Debian
+  # ships the gnueabihf cross compiler and glibc's static libraries (libc6-dev-armhf-cross), so the binary is
+  # linked statically against glibc (crt-static): no dynamic dependency, as the musl builds. (A static glibc
+  # cannot dlopen or use NSS: this build has neither `ort` nor `serve`.)
   TRIPLE=armv7-unknown-linux-gnueabihf; APT="gcc-arm-linux-gnueabihf libc6-dev-armhf-cross qemu-user"
   FEATURES=$FEATURES_STATIC; RUNNER="qemu-arm -L /usr/arm-linux-gnueabihf"
   export CARGO_TARGET_ARMV7_UNKNOWN_LINUX_GNUEABIHF_LINKER=arm-linux-gnueabihf-gcc
+  export CARGO_TARGET_ARMV7_UNKNOWN_LINUX_GNUEABIHF_RUSTFLAGS="-C target-feature=+crt-static"
   export CC_armv7_unknown_linux_gnueabihf=arm-linux-gnueabihf-gcc
 }
 t_x86_64_pc_windows_gnu() {
@@ -64,6 +72,7 @@ t_x86_64_pc_windows_gnu() {
 }
 
 resolve() {
+  WITH_C=0
   case "$1" in
     x86_64|x86-64|native) t_x86_64_unknown_linux_gnu ;;
     aarch64) t_aarch64_unknown_linux_gnu ;;
@@ -124,7 +133,7 @@ ort_lib() {
 
 mode=build
 case "${1:-}" in
-  --path|--runner|--ort-lib|--features) mode="${1#--}"; shift ;;
+  --path|--runner|--ort-lib|--features|--c-lib) mode="${1#--}"; shift ;;
   -h|--help|"") sed -n '2,18p' "$0"; [ -n "${1:-}" ]; exit $? ;;
 esac
 [ $# -eq 1 ] || { echo "cross.sh: expected one TARGET, got $#" >&2; exit 2; }
@@ -133,13 +142,17 @@ case $mode in
   path) echo "$OUT"; exit 0 ;;
   runner) echo "$RUNNER"; exit 0 ;;
   features) echo "$FEATURES"; exit 0 ;;
+  c-lib) [ "$WITH_C" = 1 ] || { echo "cross.sh: --c-lib: the C library is built only for aarch64-unknown-linux-gnu" >&2; exit 2; }
+    echo "$(dirname "$OUT")"; exit 0 ;;
   ort-lib) install_deps; ort_lib; exit 0 ;;
 esac
 install_deps
 t=$SECONDS
 echo "cross.sh: building $EXE for $TRIPLE (profile dist, features $FEATURES)" >&2
-nice -n "${CROSS_NICE:-0}" cargo build --profile dist --target "$TRIPLE" -p livegesture --bin livegesture \
-  --no-default-features --features "$FEATURES" >&2
+clib=(); feats="$FEATURES"
+if [ "$WITH_C" = 1 ]; then clib=(-p livegesture-c --lib); feats="$(echo "$FEATURES" | sed 's/\([^,]*\)/livegesture\/\1/g')"; fi
+nice -n "${CROSS_NICE:-0}" cargo build --profile dist --target "$TRIPLE" -p livegesture --bin livegesture "${clib[@]}" \
+  --no-default-features --features "$feats" >&2
 [ -x "$OUT" ] || { echo "cross.sh: cargo finished but $OUT is missing" >&2; exit 1; }
 echo "cross.sh: $TRIPLE built in $(( SECONDS - t )) s: $(du -h "$OUT" | cut -f1)" >&2
 echo "$OUT"

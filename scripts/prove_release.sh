@@ -73,12 +73,18 @@ print(f"{frames} frames = ceil(duration x 30), finite, " + ("bit-identical to" i
 PY
 }
 
-# the C SDK: headers, stripped libraries, pkg-config and CMake files; the example compiled against the extracted
-# SDK four ways (pkg-config shared/static, CMake shared/static), each run on the WAV with the bundle copied out of
-# the repository (the SDK ships no bundle): the same poses as the native CLI, bit for bit (the same code and
-# kernels on the same machine; bindings/tests/test_c_example.py checks the same in the tree)
+# the C SDK (TRIPLE: x86_64- or aarch64-unknown-linux-gnu): headers, stripped libraries, pkg-config and CMake
+# files; the example compiled against the extracted SDK four ways (pkg-config shared/static, CMake shared/static;
+# aarch64: cross-compiled with Debian's aarch64-linux-gnu-gcc, CMake told so), each run on the WAV with the bundle
+# copied out of the repository (the SDK ships no bundle), natively or under qemu-aarch64 -L /usr/aarch64-linux-gnu:
+# x86-64: the same poses as the native CLI, bit for bit (the same code and kernels on the same machine;
+# bindings/tests/test_c_example.py checks the same in the tree); aarch64: within 1e-4 (scaled), the same tokens
 prove_c_sdk() {
-  local name="livegesture-c-$VERSION-x86_64-unknown-linux-gnu" d="$work/c-sdk" sdk f exe
+  local triple="$1" name="livegesture-c-$VERSION-$1" d="$work/c-sdk-$1" sdk f exe cc=cc run=() exact=1 cm_cross=()
+  if [ "$triple" = aarch64-unknown-linux-gnu ]; then
+    cc=aarch64-linux-gnu-gcc; run=(qemu-aarch64 -L /usr/aarch64-linux-gnu); exact=0
+    cm_cross=(-DCMAKE_SYSTEM_NAME=Linux -DCMAKE_SYSTEM_PROCESSOR=aarch64 -DCMAKE_C_COMPILER=aarch64-linux-gnu-gcc)
+  fi
   [ -f "$dist/$name.tar.gz" ] || { echo "no $name.tar.gz in target/dist"; return 1; }
   checksum "$name.tar.gz" || return 1
   mkdir -p "$d" && tar -C "$d" -xzf "$dist/$name.tar.gz"
@@ -89,14 +95,19 @@ prove_c_sdk() {
     [ -s "$sdk/$f" ] || { echo "c-sdk: $f missing or empty"; return 1; }
   done
   file -b "$sdk/lib/liblivegesture_c.so" | grep -q ", stripped" || { file "$sdk/lib/liblivegesture_c.so"; echo "c-sdk: the shared library is not stripped"; return 1; }
-  if objdump -h "$sdk/lib/liblivegesture_c.a" 2>/dev/null | grep -q '\.debug_info'; then echo "c-sdk: the static library carries debug info"; return 1; fi
-  echo "c-sdk: static library $(stat -c %s "$sdk/lib/liblivegesture_c.a") bytes ($(du -h "$sdk/lib/liblivegesture_c.a" | cut -f1)), shared $(stat -c %s "$sdk/lib/liblivegesture_c.so") bytes"
+  # (readelf reads every member's sections whatever the machine, unlike the host's objdump)
+  if readelf -S -W "$sdk/lib/liblivegesture_c.a" 2>/dev/null | grep -q '\.debug_info'; then echo "c-sdk: the static library carries debug info"; return 1; fi
+  # its SONAME, so that a program linked by the library's path (CMake) needs `liblivegesture_c.so`, not that path
+  local soname; soname="$(readelf -d "$sdk/lib/liblivegesture_c.so")"
+  [[ $soname == *"Library soname: [liblivegesture_c.so]"* ]] || { echo "c-sdk: liblivegesture_c.so has no SONAME liblivegesture_c.so"; return 1; }
+  local machine; machine="$(readelf -h "$sdk/lib/liblivegesture_c.so" | sed -n 's/^ *Machine: *//p')"
+  echo "c-sdk $triple: static library $(stat -c %s "$sdk/lib/liblivegesture_c.a") bytes ($(du -h "$sdk/lib/liblivegesture_c.a" | cut -f1)), shared $(stat -c %s "$sdk/lib/liblivegesture_c.so") bytes, $machine"
   "$LIVEGESTURE_PY" scripts/copy_bundle.py models/default "$d/bundle" >/dev/null
   mkdir -p "$d/build" && cd "$d/build"
   local ex="$sdk/share/livegesture/examples/generate.c" cflags=(-std=c11 -Wall -Wextra -Werror -O2)
-  PKG_CONFIG_PATH="$sdk/lib/pkgconfig" cc "${cflags[@]}" "$ex" $(PKG_CONFIG_PATH="$sdk/lib/pkgconfig" pkg-config --cflags --libs livegesture) \
+  "$cc" "${cflags[@]}" "$ex" $(PKG_CONFIG_PATH="$sdk/lib/pkgconfig" pkg-config --cflags --libs livegesture) \
     -Wl,-rpath,"$sdk/lib" -o pc-shared || { cd "$repo"; return 1; }
-  cc "${cflags[@]}" "$ex" $(PKG_CONFIG_PATH="$sdk/lib/pkgconfig" pkg-config --cflags --libs livegesture-static) -o pc-static \
+  "$cc" "${cflags[@]}" "$ex" $(PKG_CONFIG_PATH="$sdk/lib/pkgconfig" pkg-config --cflags --libs livegesture-static) -o pc-static \
     || { cd "$repo"; return 1; }
   cat > CMakeLists.txt <<CMAKE
 cmake_minimum_required(VERSION 3.16)
@@ -107,17 +118,28 @@ target_link_libraries(cmake-shared livegesture::livegesture)
 add_executable(cmake-static "$ex")
 target_link_libraries(cmake-static livegesture::static)
 CMAKE
-  { cmake -S . -B cm -DCMAKE_PREFIX_PATH="$sdk" -DCMAKE_BUILD_TYPE=Release >/dev/null && cmake --build cm >/dev/null; } \
+  { cmake -S . -B cm -DCMAKE_PREFIX_PATH="$sdk" -DCMAKE_BUILD_TYPE=Release "${cm_cross[@]}" >/dev/null && cmake --build cm >/dev/null; } \
     || { cd "$repo"; echo "c-sdk: CMake could not build the example"; return 1; }
   cd "$repo"
-  local l; l="$(ldd "$d/build/pc-shared")"   # (not piped into grep -q: with pipefail, ldd's SIGPIPE fails it)
-  [[ $l == *"$sdk/lib/liblivegesture_c.so"* ]] || { echo "$l"; echo "c-sdk: pc-shared does not load the SDK's .so"; return 1; }
-  l="$(ldd "$d/build/pc-static")"
-  [[ $l != *liblivegesture_c* ]] || { echo "$l"; echo "c-sdk: pc-static loads liblivegesture_c.so"; return 1; }
+  # the shared builds need the SDK's .so (and find it by their rpath), the static ones no liblivegesture_c at all
+  # (readelf -d: the dynamic section, for any machine; ldd could not read a foreign one)
+  local dyn
+  for exe in pc-shared cm/cmake-shared pc-static cm/cmake-static; do
+    readelf -h "$d/build/$exe" | grep -q "Machine: *$machine" || { echo "c-sdk: $exe is not built for $machine"; return 1; }
+    dyn="$(readelf -d "$d/build/$exe")"
+    case "$exe" in
+      *shared) [[ $dyn == *"[liblivegesture_c.so]"* ]] || { echo "$dyn"; echo "c-sdk: $exe does not need liblivegesture_c.so"; return 1; } ;;
+      *static) [[ $dyn != *liblivegesture_c* ]] || { echo "$dyn"; echo "c-sdk: $exe needs liblivegesture_c.so"; return 1; } ;;
+    esac
+  done
+  if [ ${#run[@]} = 0 ]; then
+    local l; l="$(ldd "$d/build/pc-shared")"   # (not piped into grep -q: with pipefail, ldd's SIGPIPE fails it)
+    [[ $l == *"$sdk/lib/liblivegesture_c.so"* ]] || { echo "$l"; echo "c-sdk: pc-shared does not load the SDK's .so"; return 1; }
+  fi
   for exe in pc-shared pc-static cm/cmake-shared cm/cmake-static; do
-    (cd "$work" && env -i PATH=/usr/bin:/bin HOME="$work" "$d/build/$exe" "$d/bundle" speech.wav 3 tract > "$d/$(basename "$exe").f32") \
+    (cd "$work" && env -i PATH=/usr/bin:/bin HOME="$work" "${run[@]}" "$d/build/$exe" "$d/bundle" speech.wav 3 tract > "$d/$(basename "$exe").f32") \
       || { echo "c-sdk: $exe failed"; return 1; }
-    echo -n "c-sdk $exe: "; check_output "$d/$(basename "$exe").f32" 1 || return 1
+    echo -n "c-sdk $exe: "; check_output "$d/$(basename "$exe").f32" "$exact" || return 1
   done
 }
 
@@ -186,7 +208,8 @@ PY
 
 for triple in "$@"; do
   case "$triple" in
-    c-sdk) echo "=== prove c-sdk"; prove_c_sdk || failed+=("c-sdk"); continue ;;
+    c-sdk|c-sdk-x86_64) echo "=== prove c-sdk"; prove_c_sdk x86_64-unknown-linux-gnu || failed+=("c-sdk"); continue ;;
+    c-sdk-aarch64) echo "=== prove c-sdk-aarch64"; prove_c_sdk aarch64-unknown-linux-gnu || failed+=("c-sdk-aarch64"); continue ;;
     web) echo "=== prove web"; prove_web || failed+=("web"); continue ;;
     wheel-x86_64|wheel-aarch64) echo "=== prove $triple"; prove_wheel "${triple#wheel-}" || failed+=("$triple"); continue ;;
   esac
@@ -221,7 +244,8 @@ for triple in "$@"; do
   [ -s "$d/$name/LICENSES/livegesture-LICENSE" ] && [ -s "$d/$name/LICENSES/crates.txt" ] \
     && [ -s "$d/$name/LICENSES/real-speech-SOURCES.md" ] \
     || { failed+=("$triple (LICENSES/livegesture-LICENSE, crates.txt or real-speech-SOURCES.md missing)"); continue; }
-  if [[ $triple == *musl* ]]; then
+  # static: the musl builds, and armv7 (glibc linked statically, crt-static: scripts/cross.sh says why)
+  if [[ $triple == *musl* || $triple == armv7-* ]]; then
     file "$exe" | grep -qE "statically linked|static-pie linked" || { file "$exe"; failed+=("$triple (not static)"); continue; }
     l="$(ldd "$exe" 2>&1 || true)"
     [[ $l == *"not a dynamic executable"* || $l == *"statically linked"* ]] || { echo "$l"; failed+=("$triple (ldd: dynamic)"); continue; }
@@ -248,6 +272,18 @@ for triple in "$@"; do
     echo "cmp: $triple.npz is byte-identical to the native x86-64 gnu build's tract output"
   fi
   check_output "$work/$triple.npz" "$exact" || { failed+=("$triple (output)"); continue; }
+  # the glibc archives carry ONNX Runtime in lib/: `--backend ort` finds it next to the executable (no
+  # ORT_DYLIB_PATH, no --ort-lib) and gives the same motion tokens as native tract (within 1e-4, scaled)
+  if [[ $triple == *-linux-gnu ]]; then
+    ls "$d/$name"/lib/libonnxruntime.so.* >/dev/null 2>&1 && [ -s "$d/$name/LICENSES/onnxruntime-LICENSE" ] \
+      || { failed+=("$triple (lib/libonnxruntime.so.* or LICENSES/onnxruntime-LICENSE missing)"); continue; }
+    start=$SECONDS
+    if ! (cd "$work" && "${clean[@]}" $runner "$exe" generate speech.wav -o "$triple-ort.npz" --backend ort --seed 3); then
+      failed+=("$triple (generate --backend ort failed)"); continue
+    fi
+    echo -n "ort ($(basename "$(ls "$d/$name"/lib/libonnxruntime.so.*)") from lib/, $(( SECONDS - start )) s): "
+    check_output "$work/$triple-ort.npz" 0 || { failed+=("$triple (ort output)"); continue; }
+  fi
 done
 if [ ${#failed[@]} -gt 0 ]; then echo "prove_release.sh: FAILED: ${failed[*]}" >&2; exit 1; fi
 echo "prove_release.sh: every archive proven: $*"

@@ -5,7 +5,8 @@
 #
 # TARGET: a Rust triple that scripts/cross.sh builds (x86_64-unknown-linux-musl, aarch64-unknown-linux-musl,
 # armv7-unknown-linux-gnueabihf, x86_64-unknown-linux-gnu, aarch64-unknown-linux-gnu, x86_64-pc-windows-gnu),
-# `c-sdk` (the C SDK for x86-64 Linux), `web` (the static web build, scripts/build_web_static.sh),
+# `c-sdk` / `c-sdk-aarch64` (the C SDK for x86-64 / aarch64 Linux, glibc), `web` (the static web build,
+# scripts/build_web_static.sh),
 # `wheel-x86_64` / `wheel-aarch64` (the Python module as a manylinux2014 abi3 wheel, CPython >= 3.10: maturin
 # --zig, checked by auditwheel), or none: all.
 # For each CLI target: livegesture-VERSION-TARGET.tar.gz (.zip for Windows) holding
@@ -22,13 +23,13 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/env.sh >/dev/null
 
-ALL="x86_64-unknown-linux-musl aarch64-unknown-linux-musl armv7-unknown-linux-gnueabihf x86_64-unknown-linux-gnu aarch64-unknown-linux-gnu x86_64-pc-windows-gnu c-sdk web wheel-x86_64 wheel-aarch64"
+ALL="x86_64-unknown-linux-musl aarch64-unknown-linux-musl armv7-unknown-linux-gnueabihf x86_64-unknown-linux-gnu aarch64-unknown-linux-gnu x86_64-pc-windows-gnu c-sdk c-sdk-aarch64 web wheel-x86_64 wheel-aarch64"
 prove=0
 targets=()
 for a in "$@"; do
   case "$a" in
     --prove) prove=1 ;;
-    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
     -*) echo "release.sh: unknown option $a" >&2; exit 2 ;;
     *) targets+=("$a") ;;
   esac
@@ -43,6 +44,15 @@ t0=$SECONDS
 # every crate linked into one build, with its licence texts (from cargo's registry sources), as one file
 licences() {  # TRIPLE FEATURES PACKAGE OUT
   "$LIVEGESTURE_PY" scripts/licences.py "$3" "$1" "$2" "$4"
+}
+
+# The workspace's release build, exactly as scripts/test.sh's stage "rust build (release)" runs it (same command,
+# same PyO3 configuration): the x86-64 glibc archive and the x86-64 C SDK take their binary and libraries from it
+# (target/release), so after the test command's build they compile nothing (a narrower `cargo build -p` would
+# resolve the dependencies' features differently and compile tract and the core again: 14 min measured)
+workspace_build() {
+  PYO3_CONFIG_FILE="$PWD/bindings/python/pyo3-config.txt" nice -n "${CROSS_NICE:-0}" \
+    cargo build --release --workspace --all-targets >&2
 }
 
 ort_lib_for() {  # TRIPLE -> path of libonnxruntime for it (gnu targets)
@@ -98,21 +108,31 @@ EOF
 
 build_cli() {  # TRIPLE
   local triple="$1" bin exe name stage features run ort=""
-  bin="$(scripts/cross.sh "$triple")"
+  if [ "$triple" = x86_64-unknown-linux-gnu ]; then
+    # the host build: the workspace's release build (default features: ort, parity, bench, serve, loadtest),
+    # stripped below as the dist profile strips the cross builds
+    workspace_build; bin="$PWD/target/release/livegesture"; features=""
+  else
+    bin="$(scripts/cross.sh "$triple")"
+    features="$(scripts/cross.sh --features "$triple")"
+  fi
   exe="$(basename "$bin")"
   name="livegesture-$VERSION-$triple"
   stage="$dist/stage/$name"
   rm -rf "$stage"; mkdir -p "$stage/bin"
   cp "$bin" "$stage/bin/$exe"
+  [ "$triple" = x86_64-unknown-linux-gnu ] && strip "$stage/bin/$exe"
   common_files "$stage"
-  features="$(scripts/cross.sh --features "$triple")"
   licences "$triple" "$features" livegesture "$stage/LICENSES/crates.txt"
   run="bin/$exe"; [[ $triple == *windows* ]] && run='bin\livegesture.exe'
-  if [[ $features == *ort* ]]; then
+  if [[ $triple == *-linux-gnu ]]; then
     local lib; lib="$(ort_lib_for "$triple")"
     mkdir -p "$stage/lib"; cp "$lib" "$stage/lib/"
-    local lic; lic="$(ls -d "$(dirname "$lib")"/../../onnxruntime-*.dist-info 2>/dev/null | head -n1)"
-    if [ -n "$lic" ]; then cat "$lic"/LICENSE* "$lic"/licenses/* 2>/dev/null > "$stage/LICENSES/onnxruntime-LICENSE" || true; fi
+    # the wheel's package folder (onnxruntime/, above capi/) holds its LICENSE (MIT) and ThirdPartyNotices.txt
+    local pkg; pkg="$(dirname "$(dirname "$lib")")"
+    [ -s "$pkg/LICENSE" ] || { echo "release.sh: $name: no LICENSE of ONNX Runtime in $pkg" >&2; exit 1; }
+    cp "$pkg/LICENSE" "$stage/LICENSES/onnxruntime-LICENSE"
+    [ -s "$pkg/ThirdPartyNotices.txt" ] && cp "$pkg/ThirdPartyNotices.txt" "$stage/LICENSES/onnxruntime-ThirdPartyNotices.txt"
     ort=", and ort (ONNX Runtime $(basename "$lib" | sed 's/libonnxruntime.so.//'), in lib/, loaded at run time: --backend ort)"
   fi
   quick_start "$stage" "$triple" "$run" "$ort"
@@ -125,20 +145,26 @@ build_cli() {  # TRIPLE
   echo "release.sh: $name: $(du -h "$dist/$name".* | cut -f1) (binary $(du -h "$bin" | cut -f1))" >&2
 }
 
-build_c_sdk() {  # the C SDK for x86-64 Linux (gnu): header, stripped shared and static library, pkg-config, CMake
-  local name="livegesture-c-$VERSION-x86_64-unknown-linux-gnu" stage
+build_c_sdk() {  # TRIPLE: the C SDK for Linux (gnu): header, stripped shared and static library, pkg-config, CMake
+  local triple="$1" name="livegesture-c-$VERSION-$1" stage libdir strip_tool
   stage="$dist/stage/$name"
-  # the release profile, as the test command's workspace build makes it (target/release/liblivegesture_c.*): no
-  # second compile of the whole dependency tree; its debug info is stripped below
-  cargo build --release -p livegesture-c >&2
+  case "$triple" in
+    # x86-64: the workspace's release build (target/release/liblivegesture_c.*, as the test command makes it): no
+    # second compile of the whole dependency tree; its debug info is stripped below
+    x86_64-unknown-linux-gnu) workspace_build; libdir="$PWD/target/release"; strip_tool=strip ;;
+    # aarch64: scripts/cross.sh builds the C library in the same cargo build as that target's CLI (profile dist)
+    aarch64-unknown-linux-gnu) scripts/cross.sh "$triple" >/dev/null; libdir="$(scripts/cross.sh --c-lib "$triple")"
+      strip_tool=aarch64-linux-gnu-strip ;;
+    *) echo "release.sh: no C SDK for $triple" >&2; exit 2 ;;
+  esac
   rm -rf "$stage"; mkdir -p "$stage/include" "$stage/lib/pkgconfig" "$stage/lib/cmake/livegesture" "$stage/share/livegesture/examples" "$stage/LICENSES"
   cp bindings/c/include/*.h "$stage/include/"
-  cp target/release/liblivegesture_c.so target/release/liblivegesture_c.a "$stage/lib/"
-  strip --strip-unneeded "$stage/lib/liblivegesture_c.so"
-  strip --strip-debug "$stage/lib/liblivegesture_c.a"
+  cp "$libdir/liblivegesture_c.so" "$libdir/liblivegesture_c.a" "$stage/lib/"
+  "$strip_tool" --strip-unneeded "$stage/lib/liblivegesture_c.so"
+  "$strip_tool" --strip-debug "$stage/lib/liblivegesture_c.a"
   cp examples/c/generate.c "$stage/share/livegesture/examples/"
   cat > "$stage/README.md" <<EOF_README
-# livegesture C SDK $VERSION for x86_64-unknown-linux-gnu (commit $COMMIT)
+# livegesture C SDK $VERSION for $triple (commit $COMMIT)
 
 include/livegesture.h, lib/liblivegesture_c.so (shared) and lib/liblivegesture_c.a (static); backends tract
 and ort (ONNX Runtime loaded at run time: the path the API is given, ORT_DYLIB_PATH, or the system's). The
@@ -190,7 +216,7 @@ Libs: \${libdir}/liblivegesture_c.a -lgcc_s -lutil -lrt -lpthread -lm -ldl -lc -
 Cflags: -I\${includedir}
 EOF
   echo "set(PACKAGE_VERSION \"$VERSION\")" > "$stage/lib/cmake/livegesture/livegestureConfigVersion.cmake"
-  licences x86_64-unknown-linux-gnu "" livegesture-c "$stage/LICENSES/crates.txt"
+  licences "$triple" "" livegesture-c "$stage/LICENSES/crates.txt"
   cp LICENSE "$stage/LICENSES/livegesture-LICENSE"
   rm -f "$dist/$name.tar.gz"
   tar -C "$dist/stage" --owner=0 --group=0 --sort=name -czf "$dist/$name.tar.gz" "$name"
@@ -244,7 +270,8 @@ build_wheel() {  # ARCH: the Python module as a manylinux2014 abi3 wheel (CPytho
 
 for t in "${targets[@]}"; do
   case "$t" in
-    c-sdk) build_c_sdk ;;
+    c-sdk|c-sdk-x86_64) build_c_sdk x86_64-unknown-linux-gnu ;;
+    c-sdk-aarch64) build_c_sdk aarch64-unknown-linux-gnu ;;
     web) build_web ;;
     wheel-x86_64) build_wheel x86_64 ;;
     wheel-aarch64) build_wheel aarch64 ;;

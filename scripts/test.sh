@@ -22,7 +22,7 @@
 #  11. the x86-64 levels (the release binary under qemu-x86_64 -cpu Haswell / Nehalem: AVX2+FMA and SSE-only
 #      kernels of tract and ONNX Runtime) and the targets matrix (docs/targets.md); the aarch64 musl and x86-64
 #      musl release archives and the Windows one proven from the archive alone (under qemu-aarch64, natively,
-#      under wine: docs/install.md);
+#      under wine: docs/install.md), and the x86-64 glibc archive (ort in lib/) and C SDK from the workspace build;
 # and first, the docs check (scripts/check_docs.py: relative links in the Markdown resolve).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -331,5 +331,11 @@ wait "$cross_win_pid" || { tail -n 40 target/cross/build-windows.log; echo "the 
 grep "built in" target/cross/build-windows.log
 # livegesture.exe under Debian's wine, no --bundle: ceil(duration x 30) frames, the native build's tokens
 scripts/release.sh --prove x86_64-pc-windows-gnu
+
+stage "release: the x86-64 glibc archive (ONNX Runtime in lib/) and C SDK, proven from the archive alone"
+# no compile: both take the workspace build above (target/release); the archive's --backend ort finds lib/'s
+# library, tract is byte-identical to the native build; the SDK's example built from the extracted archive with
+# pkg-config and with CMake, shared and static (docs/install.md)
+scripts/release.sh --prove x86_64-unknown-linux-gnu c-sdk
 
 stage "all tests passed"
