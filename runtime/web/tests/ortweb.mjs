@@ -4,6 +4,7 @@
 //   node runtime/web/tests/ortweb.mjs --site target/web-static --out target/browser-ortweb \
 //     --parity bundle/ --parity bundles/diffsheg/ --broken bundles/broken/:expert_hands \
 //     [--bench models/default/reference/clip.wav --rounds 3 --threads 1,2]
+//     [--native target/release/livegesture --native-bundle models/default]
 //     [--engine ort-web|wasm] [--json FILE --target NAME --bundle-name DIR]   (scripts/targets_providers.sh)
 //
 // Checks, each failing the run with a message:
@@ -15,6 +16,10 @@
 // wasm-bench.mjs: a whole WAV and its first second through one stream, per token = the difference
 // over the difference in tokens): tract-wasm (one thread: wasm32 has none), ort-web with each count of
 // --threads (the page is served cross-origin isolated so that onnxruntime-web can start threads).
+// With --native BIN, native tract joins every round, measured the same way (`BIN generate --backend
+// tract` on --native-bundle, default the page's bundle folder, one thread), so one run gives native
+// tract, tract-wasm and ort-web side by side (scripts/bench_browser.sh).
+import { spawnSync } from 'node:child_process';
 import { mkdirSync, readFileSync, writeFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { launchChromium, openPage as openPageAt, serveStatic, wavLength } from './harness.mjs';
@@ -91,7 +96,21 @@ try {
     const dTok = tokens(info.samples) - tokens(shortSamples);
     const engines = [{ name: 'tract-wasm, 1 thread', query: '?engine=wasm' },
       ...threads.map((t) => ({ name: `ort-web, ${t} thread${t > 1 ? 's' : ''}`, query: `?engine=ort-web&threads=${t}` }))];
+    if (args.native) {
+      // native tract through the CLI: the same WAV files, the same seed, one thread
+      const bundleDir = args['native-bundle'] || join(args.site, 'bundle');
+      const wavPath = join(args.out, 'bench-whole.wav'), shortPath = join(args.out, 'bench-first-second.wav');
+      writeFileSync(wavPath, wav); writeFileSync(shortPath, short);
+      const run = (path) => {
+        const t0 = process.hrtime.bigint();
+        const r = spawnSync(args.native, ['generate', path, '-o', join(args.out, 'native.npz'), '--backend', 'tract', '--bundle', bundleDir, '--seed', '7'], { encoding: 'utf8' });
+        if (r.status !== 0) throw new Error(`native tract: ${args.native} generate ${path} failed (exit ${r.status}): ${r.stderr}`);
+        return Number(process.hrtime.bigint() - t0) / 1e6;
+      };
+      engines.push({ name: 'native tract, 1 thread', native: { whole: () => run(wavPath), short: () => run(shortPath) } });
+    }
     for (const e of engines) {
+      if (e.native) { e.perToken = []; e.graphPerToken = []; continue; }
       e.page = (await openPage(e.query)).page;
       await e.page.waitForFunction(() => window.lgState.status === 'idle' || window.lgState.error, null, { timeout: 300000 });
       const err = await e.page.evaluate(() => window.lgState.error);
@@ -107,7 +126,8 @@ try {
     for (let r = 0; r < rounds; r++) {
       const parts = [];
       for (const e of engines) {
-        const w = await gen(e.page, wav), s = await gen(e.page, short);
+        const w = e.native ? { ms: e.native.whole() } : await gen(e.page, wav);
+        const s = e.native ? { ms: e.native.short() } : await gen(e.page, short);
         e.perToken.push((w.ms - s.ms) / dTok);
         if (w.graphMs !== undefined) e.graphPerToken.push((w.graphMs - s.graphMs) / dTok);
         parts.push(`${e.name} ${w.ms.toFixed(0)} / ${s.ms.toFixed(0)} ms`);
@@ -121,6 +141,9 @@ try {
       const g = e.graphPerToken.length ? `, of which onnxruntime-web session.run ${med(e.graphPerToken).toFixed(2)} ms` : '';
       note(`per token (${dTok} tokens, median of ${rounds} rounds): ${e.name} ${m.toFixed(2)} ms${g}; vs tract-wasm x${(m / base).toFixed(2)}; real-time factor ${(m / (4000 / 30)).toFixed(3)}`);
     }
+    const nat = engines.find((e) => e.native);
+    if (nat) note(`tract-wasm / native tract: x${(base / med(nat.perToken)).toFixed(2)} (medians); per round: ${engines[0].perToken.map((b, i) => (b / nat.perToken[i]).toFixed(2)).join(', ')}`);
+    for (const e of engines.filter((x) => x.name.startsWith('ort-web'))) note(`${e.name} / tract-wasm per round: ${e.perToken.map((m, i) => (m / engines[0].perToken[i]).toFixed(2)).join(', ')}`);
     note(`ort-web: onnxruntime-web ${engines[1] ? engines[1].info.ortVersion : '?'}, page cross-origin isolated`);
   }
 } catch (e) {

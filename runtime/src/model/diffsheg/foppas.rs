@@ -80,6 +80,9 @@ pub struct WindowSampler {
     opts: SamplerOptions,
     w: Vec<f64>,
     schedule: std::sync::Arc<Schedule>,
+    /// Scratch buffers reused by every pass (the window's x_{t-1} in float64 and its noise draw).
+    xp: Vec<f64>,
+    nz: Vec<f32>,
 }
 
 impl WindowSampler {
@@ -128,6 +131,8 @@ impl WindowSampler {
             opts,
             w,
             schedule,
+            xp: vec![0.0; n * d],
+            nz: vec![0.0; n * d],
         };
         s.begin_pass();
         Ok(s)
@@ -145,16 +150,21 @@ impl WindowSampler {
     fn begin_pass(&mut self) {
         let Some(known) = &self.known else { return };
         let (_, a_p) = self.schedule.step_alphas(&self.taus, self.j);
+        let m = self.l * MOTION_DIM;
         if self.j > 0 {
-            let nz = self.noise.take(self.l * MOTION_DIM);
+            let nz = &mut self.nz[..m];
+            self.noise.take_into(nz);
             let (ca, cb) = (a_p.sqrt(), (1.0 - a_p).sqrt());
-            self.xk = known
-                .iter()
-                .zip(&nz)
-                .map(|(&k, &z)| ca * k + cb * z as f64)
-                .collect();
+            self.xk.clear();
+            self.xk.extend(
+                known
+                    .iter()
+                    .zip(nz.iter())
+                    .map(|(&k, &z)| ca * k + cb * z as f64),
+            );
         } else {
-            self.xk = known.clone();
+            self.xk.clear();
+            self.xk.extend_from_slice(known);
         }
     }
 
@@ -197,15 +207,11 @@ impl WindowSampler {
         let (a_t, a_p) = self.schedule.step_alphas(&self.taus, self.j);
         let (c1, c2) = ((1.0 - a_t).sqrt(), a_t.sqrt());
         let (c3, c4) = (a_p.sqrt(), (1.0 - a_p).sqrt());
-        let mut xp: Vec<f64> = self
-            .x
-            .iter()
-            .zip(eps)
-            .map(|(&x, &e)| {
-                let x0 = (x as f64 - c1 * e) / c2;
-                c3 * x0 + c4 * e
-            })
-            .collect();
+        let xp = &mut self.xp;
+        for ((p, &x), &e) in xp.iter_mut().zip(&self.x).zip(eps) {
+            let x0 = (x as f64 - c1 * e) / c2;
+            *p = c3 * x0 + c4 * e;
+        }
         if self.l > 0 {
             let head = &mut xp[..self.l * d];
             if self.j >= self.opts.blend_steps {
@@ -226,13 +232,13 @@ impl WindowSampler {
             // RePaint jump back from step j-1 to step j
             let r = a_t / a_p;
             let (ra, rb) = (r.sqrt(), (1.0 - r).sqrt());
-            let nz = self.noise.take(self.n * d);
-            for ((x, &p), &z) in self.x.iter_mut().zip(&xp).zip(&nz) {
+            self.noise.take_into(&mut self.nz);
+            for ((x, &p), &z) in self.x.iter_mut().zip(self.xp.iter()).zip(&self.nz) {
                 *x = (ra * p + rb * z as f64) as f32;
             }
             self.u += 1;
         } else {
-            for (x, &p) in self.x.iter_mut().zip(&xp) {
+            for (x, &p) in self.x.iter_mut().zip(self.xp.iter()) {
                 *x = p as f32;
             }
             if self.j == 0 {
