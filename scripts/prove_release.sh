@@ -87,6 +87,12 @@ prove_c_sdk() {
   fi
   [ -f "$dist/$name.tar.gz" ] || { echo "no $name.tar.gz in target/dist"; return 1; }
   checksum "$name.tar.gz" || return 1
+  # the SDK's users build with CMake and pkg-config: Debian's, installed when missing (a fresh CI machine has
+  # neither cmake nor necessarily pkg-config)
+  if ! command -v cmake >/dev/null 2>&1 || ! command -v pkg-config >/dev/null 2>&1; then
+    local _sudo=""; [ "$(id -u)" = 0 ] || _sudo=sudo
+    $_sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $_sudo apt-get install -y -qq --no-install-recommends cmake pkg-config >/dev/null
+  fi
   mkdir -p "$d" && tar -C "$d" -xzf "$dist/$name.tar.gz"
   sdk="$d/$name"
   for f in include/livegesture.h lib/liblivegesture_c.so lib/liblivegesture_c.a lib/pkgconfig/livegesture.pc \
