@@ -62,6 +62,19 @@ def roofline(repeats: int = 25) -> dict:
     return out
 
 
+def default_decoders(man: dict, backend: str) -> list[str]:
+    """The SVQ decoder graphs ``backend`` runs with its form (the runtime's ``default_decoders``): the form's
+    own, except that tract runs the bundle's fused decoders (the one graph of a form listing a single decoder
+    graph) in place of per-region ones when the bundle has them (docs/bundle.md#forms-and-precision)."""
+    forms = man.get("forms", {})
+    own = list(forms.get(man.get("backend_forms", {}).get(backend), {}).get("decoders", []))
+    if backend == "tract" and len(own) > 1:
+        for f in forms.values():
+            if len(f.get("decoders", [])) == 1:
+                return list(f["decoders"])
+    return own
+
+
 def _form_graphs(man: dict, backend: str) -> list[str]:
     """The graphs one token step of ``backend`` runs (its form, docs/bundle.md#forms-and-precision), in chain
     order, plus the face graph when the bundle has a face channel."""
@@ -73,7 +86,7 @@ def _form_graphs(man: dict, backend: str) -> list[str]:
     if form is None:
         raise ValueError(f"manifest.json: backend_forms.{backend} names form {backend_forms[backend]!r}, "
                          f"which forms does not define (it has {sorted(forms)})")
-    graphs = ["audio_encoder", *form["experts"], form.get("fusion", "fusion"), *form["decoders"]]
+    graphs = ["audio_encoder", *form["experts"], form.get("fusion", "fusion"), *default_decoders(man, backend)]
     if man.get("face"):
         graphs.append(man["face"]["graph"])
     return graphs
