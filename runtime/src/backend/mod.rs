@@ -53,31 +53,6 @@ pub trait GraphRunner: Send + Sync {
         Ok(())
     }
 
-    /// Runs one step on caches that may be held in the backend's own tensors between runs: `data`
-    /// are the data inputs (graph order), the cache inputs are `held`'s (its backend-held ones when
-    /// set, else `held.plain`); the new caches replace them in `held` and the data outputs are
-    /// returned. A backend that keeps them in its own tensors (tract) leaves the new caches in
-    /// `held.native`, so a caller that hands them back unchanged next step (a cohort's stacked
-    /// caches) has them neither copied in nor out; [`HeldCaches::settle`] makes them plain tensors
-    /// (one copy) when the caller needs them. Default: [`GraphRunner::run_into`] on plain caches,
-    /// the new caches written into `held.spare`'s buffers, the old ones becoming the next spare.
-    fn run_held(&self, data: Vec<Tensor>, held: &mut HeldCaches) -> Result<Vec<Tensor>> {
-        held.settle()?;
-        let n_data = data.len();
-        let n_out = self.spec().outputs.len();
-        let mut inputs = data;
-        inputs.append(&mut held.plain);
-        let mut out = Vec::with_capacity(n_out + held.spare.len());
-        if !held.spare.is_empty() {
-            out.resize_with(n_out, Tensor::default);
-            out.append(&mut held.spare);
-        }
-        self.run_into(&inputs, &mut out)?;
-        held.plain = out.split_off(n_out.min(out.len()));
-        held.spare = inputs.split_off(n_data);
-        Ok(out)
-    }
-
     /// Prepares runs of batch sizes `sizes` before the first of them, so that none pays for a
     /// one-time preparation later (a server calls it before its first session). tract builds the
     /// plans of these sizes and one with the batch left symbolic for every other size (no plan is
@@ -121,45 +96,6 @@ pub trait GraphRunner: Send + Sync {
             .map(|s| s.to_string())
             .collect();
         Ok(onames.into_iter().zip(out).collect())
-    }
-}
-
-/// One graph's caches kept in a backend's own tensors between runs ([`GraphRunner::run_held`]).
-pub trait NativeCaches: std::any::Any + Send + Sync + fmt::Debug {
-    /// The caches as runtime tensors (one copy each), in the graph's cache order.
-    fn to_plain(&self) -> Result<Vec<Tensor>>;
-}
-
-/// The caches of one graph across runs ([`GraphRunner::run_held`]): as runtime tensors (`plain`,
-/// with `spare` buffers a backend may write the next caches into), or held by the backend
-/// (`native`, which then supersedes `plain`).
-#[derive(Debug, Default)]
-pub struct HeldCaches {
-    /// The caches as runtime tensors (stale while `native` is set).
-    pub plain: Vec<Tensor>,
-    /// Buffers for the next run's new caches (may be empty).
-    pub spare: Vec<Tensor>,
-    /// The caches in the backend's own tensors, when it keeps them.
-    pub native: Option<Box<dyn NativeCaches>>,
-}
-
-impl HeldCaches {
-    /// Caches given as runtime tensors, with `spare` output buffers.
-    pub fn plain(plain: Vec<Tensor>, spare: Vec<Tensor>) -> Self {
-        HeldCaches {
-            plain,
-            spare,
-            native: None,
-        }
-    }
-
-    /// Makes `plain` hold the caches: the backend's own tensors copied out once (nothing to do when
-    /// it holds none).
-    pub fn settle(&mut self) -> Result<()> {
-        if let Some(n) = self.native.take() {
-            self.plain = n.to_plain()?;
-        }
-        Ok(())
     }
 }
 
@@ -208,13 +144,6 @@ pub fn flush_denormals<R>(f: impl FnOnce() -> R) -> R {
 
 /// Checks inputs against the spec (count, dtypes, shapes with one shared batch size); returns the batch.
 pub fn check_inputs(spec: &GraphSpec, inputs: &[Tensor]) -> Result<usize> {
-    let facts: Vec<(DType, &[usize])> = inputs.iter().map(|t| (t.dtype(), &t.shape[..])).collect();
-    check_input_facts(spec, &facts)
-}
-
-/// [`check_inputs`] on the inputs' (dtype, shape) (count checked too); returns the batch (axis 0
-/// of the first input).
-pub fn check_input_facts(spec: &GraphSpec, inputs: &[(DType, &[usize])]) -> Result<usize> {
     let expected = spec.all_inputs();
     ensure!(
         inputs.len() == expected.len(),
@@ -224,17 +153,14 @@ pub fn check_input_facts(spec: &GraphSpec, inputs: &[(DType, &[usize])]) -> Resu
         expected.len(),
         spec.input_names()
     );
-    let batch = inputs
-        .first()
-        .and_then(|(_, s)| s.first().copied())
-        .unwrap_or(1);
-    for (&(dt, got), (name, dtype, shape)) in inputs.iter().zip(expected) {
+    let batch = inputs.first().map(Tensor::batch).unwrap_or(1);
+    for (t, (name, dtype, shape)) in inputs.iter().zip(expected) {
         ensure!(
-            dt == dtype && shape_fits(shape, got, batch),
+            t.dtype() == dtype && shape_fits(shape, &t.shape, batch),
             "graph '{}': input '{name}' is {} {:?}, expected {} {} with batch {batch}",
             spec.name,
-            dt,
-            got,
+            t.dtype(),
+            t.shape,
             dtype,
             shape_string(shape)
         );
@@ -244,16 +170,6 @@ pub fn check_input_facts(spec: &GraphSpec, inputs: &[(DType, &[usize])]) -> Resu
 
 /// Checks a run's outputs against the spec (count, dtypes, shapes for batch `batch`).
 pub fn check_outputs(spec: &GraphSpec, outputs: &[Tensor], batch: usize) -> Result<()> {
-    let facts: Vec<(DType, &[usize])> = outputs.iter().map(|t| (t.dtype(), &t.shape[..])).collect();
-    check_output_facts(spec, &facts, batch)
-}
-
-/// [`check_outputs`] on the outputs' (dtype, shape).
-pub fn check_output_facts(
-    spec: &GraphSpec,
-    outputs: &[(DType, &[usize])],
-    batch: usize,
-) -> Result<()> {
     let expected = spec.all_outputs();
     ensure!(
         outputs.len() == expected.len(),
@@ -263,13 +179,13 @@ pub fn check_output_facts(
         expected.len(),
         spec.output_names()
     );
-    for (&(dt, got), (name, dtype, shape)) in outputs.iter().zip(expected) {
+    for (t, (name, dtype, shape)) in outputs.iter().zip(expected) {
         ensure!(
-            dt == dtype && shape_fits(shape, got, batch),
+            t.dtype() == dtype && shape_fits(shape, &t.shape, batch),
             "graph '{}': output '{name}' is {} {:?}, the manifest says {} {} with batch {batch}",
             spec.name,
-            dt,
-            got,
+            t.dtype(),
+            t.shape,
             dtype,
             shape_string(shape)
         );

@@ -21,8 +21,7 @@ use tract_onnx::prelude::*;
 
 use super::pool::Pool;
 use super::{
-    check_input_facts, check_output_facts, Backend, DType, GraphRunner, HeldCaches, NativeCaches,
-    Tensor as LgTensor, TensorData,
+    check_inputs, check_outputs, Backend, DType, GraphRunner, Tensor as LgTensor, TensorData,
 };
 use crate::bundle::GraphSpec;
 
@@ -175,14 +174,14 @@ impl TractGraph {
         })
     }
 
-    /// The sizes of each symbol for inputs of these shapes (in `symbols` order).
-    fn key_of(&self, shapes: &[&[usize]]) -> Vec<usize> {
+    /// The sizes of each symbol for these inputs (in `symbols` order).
+    fn key_of(&self, inputs: &[LgTensor]) -> Vec<usize> {
         self.symbols
             .iter()
             .map(|&(_, i, axis)| {
-                shapes
+                inputs
                     .get(i)
-                    .and_then(|s| s.get(axis))
+                    .and_then(|t| t.shape.get(axis))
                     .copied()
                     .unwrap_or(1)
             })
@@ -217,8 +216,8 @@ impl TractGraph {
 
     /// The plan for the sizes of `inputs`: its own, else the symbolic one once prepared, else one
     /// optimised now (outside the table's lock; a plan built by two threads at once is kept once).
-    fn plan_for(&self, shapes: &[&[usize]]) -> Result<Arc<Plan>> {
-        let key = self.key_of(shapes);
+    fn plan_for(&self, inputs: &[LgTensor]) -> Result<Arc<Plan>> {
+        let key = self.key_of(inputs);
         if let Some(p) = lock(&self.plans).get(&key) {
             return Ok(Arc::clone(p));
         }
@@ -238,44 +237,7 @@ fn to_tract(t: &LgTensor) -> Result<TValue> {
     Ok(tensor.into())
 }
 
-/// `LIVEGESTURE_TRACT_COPY_CACHES=1`: [`GraphRunner::run_held`] copies the caches into tract and
-/// out of it on every run, as before tract kept them (read once per process; for A/B measurements,
-/// BENCHMARKS.md "tract keeps a cohort's caches").
-fn copy_caches() -> bool {
-    static COPY: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *COPY.get_or_init(|| std::env::var("LIVEGESTURE_TRACT_COPY_CACHES").is_ok_and(|v| v == "1"))
-}
-
-/// A tract tensor's element type as the runtime's (`what` names it in the error).
-fn dtype_of(t: &tract_onnx::prelude::Tensor, what: &str) -> Result<DType> {
-    match t.datum_type() {
-        DatumType::F32 => Ok(DType::F32),
-        DatumType::I64 => Ok(DType::I64),
-        other => anyhow::bail!("{what}: a {other:?} tensor, expected float32 or int64"),
-    }
-}
-
-/// The new caches of a tract run, kept as tract tensors until the next run takes them back
-/// ([`GraphRunner::run_held`]): a cohort's caches stay in tract between steps.
-#[derive(Debug)]
-struct TractCaches {
-    graph: String,
-    values: Vec<TValue>,
-    dtypes: Vec<DType>,
-}
-
-impl NativeCaches for TractCaches {
-    fn to_plain(&self) -> Result<Vec<LgTensor>> {
-        self.values
-            .iter()
-            .zip(&self.dtypes)
-            .enumerate()
-            .map(|(i, (v, &dt))| from_tract(v, dt, &format!("graph '{}' cache {i}", self.graph)))
-            .collect()
-    }
-}
-
-fn from_tract(v: &tract_onnx::prelude::Tensor, want: DType, what: &str) -> Result<LgTensor> {
+fn from_tract(v: &TValue, want: DType, what: &str) -> Result<LgTensor> {
     let shape = v.shape().to_vec();
     match want {
         DType::F32 => {
@@ -336,121 +298,10 @@ impl GraphRunner for TractGraph {
     }
 
     fn run(&self, inputs: &[LgTensor]) -> Result<Vec<LgTensor>> {
-        let facts: Vec<(DType, &[usize])> =
-            inputs.iter().map(|t| (t.dtype(), &t.shape[..])).collect();
-        let batch = check_input_facts(&self.spec, &facts)?;
+        let batch = check_inputs(&self.spec, inputs)?;
         let tv: TVec<TValue> = inputs.iter().map(to_tract).collect::<Result<_>>()?;
-        let outs = self.run_tract(tv, batch)?;
-        let specs = self.spec.all_outputs();
         let name = &self.spec.name;
-        let out = outs
-            .iter()
-            .zip(specs)
-            .map(|(v, (oname, dtype, _))| {
-                from_tract(v, dtype, &format!("graph '{name}' output '{oname}'"))
-            })
-            .collect::<Result<Vec<_>>>()?;
-        Ok(out)
-    }
-
-    /// The caches stay tract tensors between runs: the new ones are kept in `held.native` as tract
-    /// returned them, and handed back to tract as they are on the next run (no copy either way;
-    /// plain caches are copied in as by [`GraphRunner::run`], their buffers kept in `held.spare`).
-    fn run_held(&self, data: Vec<LgTensor>, held: &mut HeldCaches) -> Result<Vec<LgTensor>> {
-        if copy_caches() {
-            // the measurement baseline: every cache copied in and out on every run
-            held.settle()?;
-            let n_data = data.len();
-            let mut inputs = data;
-            inputs.append(&mut held.plain);
-            let mut out = self.run(&inputs)?;
-            held.plain = out.split_off(self.spec.outputs.len());
-            held.spare = inputs.split_off(n_data);
-            return Ok(out);
-        }
-        // caches another backend holds (none in practice): as runtime tensors first
-        if held
-            .native
-            .as_ref()
-            .is_some_and(|n| !(n.as_ref() as &dyn std::any::Any).is::<TractCaches>())
-        {
-            held.settle()?;
-        }
-        let name = &self.spec.name;
-        let mine = match held.native.take() {
-            Some(n) => {
-                let any: Box<dyn std::any::Any> = n;
-                let c = any
-                    .downcast::<TractCaches>()
-                    .map_err(|_| anyhow::anyhow!("tract: graph '{name}': foreign held caches"))?;
-                ensure!(
-                    c.graph == *name,
-                    "tract: graph '{name}' was given the held caches of graph '{}'",
-                    c.graph
-                );
-                Some(c.values)
-            }
-            None => None,
-        };
-        let (batch, tv) = match mine {
-            Some(caches) => {
-                let mut facts: Vec<(DType, &[usize])> =
-                    data.iter().map(|t| (t.dtype(), &t.shape[..])).collect();
-                for (i, v) in caches.iter().enumerate() {
-                    facts.push((
-                        dtype_of(v, &format!("graph '{name}' held cache {i}"))?,
-                        v.shape(),
-                    ));
-                }
-                let batch = check_input_facts(&self.spec, &facts)?;
-                let mut tv: TVec<TValue> = data.iter().map(to_tract).collect::<Result<_>>()?;
-                tv.extend(caches);
-                // the buffers of caches copied in before: not needed while tract holds them
-                held.spare = Vec::new();
-                (batch, tv)
-            }
-            None => {
-                let mut all = data;
-                let n_data = all.len();
-                all.append(&mut held.plain);
-                let facts: Vec<(DType, &[usize])> =
-                    all.iter().map(|t| (t.dtype(), &t.shape[..])).collect();
-                let batch = check_input_facts(&self.spec, &facts)?;
-                let tv: TVec<TValue> = all.iter().map(to_tract).collect::<Result<_>>()?;
-                held.spare = all.split_off(n_data);
-                (batch, tv)
-            }
-        };
-        let mut outs = self.run_tract(tv, batch)?;
-        let n_out = self.spec.outputs.len();
-        let caches: Vec<TValue> = outs.drain(n_out..).collect();
-        let specs = self.spec.all_outputs();
-        let out = outs
-            .iter()
-            .zip(&specs)
-            .map(|(v, (oname, dtype, _))| {
-                from_tract(v, *dtype, &format!("graph '{name}' output '{oname}'"))
-            })
-            .collect::<Result<Vec<_>>>()?;
-        let dtypes = specs[n_out..].iter().map(|(_, d, _)| *d).collect();
-        held.plain.clear();
-        held.native = Some(Box::new(TractCaches {
-            graph: name.clone(),
-            values: caches,
-            dtypes,
-        }));
-        Ok(out)
-    }
-}
-
-impl TractGraph {
-    /// Runs the plan for `batch` on tract values `tv` (checked by the caller); the outputs are
-    /// checked against the manifest (count, element types, shapes).
-    fn run_tract(&self, tv: TVec<TValue>, batch: usize) -> Result<TVec<TValue>> {
-        let name = &self.spec.name;
-        let shapes: Vec<&[usize]> = tv.iter().map(|v| v.shape()).collect();
-        let plan = self.plan_for(&shapes)?;
-        drop(shapes);
+        let plan = self.plan_for(inputs)?;
         let outs = plan
             .states
             .with(
@@ -469,14 +320,14 @@ impl TractGraph {
             outs.len(),
             specs.len()
         );
-        let mut facts = Vec::with_capacity(outs.len());
-        for (v, (oname, _, _)) in outs.iter().zip(&specs) {
-            facts.push((
-                dtype_of(v, &format!("graph '{name}' output '{oname}'"))?,
-                v.shape(),
-            ));
-        }
-        check_output_facts(&self.spec, &facts, batch)?;
-        Ok(outs)
+        let out = outs
+            .iter()
+            .zip(specs)
+            .map(|(v, (oname, dtype, _))| {
+                from_tract(v, dtype, &format!("graph '{name}' output '{oname}'"))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        check_outputs(&self.spec, &out, batch)?;
+        Ok(out)
     }
 }

@@ -7,7 +7,7 @@ use std::time::Instant;
 use anyhow::Result;
 use serde::Serialize;
 
-use livegesture::backend::{Backend, GraphRunner, HeldCaches, Tensor};
+use livegesture::backend::{Backend, GraphRunner, Tensor};
 use livegesture::bundle::GraphSpec;
 
 /// Times of the graph runs since the last [`Recorder::drain`]: `(graph index, seconds)`.
@@ -76,13 +76,6 @@ impl GraphRunner for TimedRunner {
     fn run_into(&self, inputs: &[Tensor], outputs: &mut Vec<Tensor>) -> Result<()> {
         let t0 = Instant::now();
         let out = self.inner.run_into(inputs, outputs);
-        self.rec.record(self.id, t0.elapsed().as_secs_f64());
-        out
-    }
-
-    fn run_held(&self, data: Vec<Tensor>, held: &mut HeldCaches) -> Result<Vec<Tensor>> {
-        let t0 = Instant::now();
-        let out = self.inner.run_held(data, held);
         self.rec.record(self.id, t0.elapsed().as_secs_f64());
         out
     }

@@ -5,7 +5,7 @@ use std::collections::HashMap;
 
 use anyhow::{ensure, Result};
 
-use crate::backend::{HeldCaches, NativeCaches, Tensor};
+use crate::backend::Tensor;
 use crate::bundle::CacheSpec;
 
 pub(super) fn zeros_for(caches: &[CacheSpec], rows: usize) -> Vec<Tensor> {
@@ -103,12 +103,12 @@ impl Caches {
 
 /// Where a token step takes each graph's caches from and puts the updated ones.
 pub(super) trait CacheStore {
-    /// The caches of `slot` for every stream of the step, stacked in stream order, with buffers the
-    /// graph may write its new caches into (empty: none), or held by the backend.
-    fn take(&mut self, slot: Slot) -> Result<HeldCaches>;
-    /// Stores the caches a graph returned for `slot` (stacked like [`CacheStore::take`]'s; maybe
-    /// held by the backend), and the buffers it no longer needs.
-    fn put(&mut self, slot: Slot, held: HeldCaches) -> Result<()>;
+    /// The caches of `slot` for every stream of the step, stacked in stream order, and buffers the
+    /// graph may write its new caches into (empty: none).
+    fn take(&mut self, slot: Slot) -> Result<(Vec<Tensor>, Vec<Tensor>)>;
+    /// Stores the caches a graph returned for `slot` (stacked like [`CacheStore::take`]'s), and the
+    /// input caches it no longer needs.
+    fn put(&mut self, slot: Slot, new: Vec<Tensor>, old: Vec<Tensor>) -> Result<()>;
 }
 
 /// Buffers a [`SeparateCaches`] step reuses from step to step, per graph: the stacked input
@@ -133,7 +133,7 @@ pub(super) struct SeparateCaches<'a> {
 }
 
 impl CacheStore for SeparateCaches<'_> {
-    fn take(&mut self, slot: Slot) -> Result<HeldCaches> {
+    fn take(&mut self, slot: Slot) -> Result<(Vec<Tensor>, Vec<Tensor>)> {
         let single = self.caches.len() == 1;
         let spare = self
             .scratch
@@ -141,10 +141,7 @@ impl CacheStore for SeparateCaches<'_> {
             .remove(&(slot, single))
             .unwrap_or_default();
         if single {
-            return Ok(HeldCaches::plain(
-                std::mem::take(self.caches[0].slot_mut(slot)),
-                spare,
-            ));
+            return Ok((std::mem::take(self.caches[0].slot_mut(slot)), spare));
         }
         let n = self.caches.first().map_or(0, |c| c.slot(slot).len());
         let mut stacked = self.scratch.stacked.remove(&slot).unwrap_or_default();
@@ -153,13 +150,10 @@ impl CacheStore for SeparateCaches<'_> {
             let parts: Vec<&Tensor> = self.caches.iter().map(|s| &s.slot(slot)[c]).collect();
             t.stack_from(&parts)?;
         }
-        Ok(HeldCaches::plain(stacked, spare))
+        Ok((stacked, spare))
     }
 
-    fn put(&mut self, slot: Slot, mut held: HeldCaches) -> Result<()> {
-        // the streams own their caches: as runtime tensors (copied out of the backend if it held them)
-        held.settle()?;
-        let (new, old) = (held.plain, held.spare);
+    fn put(&mut self, slot: Slot, new: Vec<Tensor>, old: Vec<Tensor>) -> Result<()> {
         if self.caches.len() == 1 {
             *self.caches[0].slot_mut(slot) = new;
             self.scratch.spare.insert((slot, true), old);
@@ -196,37 +190,19 @@ impl CacheStore for SeparateCaches<'_> {
 pub(super) struct StackedCaches<'a> {
     pub(super) cur: &'a mut Caches,
     pub(super) spare: &'a mut Caches,
-    /// Slots whose caches the backend holds in its own tensors (tract), superseding `cur`'s.
-    pub(super) native: &'a mut HashMap<Slot, Box<dyn NativeCaches>>,
 }
 
 impl CacheStore for StackedCaches<'_> {
-    fn take(&mut self, slot: Slot) -> Result<HeldCaches> {
-        Ok(HeldCaches {
-            plain: std::mem::take(self.cur.slot_mut(slot)),
-            spare: std::mem::take(self.spare.slot_mut(slot)),
-            native: self.native.remove(&slot),
-        })
+    fn take(&mut self, slot: Slot) -> Result<(Vec<Tensor>, Vec<Tensor>)> {
+        Ok((
+            std::mem::take(self.cur.slot_mut(slot)),
+            std::mem::take(self.spare.slot_mut(slot)),
+        ))
     }
 
-    fn put(&mut self, slot: Slot, held: HeldCaches) -> Result<()> {
-        *self.cur.slot_mut(slot) = held.plain;
-        *self.spare.slot_mut(slot) = held.spare;
-        if let Some(n) = held.native {
-            self.native.insert(slot, n);
-        }
+    fn put(&mut self, slot: Slot, new: Vec<Tensor>, old: Vec<Tensor>) -> Result<()> {
+        *self.cur.slot_mut(slot) = new;
+        *self.spare.slot_mut(slot) = old;
         Ok(())
     }
-}
-
-/// Copies the backend-held caches of `native` back into `cur` (as runtime tensors) and empties it:
-/// before a cohort's rows are read or changed (a stream joins, leaves or goes home).
-pub(super) fn settle_native(
-    cur: &mut Caches,
-    native: &mut HashMap<Slot, Box<dyn NativeCaches>>,
-) -> Result<()> {
-    for (slot, n) in native.drain() {
-        *cur.slot_mut(slot) = n.to_plain()?;
-    }
-    Ok(())
 }

@@ -68,22 +68,44 @@ impl Stage {
         self.runner.as_ref()
     }
 
+    /// Runs with data inputs built by `data(role)` and the stacked `caches`, writing the new caches
+    /// into the buffers of `spare` where the backend can (empty: fresh buffers). Returns (data
+    /// outputs, new caches, the input caches: spare buffers for the next run).
+    fn run(
+        &self,
+        mut data: impl FnMut(Role) -> Result<Tensor>,
+        caches: Vec<Tensor>,
+        spare: Vec<Tensor>,
+    ) -> Result<(Vec<Tensor>, Vec<Tensor>, Vec<Tensor>)> {
+        let n_data = self.roles.len();
+        let mut inputs = Vec::with_capacity(n_data + caches.len());
+        for &r in &self.roles {
+            inputs.push(data(r)?);
+        }
+        inputs.extend(caches);
+        let n_out = self.spec.outputs.len();
+        let mut out = Vec::with_capacity(n_out + spare.len());
+        if !spare.is_empty() {
+            out.resize_with(n_out, Tensor::default);
+            out.extend(spare);
+        }
+        self.runner.run_into(&inputs, &mut out)?;
+        let caches = out.split_off(n_out);
+        let old = inputs.split_off(n_data);
+        Ok((out, caches, old))
+    }
+
     /// Runs as `slot` of the chain: takes the slot's caches from `store`, runs with data inputs from
-    /// `data` ([`GraphRunner::run_held`]: the backend may keep the new caches in its own tensors),
-    /// puts the new caches back, and returns the graph's (single) data output.
+    /// `data`, puts the new caches back, and returns the graph's (single) data output.
     fn run_slot(
         &self,
         slot: Slot,
         store: &mut impl CacheStore,
-        mut data: impl FnMut(Role) -> Result<Tensor>,
+        data: impl FnMut(Role) -> Result<Tensor>,
     ) -> Result<Tensor> {
-        let mut held = store.take(slot)?;
-        let mut inputs = Vec::with_capacity(self.roles.len());
-        for &r in &self.roles {
-            inputs.push(data(r)?);
-        }
-        let out = self.runner.run_held(inputs, &mut held)?;
-        store.put(slot, held)?;
+        let (caches, spare) = store.take(slot)?;
+        let (out, new, old) = self.run(data, caches, spare)?;
+        store.put(slot, new, old)?;
         out.into_iter()
             .next()
             .with_context(|| format!("{} returned no output", self.spec.name))

@@ -17,11 +17,8 @@
 use anyhow::{anyhow, ensure, Result};
 use ndarray::Array2;
 
-use std::collections::HashMap;
-
-use super::caches::{settle_native, Caches, Slot, StackedCaches};
+use super::caches::{Caches, StackedCaches};
 use super::{LiveGestureGraphs, Stream, TokenStep};
-use crate::backend::NativeCaches;
 
 /// Caches of streams stepped together, stacked in member order.
 #[derive(Debug)]
@@ -32,9 +29,6 @@ struct Cohort {
     caches: Caches,
     /// The last step's input caches: output buffers for the next step.
     spare: Caches,
-    /// Slots whose caches the backend keeps in its own tensors between steps (tract,
-    /// [`crate::backend::GraphRunner::run_held`]): they supersede `caches`' until settled.
-    native: HashMap<Slot, Box<dyn NativeCaches>>,
 }
 
 impl Cohort {
@@ -44,13 +38,7 @@ impl Cohort {
             branch: Vec::new(),
             caches: empty.clone(),
             spare: empty.clone(),
-            native: HashMap::new(),
         }
-    }
-
-    /// The backend-held caches back in `caches` (one copy): before rows are read or changed.
-    fn settle(&mut self) -> Result<()> {
-        settle_native(&mut self.caches, &mut self.native)
     }
 
     fn position(&self, key: u64) -> Option<usize> {
@@ -59,7 +47,6 @@ impl Cohort {
 
     /// Appends a member's caches (copied).
     fn push(&mut self, key: u64, branch: usize, caches: &Caches) -> Result<()> {
-        self.settle()?;
         for slot in self.caches.slots() {
             let have = self.caches.slot_mut(slot);
             let add = caches.slot(slot);
@@ -89,8 +76,6 @@ impl Cohort {
 
     /// Moves member `i` to the end of `to` (its rows copied once, then removed here).
     fn move_to(&mut self, i: usize, to: &mut Cohort, empty: &Caches) -> Result<()> {
-        self.settle()?;
-        to.settle()?;
         for slot in self.caches.slots() {
             let (start, count) = self.rows_of(i, slot.branched());
             let have = to.caches.slot_mut(slot);
@@ -107,7 +92,6 @@ impl Cohort {
     /// Removes member `i`, returning a copy of its caches when `keep` (moving the last member into
     /// its place when both have as many rows, else shifting the later ones).
     fn remove(&mut self, i: usize, keep: bool, empty: &Caches) -> Result<Option<Caches>> {
-        self.settle()?;
         let last = self.keys.len() - 1;
         let swap = i != last && self.branch[last] == self.branch[i];
         let (branch_start, branch) = self.rows_of(i, true);
@@ -233,7 +217,6 @@ impl Cohorts {
             let mut store = StackedCaches {
                 cur: &mut c.caches,
                 spare: &mut c.spare,
-                native: &mut c.native,
             };
             let steps = graphs.step_inner(&mut states, &mut store, &block)?;
             let mut out: Vec<Option<TokenStep>> = (0..n_members).map(|_| None).collect();
