@@ -116,7 +116,7 @@ pub fn describe(bundle: &Bundle) -> Result<Description> {
     let tract_decoders = Some(lg.default_decoders("tract")).filter(|d| {
         forms
             .get(lg.default_form("tract"))
-            .is_some_and(|f| &f.decoders != d)
+            .is_some_and(|f| f.decoders != *d)
     });
     let lines = vec![
         ("regions".to_string(), regions.join(", ")),
