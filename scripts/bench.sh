@@ -47,6 +47,11 @@ load_start="$(cut -d' ' -f1-3 /proc/loadavg)"
 
 echo "[bench] roofline" >&2
 "${PIN[@]}" "$LIVEGESTURE_PY" -m livegesture.bench roofline --json "$RES/roofline.json" >/dev/null
+# one token's roofline over the default bundle's real weight bytes, per backend form (issue 42 item 1)
+for be in ort tract; do
+  "${PIN[@]}" "$LIVEGESTURE_PY" -m livegesture.bench weights --bundle models/default --backend "$be" \
+    --json "$RES/roofline_weights_$be.json" >/dev/null
+done
 
 declare -A BUNDLE=([default]=models/default [paper]="$PAPER_BUNDLE")
 for cfg in default paper; do

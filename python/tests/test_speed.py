@@ -259,3 +259,51 @@ def test_record_metrics_puts_both_reports_in_the_manifest(tiny_f16, tiny, tmp_pa
                           str(tmp_path / "bad.json"), "--metrics-command", "eval"]) == 1
     assert quantize.main(["--record-metrics", str(tiny), "--metrics-f32", str(a), "--metrics-reduced", str(b),
                           "--metrics-command", "eval"]) == 1
+
+
+def test_weights_roofline_reads_the_forms_real_bytes(tiny, tmp_path):
+    """`python -m livegesture.bench weights` (issue 42 item 1's roofline): the bytes it streams are exactly
+    the float tensors of the graphs each backend's form runs, the state is the guided stream's caches, and the
+    roofline is the larger of the memory and compute bounds."""
+    import onnx
+    from onnx import numpy_helper
+    from livegesture import bench
+    man = json.loads((tiny / "manifest.json").read_text())
+    files = {g["name"]: g for g in man["graphs"]}
+    for backend in ("ort", "tract"):
+        r = bench.weights_roofline(tiny, backend, repeats=2, evict_mb=8)
+        form = man["forms"][man["backend_forms"][backend]]
+        # tract runs the fused decoders with its attention form (runtime's default_decoders)
+        decoders = ["decoders_fused"] if backend == "tract" else form["decoders"]
+        assert bench.default_decoders(man, backend) == decoders
+        want = ["audio_encoder", *form["experts"], form.get("fusion", "fusion"), *decoders]
+        assert r["graphs"][:len(want)] == want
+        total = 0
+        for n in r["graphs"]:
+            m = onnx.load(str(tiny / files[n]["file"]))
+            ts = [numpy_helper.to_array(i) for i in m.graph.initializer]
+            ts += [numpy_helper.to_array(a.t) for nd in m.graph.node if nd.op_type == "Constant"
+                   for a in nd.attribute if a.name == "value"]
+            nb = sum(t.nbytes for t in ts if t.dtype.kind == "f")
+            assert r["weight_bytes_per_graph"][n] == nb
+            total += nb
+        assert r["weight_bytes"] == total > 0
+        state = sum((2 if n.startswith(("expert", "fusion")) else 1) * 4 * int(np.prod([d for d in c["shape"] if d != "batch"]))
+                    for n in r["graphs"] for c in files[n].get("caches", []) if c.get("dtype", "float32") == "float32")
+        assert r["state_bytes"] == state > 0
+        assert r["roofline_ms"] == max(r["weights_and_state_read_ms"], r["compute_ms"]) > 0
+        assert r["target_ms"] == pytest.approx(1.6 * r["roofline_ms"])
+
+
+def test_weights_roofline_refuses_a_bad_bundle(tiny, tmp_path):
+    from livegesture import bench
+    with pytest.raises(ValueError, match="backend_forms has no entry for backend 'cuda'"):
+        bench.weights_roofline(tiny, "cuda", repeats=1, evict_mb=1)
+    bad = tmp_path / "bad"
+    shutil.copytree(tiny, bad)
+    (bad / "audio_encoder.onnx").unlink()
+    with pytest.raises(ValueError, match="audio_encoder.onnx: graph 'audio_encoder' of the ort form is missing"):
+        bench.weights_roofline(bad, "ort", repeats=1, evict_mb=1)
+    assert bench.main(["weights", "--bundle", str(bad), "--backend", "ort"]) == 2
+    with pytest.raises(ValueError, match="manifest.json: no such file"):
+        bench.weights_roofline(tmp_path, "ort", repeats=1, evict_mb=1)

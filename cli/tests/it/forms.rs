@@ -474,6 +474,63 @@ fn a_bundle_without_fused_decoders_runs_its_fused_form_with_the_canonical_decode
         .any(|r| r.what == "rollout (fused form)" && r.output == "tokens"));
 }
 
+/// tract's `auto` runs the bundle's fused decoders (`decoders_fused`) with its attention form, a
+/// named form its own decoders, and a bundle without `decoders_fused` the per-region ones; ort's
+/// `auto` (the fused form) runs the fused decoders anyway. One stream's tokens and frames are those
+/// of the attention form with its own decoders, bit for bit.
+#[test]
+fn tract_auto_runs_the_fused_decoders_when_the_bundle_has_them() {
+    let full = Bundle::load(common::tiny_bundle()).unwrap();
+    let lg = full.livegesture().unwrap();
+    assert_eq!(lg.default_form("tract"), "attention");
+    let per_region: Vec<String> = lg
+        .region_names()
+        .iter()
+        .map(|r| format!("decoder_{r}"))
+        .collect();
+    assert_eq!(lg.default_decoders("tract"), vec!["decoders_fused"]);
+    assert_eq!(lg.default_decoders("ort"), vec!["decoders_fused"]);
+    let mut auto = pipeline(&full, BackendKind::Tract, GraphForm::Auto);
+    assert_eq!(auto.form(), "attention");
+    assert_eq!(auto.decoder_graphs(), vec!["decoders_fused"]);
+    let mut named = pipeline(&full, BackendKind::Tract, GraphForm::Attention);
+    assert_eq!(named.decoder_graphs(), per_region);
+    let audio = audio(&full, 8.0);
+    for opts in [
+        StreamOptions {
+            seed: 4,
+            ..Default::default()
+        },
+        StreamOptions {
+            seed: 5,
+            guidance: Some(1.0),
+            ..Default::default()
+        },
+    ] {
+        let got = run(&mut auto, &opts, &audio);
+        let want = run(&mut named, &opts, &audio);
+        assert!(got.len() >= 50, "{} steps", got.len());
+        assert_same(
+            &got,
+            &want,
+            0.0,
+            &format!(
+                "tract auto (decoders_fused) vs attention, seed {}",
+                opts.seed
+            ),
+        );
+    }
+    // a bundle exported before decoders_fused: tract's auto runs the per-region decoders
+    let dir = tempfile::tempdir().unwrap();
+    let old = Bundle::load(bundle_without_fused_decoders(dir.path())).unwrap();
+    assert_eq!(
+        old.livegesture().unwrap().default_decoders("tract"),
+        per_region
+    );
+    let p = pipeline(&old, BackendKind::Tract, GraphForm::Auto);
+    assert_eq!(p.decoder_graphs(), per_region);
+}
+
 /// Runs `livegesture generate` on `bundle`'s reference clip into `out` with `args` (and
 /// `LIVEGESTURE_FORM` set to `form_env`, else unset).
 fn generate(bundle: &Path, args: &[&str], form_env: Option<&str>, out: &Path) -> Output {

@@ -193,6 +193,28 @@ impl LiveGestureManifest {
             .unwrap_or("canonical")
     }
 
+    /// The SVQ decoders `backend` runs with the form it runs by default ([`Self::default_form`],
+    /// `--form auto`): that form's own, except that **tract runs the bundle's fused decoders**
+    /// (`decoders_fused`, the one graph of a form that lists a single decoder graph) in place of
+    /// per-region ones when the bundle has them. The decoders run after sampling, so the tokens are
+    /// those of the form's own decoders, and the frames too (one stream: bit-identical on the tiny
+    /// bundle; stacked streams: within the batch bound); on tract the one graph takes 0.50-0.76x the
+    /// four's time (BENCHMARKS.md, "tract's fastest form per graph"). A form named explicitly
+    /// (`--form`) runs its own decoders. Empty when the default form is not in the bundle.
+    pub fn default_decoders(&self, backend: &str) -> Vec<String> {
+        let forms = self.form_graphs();
+        let own = forms
+            .get(self.default_form(backend))
+            .map(|f| f.decoders.clone())
+            .unwrap_or_default();
+        if backend == "tract" && own.len() > 1 {
+            if let Some(f) = forms.values().find(|f| f.decoders.len() == 1) {
+                return f.decoders.clone();
+            }
+        }
+        own
+    }
+
     /// Checks the sections against themselves and the common part; the error says what is wrong.
     pub(super) fn check(&self, m: &Manifest) -> Result<(), String> {
         if self.regions.is_empty() {

@@ -112,6 +112,12 @@ pub fn describe(bundle: &Bundle) -> Result<Description> {
     let (with, without) = (state_bytes(bundle, true)?, state_bytes(bundle, false)?);
     let kib = |n: usize| format!("{:.1} KiB", n as f64 / 1024.0);
     let forms = lg.form_graphs();
+    // tract's `auto` decoders where they are not its form's own (`default_decoders`)
+    let tract_decoders = Some(lg.default_decoders("tract")).filter(|d| {
+        forms
+            .get(lg.default_form("tract"))
+            .is_some_and(|f| f.decoders != *d)
+    });
     let lines = vec![
         ("regions".to_string(), regions.join(", ")),
         (
@@ -148,7 +154,7 @@ pub fn describe(bundle: &Bundle) -> Result<Description> {
         (
             "forms".to_string(),
             format!(
-                "{} (docs/bundle.md#forms-and-precision); runs ort: {}, tract: {} (a form chosen at load, or $LIVEGESTURE_FORM, overrides)",
+                "{} (docs/bundle.md#forms-and-precision); runs ort: {}, tract: {} (a form chosen at load, or $LIVEGESTURE_FORM, overrides){}",
                 forms
                     .iter()
                     .map(|(k, g)| format!(
@@ -160,7 +166,11 @@ pub fn describe(bundle: &Bundle) -> Result<Description> {
                     .collect::<Vec<_>>()
                     .join("; "),
                 lg.default_form("ort"),
-                lg.default_form("tract")
+                lg.default_form("tract"),
+                tract_decoders
+                    .as_ref()
+                    .map(|d| format!("; tract's {} form runs the decoders {}", lg.default_form("tract"), d.join(" ")))
+                    .unwrap_or_default()
             ),
         ),
     ];
@@ -169,6 +179,10 @@ pub fn describe(bundle: &Bundle) -> Result<Description> {
     json.insert("sampling".into(), serde_json::to_value(&lg.sampling)?);
     json.insert("vocab".into(), serde_json::to_value(&lg.vocab)?);
     json.insert("forms".into(), serde_json::to_value(&forms)?);
+    json.insert(
+        "backend_decoders".into(),
+        serde_json::json!({"ort": lg.default_decoders("ort"), "tract": lg.default_decoders("tract")}),
+    );
     json.insert(
         "backend_forms".into(),
         serde_json::json!({"ort": lg.default_form("ort"), "tract": lg.default_form("tract")}),

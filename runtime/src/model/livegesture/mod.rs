@@ -144,6 +144,7 @@ impl LiveGestureGraphs {
         let regions = resolve_layouts(&lg.regions)?;
         let forms = lg.form_graphs();
         // the form's name in the manifest is its `Display` (`auto`: the bundle's form for the backend)
+        let auto = form == GraphForm::Auto;
         let form = match form {
             GraphForm::Auto => lg.default_form(backend.name()).to_string(),
             named => named.to_string(),
@@ -168,8 +169,14 @@ impl LiveGestureGraphs {
         if experts.len() == 1 && names.len() > 1 {
             chain::check_fused_experts(&experts[0], names.len())?;
         }
-        let decoders = graphs
-            .decoders
+        // `auto`: the decoders the backend runs with its form (tract: the fused decoders when the
+        // bundle has them, `LiveGestureManifest::default_decoders`); a named form: its own
+        let decoder_graphs = if auto {
+            lg.default_decoders(backend.name())
+        } else {
+            graphs.decoders.clone()
+        };
+        let decoders = decoder_graphs
             .iter()
             .map(|g| Stage::new(bundle, backend, g, &names))
             .collect::<Result<Vec<_>>>()?;
@@ -208,6 +215,13 @@ impl LiveGestureGraphs {
     /// `fused` or `attention`, docs/bundle.md#forms-and-precision).
     pub fn form(&self) -> &str {
         &self.form
+    }
+
+    /// The graphs of the SVQ decoders these graphs run: one per region, or `decoders_fused`
+    /// ([`crate::bundle::LiveGestureManifest::default_decoders`]: tract's `auto` runs it with any
+    /// form when the bundle has it).
+    pub fn decoder_graphs(&self) -> Vec<&str> {
+        self.decoders.iter().map(|d| d.spec.name.as_str()).collect()
     }
 
     /// The backend the graphs run on.
