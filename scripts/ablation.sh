@@ -3,13 +3,15 @@
 # variant (python/livegesture/variants.py) on the synthetic corpus with ONE reduced budget, the same for every row,
 # then scored with the in-distribution report (python -m livegesture.eval) and the real-speech gaps
 # on the real-speech validation set (python -m livegesture.eval.generalise, the motion swap's gaps), both through the
-# Python streaming reference of the checkpoint, 2 seeds each.
+# Python streaming reference of the checkpoint (SEEDS seeds each).
 #
 #   scripts/ablation.sh [OUT]          (default target/ablation; checkpoints and reports stay there, out of the tree)
 #   VARIANTS="full no-ugm ..."         rows to train, in order (default below; `full` must come first)
 #   STEPS="500 135 250 135"            steps of svq1 svq2 experts fuse (default: a third of the `default` recipe's
 #                                      svq1 and a sixth of its other stages, 1500 800 1500 800, docs/model.md; the
 #                                      budget the shared machine allowed), the batches of the `default` recipe
+#   SEEDS=2 EVAL_CLIPS=                seeds per clip in both reports; only the first N test clips in distribution
+#                                      (the table in docs/evaluation.md: SEEDS=1 EVAL_CLIPS=3, what time allowed)
 #   TABLE_ONLY=1                       only print the table of the rows already evaluated
 #   TRAIN=0 / EVAL=0                   only evaluate (each row once its final.pt exists, waiting for it) / only
 #                                      train: the two halves may run side by side, one training while the other
@@ -97,13 +99,14 @@ print(train.first_changed_stage(v) or 'none', v != 'full' and variants.get('live
   [ "${EVAL:-1}" = 0 ] && continue
   t=$SECONDS
   if [ ! -f "$OUT/eval/$v.json" ]; then
-    "${PY[@]}" -m livegesture.eval --data "$CORPUS" --checkpoint "$run/final.pt" --n-realisations 2 --seed 1 \
+    "${PY[@]}" -m livegesture.eval --data "$CORPUS" --checkpoint "$run/final.pt" --n-realisations "${SEEDS:-2}" --seed 1 \
+      ${EVAL_CLIPS:+--max-clips "$EVAL_CLIPS"} \
       --fgd-encoder "$OUT/fgd_encoder.pt" --no-per-clip --out "$OUT/eval/$v.json" >"$OUT/eval/$v.log" 2>&1 \
       || { tail -20 "$OUT/eval/$v.log" >&2; exit 1; }
   fi
   if [ ! -f "$OUT/eval/$v.gen.json" ]; then
     # the real-speech set only (its gaps; the synthetic set's held-out split is the in-distribution report's)
-    "${PY[@]}" -m livegesture.eval.generalise --checkpoint "$run/final.pt" --n-realisations 2 \
+    "${PY[@]}" -m livegesture.eval.generalise --checkpoint "$run/final.pt" --n-realisations "${SEEDS:-2}" \
       --seed 1 --out "$OUT/eval/$v.gen.json" >"$OUT/eval/$v.gen.log" 2>&1 \
       || { tail -20 "$OUT/eval/$v.gen.log" >&2; exit 1; }
   fi
