@@ -20,7 +20,7 @@ import numpy as np
 
 import livegesture
 from livegesture import variants
-from livegesture.regions import region_layout
+from livegesture.regions import REGIONS, region_layout
 
 HERE = Path(__file__).resolve().parent
 SCHEMA_VERSION = 1
@@ -75,7 +75,7 @@ def manifest_head(family: str, name: str, cfg, model, rates: dict) -> dict:
         "rates": {"sample_rate": f.sample_rate, "fps": f.fps, "frames_per_token": f.frames_per_token,
                   "mel_frames_per_token": f.mel_frames_per_token, **rates},
         "frontend": f.to_dict(),
-        "regions": region_layout(),
+        "regions": region_layout(getattr(model, "regions", REGIONS)),
     }
 
 

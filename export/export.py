@@ -36,7 +36,6 @@ from livegesture import checkpoint as ckpt  # noqa: E402
 from livegesture import families, variants  # noqa: E402
 from livegesture.compare import diff  # noqa: E402
 from livegesture.frontend import logmel  # noqa: E402
-from livegesture.regions import REGION_NAMES  # noqa: E402
 from livegesture.sampling import __doc__ as SAMPLER_DOC  # noqa: E402
 from livegesture.stream import generate_clip  # noqa: E402
 
@@ -141,6 +140,9 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
            forms=FORMS, backend_forms: dict | None = None) -> dict:
     backend_forms = dict(backend_forms or DEFAULT_BACKEND_FORMS)
     cfg = model.cfg
+    names = model.region_names
+    if len(names) < 2:   # one region (the full-body SVQ): the canonical graphs are already one per component
+        forms = tuple(f for f in forms if f != "fused")
     (tmp / "reference").mkdir()
     files, graphs, checks = {}, [], {}
 
@@ -218,8 +220,8 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
                         trans=ro["trans"], expressions=ro["expressions"], foot_contact=ro["foot_contact"],
                         seed=np.array(ROLLOUT_SEED, dtype=np.uint64), clip_repeats=np.array(reps))
     log(f"  rollout          {len(ro['tokens'])} tokens in {time.time() - t0:.1f}s")
-    forms_manifest = {"canonical": {"experts": [f"expert_{r}" for r in REGION_NAMES],
-                                    "decoders": [f"decoder_{r}" for r in REGION_NAMES]}}
+    forms_manifest = {"canonical": {"experts": [f"expert_{r}" for r in names],
+                                    "decoders": [f"decoder_{r}" for r in names]}}
 
     def rollout_vs_canonical(form: str, form_graphs: list[str]) -> dict:
         """The torch rollout in ``form`` against the canonical one (docs/bundle.md#forms-and-precision): identical tokens, frames within
@@ -251,13 +253,13 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
             "experts": [FUSED_EXPERTS],
             "decoders": [FUSED_DECODERS],
             "region_axis": 1,
-            "regions": list(REGION_NAMES),
-            "contract": "experts_fused runs the four region eXperts at once: prev_token (batch, regions) int64, "
+            "regions": list(names),
+            "contract": "experts_fused runs the region eXperts at once: prev_token (batch, regions) int64, "
                         "audio and cond as expert_<region>; hidden (batch, regions, d_model), row r = expert_<r>'s "
                         "hidden; caches: step (batch,) shared by the regions; every attention cache is "
                         "(batch, regions * heads, window - 1, head_dim) where rows r * heads .. (r + 1) * heads of "
                         "axis 1 are expert_<r>'s cache of the same name (regions in region order). "
-                        "decoders_fused runs the four region SVQ decoders at once: token (batch, regions) int64, "
+                        "decoders_fused runs the region SVQ decoders at once: token (batch, regions) int64, "
                         "column r = decoder_<r>'s token; motion (batch, frames_per_token, sum of the region dims), "
                         "columns off_r .. off_r + dim_r = decoder_<r>'s motion (off_r: the dims of the regions "
                         "before r); caches: decoder_<r>'s cache names, each (batch, frames, regions * channels) "
@@ -288,8 +290,8 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
         "vocab": {"codebook_size": cfg.codebook_size, "bos_token": cfg.bos_token, "mask_token": cfg.mask_token},
         "graphs": graphs,
         "pipeline": {
-            "order": ["audio_encoder", *[f"expert_{r}" for r in REGION_NAMES], "fusion", "sample",
-                      *[f"decoder_{r}" for r in REGION_NAMES]],
+            "order": ["audio_encoder", *[f"expert_{r}" for r in names], "fusion", "sample",
+                      *[f"decoder_{r}" for r in names]],
             "guidance_branches": "expert_* and fusion run both branches on the batch axis: cond=1 (conditional) "
                                  "and cond=0 (unconditional, null audio); audio_encoder and decoder_* run once per stream",
             "first_prev_token": "bos_token",
@@ -299,7 +301,7 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
         "normalisation": model.normalisation(),
         "sampling": {"guidance": cfg.guidance, "temperature": cfg.temperature, "top_k": cfg.top_k,
                      "guidance_disabled_when": "guidance == 1.0 (no unconditional branch)",
-                     "region_order": list(REGION_NAMES), "prng": "splitmix64", "definition": SAMPLER_DOC.strip()},
+                     "region_order": list(names), "prng": "splitmix64", "definition": SAMPLER_DOC.strip()},
         "reference": {"graphs": {g["name"]: g["reference"] for g in graphs}, "steps": REFERENCE_STEPS,
                       "batch": REFERENCE_BATCH, "clip": "reference/clip.wav", "clip_source": clip_desc,
                       "clip_seconds": round(len(clip) / 16000, 3), "logmel": "reference/logmel.npy",

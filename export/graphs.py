@@ -19,7 +19,6 @@ from livegesture.forms.decoders_fused import FUSED_DECODERS, FusedDecoders
 from livegesture.forms.fusion_attention import FUSION_ATTENTION, FusionAttention
 from livegesture.models.layers import ATTENTION_DOMAIN
 from livegesture.models.model import LiveGesture
-from livegesture.regions import REGION_NAMES
 
 
 def fused_components(model: LiveGesture) -> dict[str, nn.Module]:
@@ -28,8 +27,8 @@ def fused_components(model: LiveGesture) -> dict[str, nn.Module]:
     cached on the model so every export step sees one module."""
     cached = getattr(model, "_fused_components", None)
     if cached is None:
-        cached = {FUSED_EXPERTS: FusedExperts([model.experts[r] for r in REGION_NAMES]).eval(),
-                  FUSED_DECODERS: FusedDecoders([model.svq[r] for r in REGION_NAMES]).eval()}
+        cached = {FUSED_EXPERTS: FusedExperts([model.experts[r] for r in model.region_names]).eval(),
+                  FUSED_DECODERS: FusedDecoders([model.svq[r] for r in model.region_names]).eval()}
         object.__setattr__(model, "_fused_components", cached)
     return cached
 
@@ -103,7 +102,7 @@ def data_io(model: LiveGesture, graph: str) -> tuple[list[dict], list[dict]]:
                  {"name": "cond", "dtype": f32, "shape": ["batch"]}],
                 [{"name": "hidden", "dtype": f32, "shape": ["batch", d]}])
     if graph == FUSED_EXPERTS:
-        R = len(REGION_NAMES)
+        R = len(model.region_names)
         return ([{"name": "prev_token", "dtype": i64, "shape": ["batch", R]},
                  {"name": "audio", "dtype": f32, "shape": ["batch", Da]},
                  {"name": "cond", "dtype": f32, "shape": ["batch"]}],
@@ -113,12 +112,12 @@ def data_io(model: LiveGesture, graph: str) -> tuple[list[dict], list[dict]]:
         # the graph has no such inputs, and the runtime feeds the inputs the manifest lists
         audio = ([{"name": "audio", "dtype": f32, "shape": ["batch", Da]}, {"name": "cond", "dtype": f32, "shape": ["batch"]}]
                  if model.fuse.uses_audio else [])
-        return ([{"name": f"hidden_{r}", "dtype": f32, "shape": ["batch", d]} for r in REGION_NAMES] + audio,
-                [{"name": "logits", "dtype": f32, "shape": ["batch", len(REGION_NAMES), K]}])
+        return ([{"name": f"hidden_{r}", "dtype": f32, "shape": ["batch", d]} for r in model.region_names] + audio,
+                [{"name": "logits", "dtype": f32, "shape": ["batch", len(model.region_names), K]}])
     if graph == FUSED_DECODERS:
-        return ([{"name": "token", "dtype": i64, "shape": ["batch", len(REGION_NAMES)]}],
+        return ([{"name": "token", "dtype": i64, "shape": ["batch", len(model.region_names)]}],
                 [{"name": "motion", "dtype": f32, "shape": ["batch", cfg.frontend.frames_per_token,
-                                                           sum(model.svq[r].d_in for r in REGION_NAMES)]}])
+                                                           sum(model.svq[r].d_in for r in model.region_names)]}])
     if graph.startswith("decoder_"):
         r = graph[len("decoder_"):]
         return ([{"name": "token", "dtype": i64, "shape": ["batch"]}],
@@ -134,9 +133,9 @@ def call_step(model: LiveGesture, graph: str, inputs: dict, cache: dict) -> tupl
     if graph.startswith("expert_") or graph == FUSED_EXPERTS:
         return comp.step(inputs["prev_token"], inputs["audio"], inputs["cond"], cache)
     if graph in ("fusion", FUSION_ATTENTION):
-        hidden = {r: inputs[f"hidden_{r}"] for r in REGION_NAMES}
+        hidden = {r: inputs[f"hidden_{r}"] for r in model.region_names}
         if "audio" not in inputs:    # a fusion that reads no audio (data_io): any audio gives the same step
-            B = hidden[REGION_NAMES[0]].shape[0]
+            B = hidden[model.region_names[0]].shape[0]
             inputs = {**inputs, "audio": torch.zeros(B, model.cfg.audio_dim), "cond": torch.ones(B)}
         return comp.step(hidden, inputs["audio"], inputs["cond"], cache)
     return comp.step(inputs["token"], cache)

@@ -17,7 +17,6 @@ import torch
 
 from livegesture.compare import diff
 from livegesture.models.model import LiveGesture
-from livegesture.regions import REGION_NAMES
 
 from .graphs import call_step, component, random_inputs
 
@@ -74,7 +73,7 @@ def check_step_vs_offline(model: LiveGesture, graph: str, seed: int = 0) -> tupl
         off, _ = comp(stack("prev_token"), stack("audio"), seq[0]["cond"])
         name, st = "hidden", torch.stack([o["hidden"] for o in outs], 1)
     elif graph == "fusion":
-        hid = torch.stack([stack(f"hidden_{r}") for r in REGION_NAMES], 2)
+        hid = torch.stack([stack(f"hidden_{r}") for r in model.region_names], 2)
         if "audio" in seq[0]:
             off = comp(hid, stack("audio"), seq[0]["cond"])
         else:   # a fusion that reads no audio (graphs.data_io): any audio gives the same forward

@@ -58,6 +58,8 @@ class LiveGestureConfig:
     fuse_audio: bool = True           # causal audio-motion cross-attention in the fuse blocks
     fusion: str = "xar"               # "xar": xAR-Fuse; "none": eXperts only (the eXperts' own classifiers)
     audio_fusion: str = "cross"       # "cross": audio-motion cross-attention; "additive": audio added (Table 4)
+    regions: str = "per-region"       # region set (livegesture.regions.REGION_SETS): "per-region" (upper, hands,
+    #                                   lower, face: one SVQ and eXpert each) or "full-body" (one region, Table 6)
 
     # inference defaults
     guidance: float = 1.25

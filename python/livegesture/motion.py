@@ -2,7 +2,8 @@
 
 Each region's decoded features are split by the layout of ``livegesture.regions`` (see
 ``livegesture.data.features``): rot6d per joint is decoded to axis-angle into the joint's slot of ``poses``
-(55 x 3), lower's translation goes to ``trans``, face's expressions to ``expressions``; eyes stay at rest.
+(55 x 3), lower's translation goes to ``trans``, face's expressions to ``expressions``; eyes stay at rest. A
+composite region (the full-body SVQ's ``body``) is first cut into its base regions (``livegesture.regions.split``).
 """
 from __future__ import annotations
 
@@ -10,12 +11,14 @@ import numpy as np
 
 from .data.features import features_to_motion as _features_to_motion
 from .data.features import region_parts
+from .regions import split
 
 
 def features_to_motion(feats: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """feats {region: (T, dim)} de-normalised -> dict(poses (T,165), trans (T,3), expressions (T,100),
     foot_contact (T,4)), float32."""
-    out = _features_to_motion({k: np.asarray(v, dtype=np.float32) for k, v in feats.items()})
+    feats = split({k: np.asarray(v, dtype=np.float32) for k, v in feats.items()})
+    out = _features_to_motion(feats)
     out["foot_contact"] = np.asarray(region_parts("lower", np.asarray(feats["lower"]))["contact"], dtype=np.float32)
     return out
 

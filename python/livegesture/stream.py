@@ -23,7 +23,7 @@ from .frames import Frame, frames_to_arrays
 from .frontend import StreamingLogMel
 from .models.model import LiveGesture
 from .motion import features_to_motion
-from .regions import FPS, FRAMES_PER_TOKEN, REGION_NAMES
+from .regions import FPS, FRAMES_PER_TOKEN
 from .sampling import SplitMix64, sample_token
 
 __all__ = ["Frame", "LiveGestureStream", "frames_to_arrays", "generate_clip"]
@@ -33,7 +33,7 @@ class LiveGestureStream:
     """One stream's state: frontend buffer, caches of every component, previous tokens, PRNG.
 
     ``push(chunk)`` accepts float samples at 16 kHz (any chunk size) and returns the frames completed.
-    ``form``: ``canonical`` runs the four region eXperts and SVQ decoders one by one, ``fused`` runs the eXperts as
+    ``form``: ``canonical`` runs the region eXperts and SVQ decoders one by one, ``fused`` runs the eXperts as
     one step on a region axis (:class:`livegesture.forms.experts_fused.FusedExperts`) and the decoders as one step with the
     regions side by side (:class:`livegesture.forms.decoders_fused.FusedDecoders`), ``attention`` runs the canonical
     eXperts and decoders and the fusion with its attention cores as the ONNX ``Attention`` op
@@ -52,11 +52,14 @@ class LiveGestureStream:
         if form == "attention":
             from .forms.fusion_attention import FusionAttention
             self.fuse = FusionAttention(model.fuse).eval().to(self.device)
+        self.names = names = model.region_names
         if form == "fused":
+            if len(names) < 2:
+                raise ValueError(f"form 'fused' runs several regions as one graph; this model has one region ({names[0]})")
             from .forms.experts_fused import FusedExperts
             from .forms.decoders_fused import FusedDecoders
-            self.fused = FusedExperts([model.experts[r] for r in REGION_NAMES]).eval().to(self.device)
-            self.fused_decoders = FusedDecoders([model.svq[r] for r in REGION_NAMES]).eval().to(self.device)
+            self.fused = FusedExperts([model.experts[r] for r in names]).eval().to(self.device)
+            self.fused_decoders = FusedDecoders([model.svq[r] for r in names]).eval().to(self.device)
         self.model = model.eval()
         cfg = model.cfg
         self.cfg = cfg
@@ -74,7 +77,7 @@ class LiveGestureStream:
         m, B, dev = self.model, (2 if self.guided else 1), self.device
         self.frontend = StreamingLogMel(self.cfg.frontend)
         self.cache = {"audio_encoder": m.audio_encoder.init_cache(1, dev), "fusion": m.fuse.init_cache(B, dev)}
-        for r in REGION_NAMES:
+        for r in self.names:
             if self.fused is None:
                 self.cache[f"expert_{r}"] = m.experts[r].init_cache(B, dev)
             if self.fused_decoders is None:
@@ -83,7 +86,7 @@ class LiveGestureStream:
             self.cache["experts_fused"] = self.fused.init_cache(B, dev)
         if self.fused_decoders is not None:
             self.cache["decoders_fused"] = self.fused_decoders.init_cache(1, dev)
-        self.prev = {r: self.cfg.bos_token for r in REGION_NAMES}
+        self.prev = {r: self.cfg.bos_token for r in self.names}
         self.rng = SplitMix64(self.seed)
         self.t = 0
         self.tokens: list[dict[str, int]] = []
@@ -108,11 +111,11 @@ class LiveGestureStream:
         cond = torch.tensor([1.0, 0.0][:B], device=dev)
         hidden = {}
         if self.fused is not None:
-            prev = torch.tensor([[self.prev[r] for r in REGION_NAMES]] * B, dtype=torch.int64, device=dev)
+            prev = torch.tensor([[self.prev[r] for r in self.names]] * B, dtype=torch.int64, device=dev)
             o, self.cache["experts_fused"] = self.fused.step(prev, audio, cond, self.cache["experts_fused"])
-            hidden = {r: o["hidden"][:, i] for i, r in enumerate(REGION_NAMES)}
+            hidden = {r: o["hidden"][:, i] for i, r in enumerate(self.names)}
         else:
-            for r in REGION_NAMES:
+            for r in self.names:
                 prev = torch.full((B,), self.prev[r], dtype=torch.int64, device=dev)
                 o, self.cache[f"expert_{r}"] = m.experts[r].step(prev, audio, cond, self.cache[f"expert_{r}"])
                 hidden[r] = o["hidden"]
@@ -126,17 +129,17 @@ class LiveGestureStream:
         m = self.model
         self.logits.append(logits)
         tokens = {}
-        for i, r in enumerate(REGION_NAMES):
+        for i, r in enumerate(self.names):
             tokens[r] = sample_token(logits[0, i], logits[1, i] if self.guided else None, self.rng,
                                      self.gamma, self.temperature, self.top_k)
         feats = {}
         if self.fused_decoders is not None:
-            tok = torch.tensor([[tokens[r] for r in REGION_NAMES]], dtype=torch.int64, device=self.device)
+            tok = torch.tensor([[tokens[r] for r in self.names]], dtype=torch.int64, device=self.device)
             o, self.cache["decoders_fused"] = self.fused_decoders.step(tok, self.cache["decoders_fused"])
-            for r, f in zip(REGION_NAMES, self.fused_decoders.split_motion(o["motion"])):
+            for r, f in zip(self.names, self.fused_decoders.split_motion(o["motion"])):
                 feats[r] = f[0].cpu().numpy()
         else:
-            for r in REGION_NAMES:
+            for r in self.names:
                 o, self.cache[f"decoder_{r}"] = m.svq[r].step(torch.tensor([tokens[r]], device=self.device),
                                                               self.cache[f"decoder_{r}"])
                 feats[r] = o["motion"][0].cpu().numpy()
@@ -207,5 +210,5 @@ def generate_livegesture_clip(model: LiveGesture, audio_16k: np.ndarray, seed: i
     if finish:
         frames += s.finish()
     out = frames_to_arrays(frames)
-    out["tokens"] = np.array([[t[r] for r in REGION_NAMES] for t in s.tokens], dtype=np.int64).reshape(-1, len(REGION_NAMES))
+    out["tokens"] = np.array([[t[r] for r in s.names] for t in s.tokens], dtype=np.int64).reshape(-1, len(s.names))
     return out

@@ -54,7 +54,7 @@ from . import families, variants
 from .config import get_config
 from .data.features import NormStats
 from .models.model import LiveGesture
-from .regions import REGION_NAMES
+from .regions import split as split_regions
 from .trainkit import (Logger, LossTrack, Prefetcher, RunOptions, TrainData, all_reduce_mean_,  # noqa: F401
                        dist_info, finish_distributed, init_distributed, log_values, sync_grads, to_device)
 
@@ -113,6 +113,29 @@ class TrainConfig:
 
 
 # ----------------------------------------------------------------------------- stages
+
+# The first stage each variant field changes (livegesture.variants): the stages before it compute exactly what the
+# `full` model's compute (same seed, data, config and initial weights), so an ablation run may take them from a
+# `full` run of the same budget (scripts/ablation.sh). A field not listed is taken to change every stage.
+FIRST_STAGE_OF_FIELD = {
+    # model config
+    "pilor": "fuse", "fuse_spatial": "fuse", "fuse_temporal": "fuse", "fuse_audio": "fuse", "fusion": "fuse",
+    "audio_fusion": "experts",
+    # training config
+    "ugm_max_ratio": "fuse", "region_drop_max": "fuse", "region_drop_ramp": "fuse", "local_weight": "fuse",
+    "fuse_loss_masked": "fuse", "steps_fuse": "fuse", "noise_p_uniform": "experts",
+}
+
+
+def first_changed_stage(variant: str | None) -> str | None:
+    """The first training stage in which LiveGesture variant ``variant`` differs from ``full`` (None: none)."""
+    if variant in (None, "full"):
+        return None
+    v = variants.get(families.LIVEGESTURE.name, variant)
+    fields = set(v.model_fields(get_config("tiny"))) | set(v.train)
+    return min((FIRST_STAGE_OF_FIELD.get(f, STAGES[0]) for f in fields), key=STAGES.index, default=None)
+
+
 
 def cosine_ramp(step, total, top):
     """0 at the start, ``top`` at the end, cosine-shaped."""
@@ -203,8 +226,9 @@ def run_stage(name, model, params, total, step_fn, tcfg, out: Path, logger, devi
 def compile_modules(model):
     """``torch.compile`` the modules a training step calls (in place: names and state dict unchanged). The
     step functions themselves are not compiled: they take host numbers (masking ratios) that change every step."""
-    mods = [model.audio_encoder, model.fuse] + [model.experts[r] for r in REGION_NAMES] + \
-        [m for r in REGION_NAMES for m in (model.svq[r].encoder, model.svq[r].decoder)]
+    names = model.region_names
+    mods = [model.audio_encoder, model.fuse] + [model.experts[r] for r in names] + \
+        [m for r in names for m in (model.svq[r].encoder, model.svq[r].decoder)]
     # the four regions' modules share their classes' code: room for their shapes (windows, whole clips)
     cfg = torch._dynamo.config
     name = "recompile_limit" if hasattr(cfg, "recompile_limit") else "cache_size_limit"
@@ -215,14 +239,15 @@ def compile_modules(model):
 
 
 def stage_svq1(model, data, tcfg, device):
-    params = [p for r in REGION_NAMES for m in (model.svq[r].encoder, model.svq[r].decoder) for p in m.parameters()]
+    names = model.region_names
+    params = [p for r in names for m in (model.svq[r].encoder, model.svq[r].decoder) for p in m.parameters()]
 
     def sample(step, rng):
-        return {r: data.svq_window(rng, r, tcfg.svq_window_frames, tcfg.batch_svq) for r in REGION_NAMES}
+        return {r: data.svq_window(rng, r, tcfg.svq_window_frames, tcfg.batch_svq) for r in names}
 
     def compute(step, batch):
         losses = {}
-        for r in REGION_NAMES:
+        for r in names:
             x = batch[r]
             losses[f"l1_{r}"] = F.l1_loss(model.svq[r].autoencode(x).float(), x)
         return sum(losses.values()), losses
@@ -232,7 +257,8 @@ def stage_svq1(model, data, tcfg, device):
 @torch.no_grad()
 def init_codebooks(model, data, tcfg, device, rng):
     """Start each codebook from encoder outputs of random training windows."""
-    for r in REGION_NAMES:
+    names = model.region_names
+    for r in names:
         q = model.svq[r].quantizer
         x = data.svq_batch(rng, r, tcfg.svq_window_frames, max(4 * q.K // 4, 64), device)
         e = q.pre(model.svq[r].encoder(x.transpose(1, 2)).transpose(1, 2)).reshape(-1, q.codebook.shape[1])
@@ -247,20 +273,21 @@ def init_codebooks(model, data, tcfg, device, rng):
 
 
 def stage_svq2(model, data, tcfg, device):
+    names = model.region_names
     one_stage = tcfg.svq_stages == 1     # Table 2c "1-stage": the autoencoder is trained with the quantizer
-    for r in REGION_NAMES:
+    for r in names:
         for p in list(model.svq[r].encoder.parameters()) + list(model.svq[r].decoder.parameters()):
             p.requires_grad_(one_stage)
     parts = ("quantizer.pre", "head") + (("encoder", "decoder") if one_stage else ())
-    params = [p for r in REGION_NAMES for name in parts for p in model.svq[r].get_submodule(name).parameters()]
+    params = [p for r in names for name in parts for p in model.svq[r].get_submodule(name).parameters()]
     recent = {}
 
     def sample(step, rng):
-        return {r: data.svq_window(rng, r, tcfg.svq_window_frames, tcfg.batch_svq) for r in REGION_NAMES}
+        return {r: data.svq_window(rng, r, tcfg.svq_window_frames, tcfg.batch_svq) for r in names}
 
     def compute(step, batch):
         losses = {}
-        for r in REGION_NAMES:
+        for r in names:
             svq = model.svq[r]
             x = batch[r]
             rec, _, cb = svq.quantize(x, update=True)
@@ -275,7 +302,7 @@ def stage_svq2(model, data, tcfg, device):
         return total, losses
 
     def state_fn(step, rng):
-        for r in REGION_NAMES:
+        for r in names:
             q = model.svq[r].quantizer
             all_reduce_mean_([q.codebook, q.ema_sum, q.ema_count, q.usage])
             if (step + 1) % tcfg.dead_code_every == 0 and dist_info()[0] == 0:
@@ -289,9 +316,10 @@ def stage_svq2(model, data, tcfg, device):
 
 @torch.no_grad()
 def tokenize_clips(model, data, device):
+    names = model.region_names
     data.tokens = []
     for f in data.feats:
-        toks = [model.svq[r].tokenize(torch.from_numpy(f[r][None]).to(device))[0].cpu().numpy() for r in REGION_NAMES]
+        toks = [model.svq[r].tokenize(torch.from_numpy(f[r][None]).to(device))[0].cpu().numpy() for r in names]
         data.tokens.append(np.stack(toks, -1))   # (n_tok, R)
 
 
@@ -306,7 +334,8 @@ def cfg_cond(batch, p, device):
 
 
 def stage_experts(model, data, tcfg, device):
-    params = list(model.audio_encoder.parameters()) + [p for r in REGION_NAMES for p in model.experts[r].parameters()]
+    names = model.region_names
+    params = list(model.audio_encoder.parameters()) + [p for r in names for p in model.experts[r].parameters()]
 
     def sample(step, rng):
         mel, tok = data.ar_window(rng, tcfg.ar_window_tokens, tcfg.batch_ar)
@@ -319,27 +348,28 @@ def stage_experts(model, data, tcfg, device):
         audio = model.audio_encoder(mel).float()   # (bf16 under autocast) the eXperts take float32 inputs
         cond = cfg_cond(len(tok), tcfg.cfg_dropout, tok.device)
         losses = {}
-        for i, r in enumerate(REGION_NAMES):
+        for i, r in enumerate(names):
             _, logits = model.experts[r](teacher_inputs(model, tok[..., i]), audio, cond,
                                          noise_sigma=tcfg.noise_sigma, noise_p=noise_p)
             losses[f"ce_{r}"] = F.cross_entropy(logits.reshape(-1, logits.shape[-1]).float(), tok[..., i].reshape(-1))
-        return sum(losses.values()) / len(REGION_NAMES), losses
+        return sum(losses.values()) / len(names), losses
     return params, StageStep(sample, compute, device), None
 
 
 def stage_fuse(model, data, tcfg, device):
-    frozen = [model.audio_encoder] + [model.svq[r] for r in REGION_NAMES] + \
-        [model.experts[r] for r in REGION_NAMES]
+    names = model.region_names
+    frozen = [model.audio_encoder] + [model.svq[r] for r in names] + \
+        [model.experts[r] for r in names]
     for m in frozen:
         for p in m.parameters():
             p.requires_grad_(False)
-    classifiers = [model.experts[r].classifier for r in REGION_NAMES]
+    classifiers = [model.experts[r].classifier for r in names]
     for c in classifiers:
         for p in c.parameters():
             p.requires_grad_(True)
     params = [p for p in model.fuse.parameters() if p.requires_grad]
     total_steps = tcfg.steps_fuse
-    R = len(REGION_NAMES)
+    R = len(names)
 
     def sample(step, rng):
         # every host random number of the step, in the order the step has always drawn them
@@ -365,7 +395,7 @@ def stage_fuse(model, data, tcfg, device):
             # uncertainty-guided masking: the least confident ground-truth history tokens are masked
             conf = []
             ones = torch.ones(B, device=dev)
-            for i, r in enumerate(REGION_NAMES):
+            for i, r in enumerate(names):
                 _, lg = model.experts[r](clean_in[..., i], audio, ones)
                 conf.append(lg.float().log_softmax(-1).gather(-1, tok[..., i:i + 1])[..., 0])
             conf = torch.stack(conf, -1)                     # confidence of x_t, t = 0..T-1
@@ -387,7 +417,7 @@ def stage_fuse(model, data, tcfg, device):
                 masked[:, 1:] |= batch["region_mask"][:, None, :]
             cond = cfg_cond(B, tcfg.cfg_dropout, dev)
             hidden = torch.stack([model.experts[r](corrupted[..., i], audio, cond)[0].float()
-                                  for i, r in enumerate(REGION_NAMES)], 2)   # (B, T, R, d)
+                                  for i, r in enumerate(names)], 2)   # (B, T, R, d)
         local = sum(F.cross_entropy(classifiers[i](hidden[:, :, i]).reshape(-1, model.cfg.codebook_size).float(),
                                     tok[..., i].reshape(-1)) for i in range(R_)) / R_
         logits = model.fuse(hidden, audio, cond)
@@ -439,12 +469,14 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
         # reuse a trained motion tokenizer (svq1 + svq2 of another checkpoint, with its motion statistics):
         # the SVQ never sees audio, so only the stages that do (experts, fuse) are trained here
         src = ckpt.load(svq_from)
+        if tuple(src.region_names) != tuple(model.region_names):
+            raise SystemExit(f"--svq-from {svq_from}: its regions {list(src.region_names)} differ from this "
+                             f"model's {list(model.region_names)}")
         norm = src.normalisation()
-        data.stats = NormStats(mean={r: np.asarray(norm[r]["mean"], np.float32) for r in REGION_NAMES},
-                               std={r: np.asarray(norm[r]["std"], np.float32) for r in REGION_NAMES},
-                               source=f"svq of {svq_from}")
-        data.feats = [data.stats.normalize(c.features) for c in data.clips]
-        for r in REGION_NAMES:
+        mean = split_regions({r: np.asarray(norm[r]["mean"], np.float32) for r in model.region_names})
+        std = split_regions({r: np.asarray(norm[r]["std"], np.float32) for r in model.region_names})
+        data.set_stats(NormStats(mean=mean, std=std, source=f"svq of {svq_from}"))
+        for r in model.region_names:
             model.svq[r].load_state_dict(src.svq[r].state_dict())
     if src_model is not None:
         # every weight, and the source's mel statistics: its audio encoder was trained on mels normalised
@@ -512,7 +544,8 @@ def train(config: str, data_dir: str, out: str, stages=STAGES, device: str = "cp
     if all((out / f"{s}.pt").exists() for s in STAGES) and rank == 0:
         if data.tokens is None:
             tokenize_clips(model, data, device)
-        usage = {r: int(len(np.unique(np.concatenate([t[:, i] for t in data.tokens])))) for i, r in enumerate(REGION_NAMES)}
+        usage = {r: int(len(np.unique(np.concatenate([t[:, i] for t in data.tokens]))))
+                 for i, r in enumerate(model.region_names)}
         prov = {**info, "stages_done": list(STAGES), "final_losses": summary, "stages": stage_log,
                 "codebook_usage_train": usage,
                 "training_data": f"{info['train_minutes']} minutes, {len(data.clips)} clips of "

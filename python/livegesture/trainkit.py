@@ -252,8 +252,9 @@ class TrainData:
                     rs.update(c.features)
                 stats = rs.finish()
                 stats.source = f"{', '.join(Path(r).name for r in roots)}: split={split!r} clips={len(self.clips)}"
-        self.stats = stats
-        self.feats = [self.stats.normalize(c.features) for c in self.clips]
+        from .regions import model_regions
+        self.regions = model_regions(cfg)   # the model's regions (the full-body SVQ's: one made of the four)
+        self.set_stats(stats)
         self.mel = [c.mel for c in self.clips]
         self.n_tok = np.array([c.n_tokens for c in self.clips])
         self.tokens = None
@@ -275,6 +276,16 @@ class TrainData:
         all_mel = np.concatenate([m for ms in self.mel_variants for m in ms])
         self.mel_mean = all_mel.mean(0)
         self.mel_std = np.maximum(all_mel.std(0), 1e-3)
+
+    def set_stats(self, stats):
+        """Normalise every clip's base-region features with ``stats`` and add the model's composite regions'
+        (``livegesture.regions.compose``; a normalised composite is its normalised members side by side)."""
+        from .regions import compose
+        self.stats = stats
+        self.feats = []
+        for c in self.clips:
+            f = self.stats.normalize(c.features)
+            self.feats.append({**f, **compose(f, self.regions)})
 
     def _pick(self, rng, n_tokens, batch):
         ok = np.nonzero(self.n_tok >= n_tokens)[0]

@@ -69,6 +69,10 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("one-stage-svq", _LG, "Table 2c, 1-stage",
             "SVQ trained in one stage: encoder, decoder and quantizer together (svq1 skipped)",
             train={"svq_stages": 1}),
+    Variant("full-body-svq", _LG, "Table 6, supp. I: full-body SVQ (1 tokenizer)",
+            "one region for the whole body: one SVQ over every joint, translation, foot contact and expressions "
+            "(the four regions' features side by side), one eXpert, the fusion over one region",
+            model={"regions": "full-body"}),
     Variant("codebook-half", _LG, "Table 3, supp. F (codebook size 512 / 1024 / 2048)", "half the config's codebook size",
             model_fn=lambda cfg: {"codebook_size": max(2, cfg.codebook_size // 2)}),
     Variant("codebook-double", _LG, "Table 3, supp. F (codebook size 512 / 1024 / 2048)", "twice the config's codebook size",

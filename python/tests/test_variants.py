@@ -203,6 +203,64 @@ def test_one_stage_svq_trains_the_autoencoder_with_the_quantizer(tiny_corpus):
         assert any(id(p) in dec for p in params) == joint, variant
 
 
+def test_full_body_svq_has_one_region_of_every_joint(tiny_corpus):
+    """Table 6: one SVQ, one eXpert and the fusion over one region whose features are the four regions' side by
+    side; the region table covers the frame exactly as the four do, and the stream's frames come from it."""
+    from livegesture.regions import BODY, REGION_BY_NAME, REGIONS, model_regions, region_layout, split
+    from livegesture.stream import generate_clip
+    m = lg_model("full-body-svq")
+    assert m.region_names == ("body",) and list(m.components()) == ["audio_encoder", "expert_body", "fusion",
+                                                                      "decoder_body"]
+    assert m.svq["body"].d_in == BODY.dim == sum(r.dim for r in REGIONS) == 425
+    assert m.fuse.R == 1 and len(m.fuse.classifiers) == 1
+    # the layout: the four regions' parts, offsets shifted; every joint of theirs, the eyes in none
+    four = region_layout()
+    (body,) = region_layout(m.regions)
+    assert sorted(body["joints"]) == sorted(j for r in four for j in r["joints"]) and 23 not in body["joints"]
+    assert [p["name"] for p in body["parts"]] == [p["name"] for r in four for p in r["parts"]]
+    assert body["parts"][-1]["offset"] + body["parts"][-1]["dim"] == 425
+    # training data: the composite is the normalised members side by side; split inverts it
+    data = TrainData(tiny_corpus, m.cfg, None)
+    f = data.feats[0]
+    assert np.array_equal(f["body"], np.concatenate([f[r] for r in REGION_NAMES], -1))
+    assert all(np.array_equal(v, f[k]) for k, v in split({"body": f["body"]}).items())
+    with pytest.raises(ValueError, match="region 'body': 424 features, expected 425"):
+        split({"body": f["body"][:, :424]})     # must-fail: a vector of the wrong width
+    # the statistics compose the same way (set from the four regions' stats)
+    stats = data.stats.to_dict()["regions"]
+    m.set_normalisation(stats)
+    assert np.allclose(m.svq["body"].mean.numpy(), np.concatenate([stats[r]["mean"] for r in REGION_NAMES]))
+    # one token per step, and frames assembled from the one region
+    out = generate_clip(m, np.random.default_rng(0).standard_normal(16000).astype(np.float32) * 0.1, seed=1)
+    assert out["tokens"].shape[1] == 1 and out["poses"].shape == (28, 165)
+    assert np.abs(out["expressions"]).sum() > 0 and np.abs(out["trans"]).sum() > 0
+    with pytest.raises(ValueError, match="form 'fused'"):
+        generate_clip(m, np.zeros(16000, np.float32), form="fused")
+    assert REGION_BY_NAME["upper"] in model_regions(get_config("tiny"))
+    with pytest.raises(ValueError, match="regions 'three'"):
+        model_regions(dataclasses.replace(get_config("tiny"), regions="three"))
+
+
+def test_the_stages_before_a_variants_first_changed_stage_are_fulls(tiny_corpus, tmp_path):
+    """scripts/ablation.sh takes the stages a variant does not change from the `full` run of the same budget
+    (livegesture.train.first_changed_stage): they must be the same computation, bit for bit."""
+    from livegesture.train import STAGES, first_changed_stage, train
+    assert first_changed_stage("full") is None and first_changed_stage("no-local-loss") == "fuse"
+    assert first_changed_stage("paper-expert-noise") == "experts" and first_changed_stage("additive-audio") == "experts"
+    assert first_changed_stage("full-body-svq") == "svq1" and first_changed_stage("one-stage-svq") == "svq1"
+    assert first_changed_stage("codebook-half") == "svq1" and first_changed_stage("no-pilor") == "fuse"
+    tcfg = dataclasses.replace(TrainConfig.for_model("tiny"), steps_svq1=2, steps_svq2=2, steps_experts=2,
+                               speakers=None)
+    for v in ("full", "no-local-loss", "paper-expert-noise"):
+        train("tiny", str(tiny_corpus), str(tmp_path / v), stages=STAGES[:3], tcfg=tcfg, variant=v)
+
+    def same(a, b, stage):
+        sa, sb = (ckpt.load_payload(tmp_path / v / f"{stage}.pt")["state_dict"] for v in (a, b))
+        return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)
+    assert same("full", "no-local-loss", "experts") and same("full", "paper-expert-noise", "svq2")
+    assert not same("full", "paper-expert-noise", "experts")     # must-fail side: the stage it changes differs
+
+
 def test_the_manifest_records_the_variant():
     from export.bundle_writer import variant_record
     cfg = variants.apply(get_config("tiny"), LG, "codebook-half")

@@ -178,8 +178,7 @@ def check_fused_decoders(model, steps: int, batch: int = 2, seed: int = 0) -> tu
     """Compares :class:`FusedDecoders` with the four canonical SVQ decoder steps over ``steps`` chained steps
     from the zero caches with random tokens: every region's motion and every cache. Returns the max abs
     difference and where it occurred (output name, step)."""
-    from ..regions import REGION_NAMES
-    svqs = [model.svq[r] for r in REGION_NAMES]
+    svqs = [model.svq[r] for r in model.region_names]
     fused = FusedDecoders(svqs).eval()
     g = torch.Generator().manual_seed(seed)
     f_cache = fused.init_cache(batch)
@@ -191,8 +190,8 @@ def check_fused_decoders(model, steps: int, batch: int = 2, seed: int = 0) -> tu
         pairs = []
         for r, (svq, m) in enumerate(zip(svqs, fused.split_motion(fo["motion"]))):
             co, c_caches[r] = svq.step(tok[:, r], c_caches[r])
-            pairs.append((f"motion[..., {REGION_NAMES[r]}]", m, co["motion"]))
+            pairs.append((f"motion[..., {model.region_names[r]}]", m, co["motion"]))
         for r, split in enumerate(fused.split_cache(f_cache)):
-            pairs += [(f"new_cache.{k} ({REGION_NAMES[r]})", v, c_caches[r][k]) for k, v in split.items()]
+            pairs += [(f"new_cache.{k} ({model.region_names[r]})", v, c_caches[r][k]) for k, v in split.items()]
         worst = worst_difference(worst, pairs, s)
     return worst

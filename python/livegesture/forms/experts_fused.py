@@ -161,8 +161,7 @@ def check_fused_experts(model, steps: int, batch: int = 2, seed: int = 0) -> tup
     """Compares :class:`FusedExperts` with the four canonical eXpert steps over ``steps`` chained steps from
     the zero caches with random inputs (BOS first): every region's hidden state and every cache. Returns the
     max abs difference and where it occurred (output name, step)."""
-    from ..regions import REGION_NAMES
-    experts = [model.experts[r] for r in REGION_NAMES]
+    experts = [model.experts[r] for r in model.region_names]
     fused = FusedExperts(experts).eval()
     cfg = model.cfg
     g = torch.Generator().manual_seed(seed)
@@ -179,7 +178,7 @@ def check_fused_experts(model, steps: int, batch: int = 2, seed: int = 0) -> tup
         pairs = []
         for r, e in enumerate(experts):
             co, c_caches[r] = e.step(prev[:, r], audio, cond, c_caches[r])
-            pairs.append((f"hidden[:, {r}] ({REGION_NAMES[r]})", fo["hidden"][:, r], co["hidden"]))
+            pairs.append((f"hidden[:, {r}] ({model.region_names[r]})", fo["hidden"][:, r], co["hidden"]))
         for r, split in enumerate(fused.split_cache(f_cache)):
             pairs += [(f"new_cache.{k}[:, {r}]", v, c_caches[r][k]) for k, v in split.items()]
         worst = worst_difference(worst, pairs, s)

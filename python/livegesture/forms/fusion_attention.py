@@ -21,7 +21,6 @@ from __future__ import annotations
 import torch
 import torch.nn as nn
 
-from ..regions import REGION_NAMES
 from ..models.fuse import XARFuse
 from ..models.layers import CacheSpec, worst_difference
 
@@ -63,7 +62,7 @@ def check_fusion_attention(model, steps: int, batch: int = 2, seed: int = 0) -> 
     cond = torch.tensor([1.0 if i % 2 == 0 else 0.0 for i in range(batch)])
     worst = (-1.0, "logits", 0, 1.0)
     for s in range(steps):
-        hidden = {r: torch.randn(batch, cfg.d_model, generator=g) for r in REGION_NAMES}
+        hidden = {r: torch.randn(batch, cfg.d_model, generator=g) for r in model.region_names}
         audio = torch.randn(batch, cfg.audio_dim, generator=g)
         co, c_cache = fuse.step(hidden, audio, cond, c_cache)
         ao, a_cache = form.step(hidden, audio, cond, a_cache)

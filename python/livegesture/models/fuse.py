@@ -1,6 +1,7 @@
 """Causal spatial-temporal fusion transformer, xAR-Fuse (paper section 3.2.2, supp. B.2).
 
-At token step t it reads the hidden states h_t^r of the four frozen region eXperts and the audio token a_t:
+At token step t it reads the hidden states h_t^r of the frozen region eXperts (four, or one for the full-body
+SVQ) and the audio token a_t:
 
     h~_t^r = h_t^r + W_r h_t^r + region_embedding_r        (PILOR: per-region residual linear adapter)
     for each of ``fuse_blocks`` blocks:
@@ -27,7 +28,7 @@ import torch
 import torch.nn as nn
 
 from ..config import LiveGestureConfig
-from ..regions import REGION_NAMES
+from ..regions import model_regions
 from .layers import AttentionOp, CacheSpec, FeedForward, WindowedAttention, check_cache, check_shape, window_bias
 
 
@@ -87,7 +88,8 @@ class XARFuse(nn.Module):
     def __init__(self, cfg: LiveGestureConfig, classifiers: nn.ModuleList | None = None):
         super().__init__()
         self.cfg = cfg
-        d, R = cfg.d_model, len(REGION_NAMES)
+        self.region_names = tuple(r.name for r in model_regions(cfg))
+        d, R = cfg.d_model, len(self.region_names)
         self.R = R
         if cfg.fusion not in ("xar", "none"):
             raise ValueError(f"config: fusion {cfg.fusion!r}: expected 'xar' (xAR-Fuse) or 'none' (eXperts only)")
@@ -182,7 +184,7 @@ class XARFuse(nn.Module):
         same inputs, caches and outputs."""
         d, R = self.cfg.d_model, self.R
         B = audio.shape[0]
-        for r in REGION_NAMES:
+        for r in self.region_names:
             if r not in hidden:
                 raise ValueError(f"{self.name}: input 'hidden_{r}' is missing")
             check_shape(self.name, f"hidden_{r}", hidden[r], (B, d), torch.float32)
@@ -191,7 +193,7 @@ class XARFuse(nn.Module):
         check_cache(self.name, self.cache_specs(), cache, B)
         new_cache: dict = {}
         step = cache["step"]
-        x = self._adapt(torch.stack([hidden[r] for r in REGION_NAMES], dim=1))   # (B, R, d)
+        x = self._adapt(torch.stack([hidden[r] for r in self.region_names], dim=1))   # (B, R, d)
         a = self._audio(audio, cond)
         if self.additive:
             x = x + self.audio_add(a)[:, None, :]

@@ -130,6 +130,8 @@ impl DiffshegManifest {
         let speakers: Speakers = section(manifest, "speakers")?;
         let regions: Vec<RegionSpec> = section(manifest, "regions")?;
         let norm: BTreeMap<String, MeanStd> = section(manifest, "normalisation")?;
+        super::livegesture::check_coverage(&regions)
+            .map_err(|e| anyhow::anyhow!("manifest regions: {e}"))?;
 
         ensure!(
             diffusion.beta_schedule == "linear" && diffusion.prediction == "epsilon",

@@ -37,6 +37,100 @@ impl RegionSpec {
     }
 }
 
+/// SMPL-X joints in a frame (docs/motion.md).
+const SMPLX_JOINTS: usize = 55;
+/// The eye joints, which belong to no region and are output at rest (docs/motion.md).
+const EYE_JOINTS: [usize; 2] = [23, 24];
+/// The frame fields outside `poses` that exactly one region holds (docs/motion.md), by part name.
+const FRAME_PARTS: [&str; 3] = ["trans", "foot_contact", "expressions"];
+
+/// Joint numbers as ranges: `[0, 1, 2, 25, 26, 27]` -> `"0-2, 25-27"`.
+fn joint_ranges(joints: &[usize]) -> String {
+    let mut out: Vec<String> = Vec::new();
+    let mut i = 0;
+    while i < joints.len() {
+        let mut j = i;
+        while j + 1 < joints.len() && joints[j + 1] == joints[j] + 1 {
+            j += 1;
+        }
+        out.push(if i == j {
+            joints[i].to_string()
+        } else {
+            format!("{}-{}", joints[i], joints[j])
+        });
+        i = j + 1;
+    }
+    out.join(", ")
+}
+
+/// Checks that `regions` cover the SMPL-X frame as docs/motion.md describes, whatever the region set
+/// (the four regions, the full-body SVQ's one region, ...): every joint but the eyes in exactly one
+/// region's `rot6d` part, the eyes in none, and exactly one `trans`, `foot_contact` and
+/// `expressions` part among all regions. The error names what is missing or held twice.
+pub fn check_coverage(regions: &[RegionSpec]) -> Result<(), String> {
+    let mut owner: Vec<Option<&str>> = vec![None; SMPLX_JOINTS];
+    let mut holders: BTreeMap<&str, Vec<&str>> =
+        FRAME_PARTS.iter().map(|&p| (p, Vec::new())).collect();
+    for r in regions {
+        for p in &r.parts {
+            match p.name.as_str() {
+                "rot6d" => {
+                    for &j in p.joints.as_ref().unwrap_or(&r.joints) {
+                        if j >= SMPLX_JOINTS {
+                            return Err(format!(
+                                "region '{}': joint {j} does not exist (SMPL-X has {SMPLX_JOINTS})",
+                                r.name
+                            ));
+                        }
+                        if EYE_JOINTS.contains(&j) {
+                            return Err(format!(
+                                "region '{}': joint {j} is an eye, which belongs to no region (output at rest)",
+                                r.name
+                            ));
+                        }
+                        if let Some(o) = owner[j] {
+                            return Err(format!(
+                                "joint {j} is in two regions' rot6d parts ('{o}' and '{}')",
+                                r.name
+                            ));
+                        }
+                        owner[j] = Some(&r.name);
+                    }
+                }
+                "contact" => holders.get_mut("foot_contact").unwrap().push(&r.name),
+                other => {
+                    if let Some(h) = holders.get_mut(other) {
+                        h.push(&r.name);
+                    }
+                }
+            }
+        }
+    }
+    let mut missing = Vec::new();
+    let joints: Vec<usize> = (0..SMPLX_JOINTS)
+        .filter(|j| owner[*j].is_none() && !EYE_JOINTS.contains(j))
+        .collect();
+    if !joints.is_empty() {
+        missing.push(format!("joints {} (rot6d)", joint_ranges(&joints)));
+    }
+    for (part, h) in &holders {
+        match h.len() {
+            0 => missing.push(format!("'{part}'")),
+            1 => {}
+            _ => return Err(format!("part '{part}' is in more than one region ({h:?})")),
+        }
+    }
+    if missing.is_empty() {
+        Ok(())
+    } else {
+        Err(format!(
+            "the regions {:?} do not cover the SMPL-X frame: no region holds {} (every joint but the eyes 23, 24, and translation, foot contact and expressions must be in exactly one region)",
+            regions.iter().map(|r| r.name.as_str()).collect::<Vec<_>>(),
+            missing.join(", ")
+        ))
+    }
+}
+
 /// Token vocabulary.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 pub struct Vocab {
@@ -220,6 +314,7 @@ impl LiveGestureManifest {
         if self.regions.is_empty() {
             return Err("no regions".into());
         }
+        check_coverage(&self.regions)?;
         let names = self.region_names();
         if !self.sampling.region_order.is_empty() && self.sampling.region_order != names {
             return Err(format!(
@@ -308,5 +403,112 @@ impl LiveGestureManifest {
             ));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use serde_json::Value;
+
+    use super::*;
+    use crate::bundle::{parse_manifest, repo_default_bundle};
+
+    /// models/default's manifest as JSON.
+    fn default_manifest() -> Value {
+        let p = repo_default_bundle().join("manifest.json");
+        serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
+    }
+
+    fn default_regions() -> Vec<RegionSpec> {
+        serde_json::from_value(default_manifest()["regions"].clone()).unwrap()
+    }
+
+    /// The four regions as one region `body`, their parts one after the other (the layout the
+    /// exporter writes for the full-body SVQ variant).
+    fn full_body(regions: &[RegionSpec]) -> RegionSpec {
+        let (mut parts, mut joints, mut off) = (Vec::new(), Vec::new(), 0);
+        for r in regions {
+            for p in &r.parts {
+                let mut p = p.clone();
+                if p.name == "rot6d" && p.joints.is_none() {
+                    p.joints = Some(r.joints.clone());
+                }
+                p.offset += off;
+                parts.push(p);
+            }
+            joints.extend_from_slice(&r.joints);
+            off += r.dim;
+        }
+        RegionSpec {
+            name: "body".into(),
+            dim: off,
+            joints,
+            parts,
+        }
+    }
+
+    #[test]
+    fn the_four_regions_and_one_full_body_region_cover_the_frame() {
+        let four = default_regions();
+        assert_eq!(four.len(), 4);
+        check_coverage(&four).unwrap();
+        let body = full_body(&four);
+        assert_eq!((body.dim, body.parts.len()), (425, 7));
+        check_coverage(&[body]).unwrap();
+    }
+
+    #[test]
+    fn regions_that_miss_or_repeat_part_of_the_frame_are_refused_naming_it() {
+        let four = default_regions();
+        // no hands region: joints 25-54 are missing
+        let e = check_coverage(&[four[0].clone(), four[2].clone(), four[3].clone()]).unwrap_err();
+        assert!(
+            e.contains("joints 25-54 (rot6d)") && e.contains("do not cover"),
+            "{e}"
+        );
+        // a full-body region without foot contact and expressions
+        let mut body = full_body(&four);
+        body.parts
+            .retain(|p| p.name != "foot_contact" && p.name != "expressions");
+        let e = check_coverage(std::slice::from_ref(&body)).unwrap_err();
+        assert!(
+            e.contains("'foot_contact'") && e.contains("'expressions'") && !e.contains("joints"),
+            "{e}"
+        );
+        // the lower body's rot6d dropped: its 9 joints, as ranges
+        let mut body = full_body(&four);
+        body.parts
+            .retain(|p| p.joints.as_deref() != Some(&four[2].joints[..]));
+        let e = check_coverage(&[body]).unwrap_err();
+        assert!(e.contains("joints 0-2, 4-5, 7-8, 10-11 (rot6d)"), "{e}");
+        // the jaw in two regions
+        let mut two = four.clone();
+        two.push(RegionSpec {
+            name: "jaw".into(),
+            ..four[3].clone()
+        });
+        let e = check_coverage(&two).unwrap_err();
+        assert!(e.contains("joint 22 is in two regions"), "{e}");
+        // an eye in a region
+        let mut eyes = four.clone();
+        eyes[3].parts[0].joints = Some(vec![22, 23]);
+        let e = check_coverage(&eyes).unwrap_err();
+        assert!(e.contains("joint 23 is an eye"), "{e}");
+        // translation twice
+        let mut trans = four.clone();
+        let t = trans[2].part("trans").unwrap().clone();
+        trans[0].parts.push(t);
+        let e = check_coverage(&trans).unwrap_err();
+        assert!(e.contains("part 'trans' is in more than one region"), "{e}");
+    }
+
+    #[test]
+    fn a_manifest_whose_regions_do_not_cover_the_frame_is_refused() {
+        let p = repo_default_bundle().join("manifest.json");
+        let mut v = default_manifest();
+        v["regions"].as_array_mut().unwrap().remove(1); // hands
+        let m = parse_manifest(&v.to_string(), &p).unwrap();
+        let e = m.check().unwrap_err();
+        assert!(e.contains("joints 25-54 (rot6d)"), "{e}");
     }
 }

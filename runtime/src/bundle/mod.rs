@@ -59,8 +59,8 @@ pub use graph::{
     concrete_shape, has_named_axis, shape_fits, shape_string, CacheSpec, Dim, GraphSpec, TensorSpec,
 };
 pub use livegesture::{
-    FormGraphs, FormSpec, LiveGestureManifest, RegionPart, RegionSpec, SamplingDefaults, Vocab,
-    FORMS,
+    check_coverage, FormGraphs, FormSpec, LiveGestureManifest, RegionPart, RegionSpec,
+    SamplingDefaults, Vocab, FORMS,
 };
 
 /// The manifest schema version this runtime reads.
