@@ -56,13 +56,12 @@ t_aarch64_unknown_linux_musl() {
 t_armv7_unknown_linux_gnueabihf() {
   # gnueabihf, not musleabihf: rustup's rust-std for armv7-unknown-linux-musleabihf (and armv7-musleabi,
   # arm-musleabihf) is not downloadable for this toolchain (HTTP 404, measured 2026-11-27 and 2026-11-28); Debian
-  # ships the gnueabihf cross compiler and glibc's static libraries (libc6-dev-armhf-cross), so the binary is
-  # linked statically against glibc (crt-static): no dynamic dependency, as the musl builds. (A static glibc
-  # cannot dlopen or use NSS: this build has neither `ort` nor `serve`.)
+  # ships the gnueabihf cross compiler. Dynamically linked against glibc (armhf glibc 2.36 or newer: Raspberry Pi
+  # OS 12): linked statically (`-C target-feature=+crt-static`, 2026-11-28) the binary crashed before its first
+  # system call under qemu-arm 7.2 (SIGSEGV at address 0x53, even for `--version`), so that build is not shipped.
   TRIPLE=armv7-unknown-linux-gnueabihf; APT="gcc-arm-linux-gnueabihf libc6-dev-armhf-cross qemu-user"
   FEATURES=$FEATURES_STATIC; RUNNER="qemu-arm -L /usr/arm-linux-gnueabihf"
   export CARGO_TARGET_ARMV7_UNKNOWN_LINUX_GNUEABIHF_LINKER=arm-linux-gnueabihf-gcc
-  export CARGO_TARGET_ARMV7_UNKNOWN_LINUX_GNUEABIHF_RUSTFLAGS="-C target-feature=+crt-static"
   export CC_armv7_unknown_linux_gnueabihf=arm-linux-gnueabihf-gcc
 }
 t_x86_64_pc_windows_gnu() {

@@ -250,8 +250,8 @@ for triple in "$@"; do
   [ -s "$d/$name/LICENSES/livegesture-LICENSE" ] && [ -s "$d/$name/LICENSES/crates.txt" ] \
     && [ -s "$d/$name/LICENSES/real-speech-SOURCES.md" ] \
     || { failed+=("$triple (LICENSES/livegesture-LICENSE, crates.txt or real-speech-SOURCES.md missing)"); continue; }
-  # static: the musl builds, and armv7 (glibc linked statically, crt-static: scripts/cross.sh says why)
-  if [[ $triple == *musl* || $triple == armv7-* ]]; then
+  # static: the musl builds (armv7 is a dynamic glibc build: scripts/cross.sh says why)
+  if [[ $triple == *musl* ]]; then
     file "$exe" | grep -qE "statically linked|static-pie linked" || { file "$exe"; failed+=("$triple (not static)"); continue; }
     l="$(ldd "$exe" 2>&1 || true)"
     [[ $l == *"not a dynamic executable"* || $l == *"statically linked"* ]] || { echo "$l"; failed+=("$triple (ldd: dynamic)"); continue; }
