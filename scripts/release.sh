@@ -236,7 +236,13 @@ build_web() {  # the static web build (page, wasm, bundles) as one archive
   # the Rust crates in the wasm (bindings/wasm is a workspace of its own) and the npm packages in the page
   (cd bindings/wasm && "$LIVEGESTURE_PY" ../../scripts/licences.py livegesture-wasm wasm32-unknown-unknown "" "$lic/crates.txt")
   for p in three @pixiv/three-vrm onnxruntime-web; do
-    f="$(ls runtime/web/node_modules/$p/LICENSE* 2>/dev/null | head -n1)"
+    f="$(ls runtime/web/node_modules/$p/LICENSE* 2>/dev/null | head -n1 || true)"
+    # onnxruntime-web's npm package carries no LICENSE file (package.json: "MIT"); it is built from the same
+    # repository (microsoft/onnxruntime) as PyPI's onnxruntime, whose package folder holds that MIT licence text
+    if [ -z "$f" ] && [ "$p" = onnxruntime-web ]; then
+      f="$("$LIVEGESTURE_PY" -c 'import onnxruntime, os; print(os.path.join(os.path.dirname(onnxruntime.__file__), "LICENSE"))')"
+      [ -s "$f" ] || f=""
+    fi
     [ -n "$f" ] || { echo "release.sh: web: no licence file for the npm package $p (cd runtime/web && npm install)" >&2; exit 1; }
     cp "$f" "$lic/npm-${p//\//-}-LICENSE"
   done
