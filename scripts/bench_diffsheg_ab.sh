@@ -19,21 +19,7 @@ ROUNDS="${ROUNDS:-3}"; WINDOWS="${WINDOWS:-3}"
 # shellcheck disable=SC1091
 source scripts/env.sh >/dev/null 2>&1
 WORK="$(mktemp -d)"; trap 'rm -rf "$WORK"' EXIT
-"$LIVEGESTURE_PY" - "$BUNDLE" "$LEN" "$WORK/speech.wav" <<'PY'
-import json, sys, wave
-from pathlib import Path
-import numpy as np
-bundle, seconds, out = Path(sys.argv[1]), float(sys.argv[2]), sys.argv[3]
-manifest = json.loads((bundle / "manifest.json").read_text())
-clip = bundle / manifest.get("reference", {}).get("clip", "reference/clip.wav")
-with wave.open(str(clip)) as w:
-    rate, width, ch = w.getframerate(), w.getsampwidth(), w.getnchannels()
-    data = np.frombuffer(w.readframes(w.getnframes()), dtype=np.int16 if width == 2 else np.int32)
-n = int(seconds * rate) * ch
-tiled = np.tile(data, -(-n // len(data)))[:n]
-with wave.open(out, "wb") as w:
-    w.setnchannels(ch); w.setsampwidth(width); w.setframerate(rate); w.writeframes(tiled.tobytes())
-PY
+"$LIVEGESTURE_PY" scripts/tile_clip.py "$BUNDLE" "$LEN" "$WORK/speech.wav"
 echo "[ab] $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), load $(cut -d' ' -f1-3 /proc/loadavg), A=$A B=$B bundle $BUNDLE, ${LEN} s of speech"
 for r in $(seq 1 "$ROUNDS"); do
   for be in $BACKENDS; do

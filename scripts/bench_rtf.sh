@@ -15,22 +15,7 @@ LEN="${SECONDS_OF_SPEECH:-1200}"; BACKENDS="${BACKENDS:-ort tract}"; CPU="${BENC
 BIN="$ROOT/target/release/livegesture"
 cargo build --release -q -p livegesture
 WORK="$(mktemp -d)"; trap 'rm -rf "$WORK"' EXIT
-"$LIVEGESTURE_PY" - "$BUNDLE" "$LEN" "$WORK/speech.wav" <<'PY'
-import json, sys, wave
-from pathlib import Path
-import numpy as np
-bundle, seconds, out = Path(sys.argv[1]), float(sys.argv[2]), sys.argv[3]
-manifest = json.loads((bundle / "manifest.json").read_text())
-clip = bundle / manifest.get("reference", {}).get("clip", "reference/clip.wav")
-with wave.open(str(clip)) as w:
-    rate, width, ch = w.getframerate(), w.getsampwidth(), w.getnchannels()
-    data = np.frombuffer(w.readframes(w.getnframes()), dtype=np.int16 if width == 2 else np.int32)
-n = int(seconds * rate) * ch
-tiled = np.tile(data, -(-n // len(data)))[:n]
-with wave.open(out, "wb") as w:
-    w.setnchannels(ch); w.setsampwidth(width); w.setframerate(rate); w.writeframes(tiled.tobytes())
-print(f"[rtf] {clip} tiled to {seconds:.0f} s ({rate} Hz)", file=sys.stderr)
-PY
+"$LIVEGESTURE_PY" scripts/tile_clip.py "$BUNDLE" "$LEN" "$WORK/speech.wav"
 echo "[rtf] $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), load $(cut -d' ' -f1-3 /proc/loadavg), commit $(git rev-parse --short HEAD)"
 for be in $BACKENDS; do
   /usr/bin/time -f "%e %M" -o "$WORK/time" taskset -c "$CPU" "$BIN" generate "$WORK/speech.wav" -o "$WORK/out.npz" \
