@@ -228,21 +228,27 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
         };
         Ok((model, info))
     })?;
+    // The signal handlers are installed before the "listening" line: a supervisor (or a test) that
+    // reads that line and sends SIGTERM at once must get a drain, not the default action (death by
+    // signal, exit -15), which it would get if the line came first.
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    let (mut term, mut int) = rt.block_on(async {
+        use tokio::signal::unix::{signal, SignalKind};
+        Ok::<_, anyhow::Error>((signal(SignalKind::terminate())?, signal(SignalKind::interrupt())?))
+    })?;
     eprintln!(
         "livegesture serve: listening on {scheme}://{} (WebSocket /v1/stream, page /, /healthz, /metrics)",
         server.addr()
     );
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
     let signalled = rt.block_on(async {
-        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
         tokio::select! {
-            _ = tokio::signal::ctrl_c() => Ok::<_, anyhow::Error>(Some("SIGINT")),
-            _ = term.recv() => Ok(Some("SIGTERM")),
-            _ = server.finished() => Ok(None),
+            _ = int.recv() => Some("SIGINT"),
+            _ = term.recv() => Some("SIGTERM"),
+            _ = server.finished() => None,
         }
-    })?;
+    });
     if let Some(sig) = signalled {
         eprintln!("livegesture serve: {sig}: draining (no new sessions; finishing arrived tokens or windows; closing 1001)");
         server.shutdown();
