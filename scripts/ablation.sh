@@ -1,12 +1,17 @@
 #!/usr/bin/env bash
-# The LiveGesture ablation table of docs/evaluation.md ("Ablation table"): the `default` config trained once per
-# variant (python/livegesture/variants.py) on the synthetic corpus with ONE reduced budget, the same for every row,
+# The ablation tables of docs/evaluation.md ("Ablation table"): the `default` config of each family trained once per
+# variant (python/livegesture/variants.py) on the synthetic corpus with ONE reduced budget per family, the same for
+# every row of that family,
 # then scored with the in-distribution report (python -m livegesture.eval) and the real-speech gaps
 # on the real-speech validation set (python -m livegesture.eval.generalise, the motion swap's gaps), both through the
 # Python streaming reference of the checkpoint (SEEDS seeds each).
 #
 #   scripts/ablation.sh [OUT]          (default target/ablation; checkpoints and reports stay there, out of the tree)
-#   VARIANTS="full no-ugm ..."         rows to train, in order (default below; `full` must come first)
+#   VARIANTS="full no-ugm ..."         LiveGesture rows to train, in order (default below; `full` must come first)
+#   DS_VARIANTS="full no-x0 ..."       DiffSHEG rows, after LiveGesture's (default: the five of docs/diffsheg.md;
+#                                      "" for none); each row trained from scratch (one stage), run diffsheg-NAME
+#   DS_STEPS=500                       DiffSHEG steps per row (the shipped models/diffsheg: 2801 steps, 28 min cap),
+#                                      its recipe's batch and learning rate
 #   STEPS="500 135 250 135"            steps of svq1 svq2 experts fuse (default: a third of the `default` recipe's
 #                                      svq1 and a sixth of its other stages, 1500 800 1500 800, docs/model.md; the
 #                                      budget the shared machine allowed), the batches of the `default` recipe
@@ -30,19 +35,28 @@ source scripts/env.sh >/dev/null
 export PYTHONPATH="$PWD/python${PYTHONPATH:+:$PYTHONPATH}"
 OUT="$(realpath -m "${1:-target/ablation}")"
 read -r S1 S2 SE SF <<<"${STEPS:-500 135 250 135}"
-VARIANTS="${VARIANTS:-full no-ugm no-region-mask no-pilor experts-only additive-audio full-body-svq no-temporal no-spatial}"
+VARIANTS="${VARIANTS-full no-ugm no-region-mask no-pilor experts-only additive-audio full-body-svq no-temporal no-spatial}"
+DS_VARIANTS="${DS_VARIANTS-full naive-concat no-detach no-x0 reverse}"
+DS_STEPS="${DS_STEPS:-500}"
+# the rows as FAMILY:VARIANT; a row's files are named by its run name (LiveGesture: NAME; DiffSHEG: diffsheg-NAME)
+ROWS=""
+for v in $VARIANTS; do ROWS+=" livegesture:$v"; done
+for v in $DS_VARIANTS; do ROWS+=" diffsheg:$v"; done
+run_name() { case "$1" in livegesture:*) echo "${1#*:}" ;; *) echo "${1%%:*}-${1#*:}" ;; esac; }
 PY=(nice -n 15 "$LIVEGESTURE_PY")
 mkdir -p "$OUT/runs" "$OUT/eval"
 CORPUS="$OUT/corpus"
 
-table() {   # the rows evaluated so far, as docs/evaluation.md's table; the reference row from `full`'s reports
-  "$LIVEGESTURE_PY" - "$OUT/eval" $VARIANTS <<'PY'
+table() {   # the rows evaluated so far, as docs/evaluation.md's tables (one per family); the reference row from
+            # each family's `full` reports
+  "$LIVEGESTURE_PY" - "$OUT/eval" $ROWS <<'PY'
 import json, sys
 from pathlib import Path
 d = Path(sys.argv[1])
-print("| variant | FGD | BC | BC gap, audio swap | BC gap, motion swap | L1 div. (eq. 2) | face MSE "
+def head():
+    print("| variant | FGD | BC | BC gap, audio swap | BC gap, motion swap | L1 div. (eq. 2) | face MSE "
       "| real speech, speed gap [95% CI] | real speech, jaw gap [95% CI] |")
-print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
 def row(name, r, real):
     def gap(m):
         x = real["summary"][m]
@@ -51,15 +65,23 @@ def row(name, r, real):
     print(f"| {name} | {r['fgd']:.2f} | {r['bc']:.3f} | {r['bc_gap']:+.3f} | {r['bc_gap_motion_swap']:+.3f} "
           f"| {'-' if div is None else f'{div:.3f}'} | {r['face']['face']:.4f} | {gap('speed_env')} | {gap('jaw_env')} |")
 missing = []
-for v in sys.argv[2:]:
-    e, g = d / f"{v}.json", d / f"{v}.gen.json"
-    if not (e.exists() and g.exists()):
-        missing.append(v)
+for family in ("livegesture", "diffsheg"):
+    rows = [a.split(":", 1)[1] for a in sys.argv[2:] if a.split(":", 1)[0] == family]
+    if not rows:
         continue
-    row(f"`{v}`", json.loads(e.read_text())["generated"], json.loads(g.read_text())["real"]["motion_swap"]["model"])
-if (d / "full.json").exists() and (d / "full.gen.json").exists():
-    row("corpus motion (reference)", json.loads((d / "full.json").read_text())["ground_truth"],
-        json.loads((d / "full.gen.json").read_text())["real"]["motion_swap"]["reference"])
+    run = (lambda v: v) if family == "livegesture" else (lambda v: f"{family}-{v}")
+    print(f"\n{family}\n")
+    head()
+    for v in rows:
+        e, g = d / f"{run(v)}.json", d / f"{run(v)}.gen.json"
+        if not (e.exists() and g.exists()):
+            missing.append(run(v))
+            continue
+        row(f"`{v}`", json.loads(e.read_text())["generated"], json.loads(g.read_text())["real"]["motion_swap"]["model"])
+    e, g = d / f"{run('full')}.json", d / f"{run('full')}.gen.json"
+    if e.exists() and g.exists():
+        row("corpus motion (reference)", json.loads(e.read_text())["ground_truth"],
+            json.loads(g.read_text())["real"]["motion_swap"]["reference"])
 if missing:
     print("\nnot evaluated: " + ", ".join(missing))
 PY
@@ -68,10 +90,17 @@ PY
 
 [ -f "$CORPUS/train_test_split.csv" ] || \
   "${PY[@]}" -m livegesture.data.synth --out "$CORPUS" --minutes 64 --seed 1 --jobs 1
-for v in $VARIANTS; do
-  run="$OUT/runs/$v" t=$SECONDS
+for row in $ROWS; do
+  family="${row%%:*}" v="${row#*:}" name="$(run_name "$row")"
+  run="$OUT/runs/$name" t=$SECONDS
   if [ "${TRAIN:-1}" = 0 ]; then
     while [ ! -f "$run/final.pt" ]; do sleep 20; done
+  elif [ ! -f "$run/final.pt" ] && [ "$family" = diffsheg ]; then
+    mkdir -p "$run"
+    "${PY[@]}" -m livegesture.train --family diffsheg --config default --variant "$v" --data "$CORPUS" --out "$run" \
+      --speakers all --threads 1 --device cpu --steps "$DS_STEPS" >"$run.train.log" 2>&1 \
+      || { tail -20 "$run.train.log" >&2; exit 1; }
+    echo "ablation: $name trained ($(( SECONDS - t )) s)"
   elif [ ! -f "$run/final.pt" ]; then
     mkdir -p "$run"
     # how the stages before the variant's first changed stage are taken from `full`
@@ -98,18 +127,18 @@ print(train.first_changed_stage(v) or 'none', v != 'full' and variants.get('live
   fi
   [ "${EVAL:-1}" = 0 ] && continue
   t=$SECONDS
-  if [ ! -f "$OUT/eval/$v.json" ]; then
+  if [ ! -f "$OUT/eval/$name.json" ]; then
     "${PY[@]}" -m livegesture.eval --data "$CORPUS" --checkpoint "$run/final.pt" --n-realisations "${SEEDS:-2}" --seed 1 \
       ${EVAL_CLIPS:+--max-clips "$EVAL_CLIPS"} \
-      --fgd-encoder "$OUT/fgd_encoder.pt" --no-per-clip --out "$OUT/eval/$v.json" >"$OUT/eval/$v.log" 2>&1 \
-      || { tail -20 "$OUT/eval/$v.log" >&2; exit 1; }
+      --fgd-encoder "$OUT/fgd_encoder.pt" --no-per-clip --out "$OUT/eval/$name.json" >"$OUT/eval/$name.log" 2>&1 \
+      || { tail -20 "$OUT/eval/$name.log" >&2; exit 1; }
   fi
-  if [ ! -f "$OUT/eval/$v.gen.json" ]; then
+  if [ ! -f "$OUT/eval/$name.gen.json" ]; then
     # the real-speech set only (its gaps; the synthetic set's held-out split is the in-distribution report's)
     "${PY[@]}" -m livegesture.eval.generalise --checkpoint "$run/final.pt" --n-realisations "${SEEDS:-2}" \
-      --seed 1 --out "$OUT/eval/$v.gen.json" >"$OUT/eval/$v.gen.log" 2>&1 \
-      || { tail -20 "$OUT/eval/$v.gen.log" >&2; exit 1; }
+      --seed 1 --out "$OUT/eval/$name.gen.json" >"$OUT/eval/$name.gen.log" 2>&1 \
+      || { tail -20 "$OUT/eval/$name.gen.log" >&2; exit 1; }
   fi
-  echo "ablation: $v evaluated ($(( SECONDS - t )) s)"
+  echo "ablation: $name evaluated ($(( SECONDS - t )) s)"
 done
 table
