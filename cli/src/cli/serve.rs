@@ -236,7 +236,10 @@ pub fn run(a: Args, form: GraphForm) -> Result<()> {
         .build()?;
     let (mut term, mut int) = rt.block_on(async {
         use tokio::signal::unix::{signal, SignalKind};
-        Ok::<_, anyhow::Error>((signal(SignalKind::terminate())?, signal(SignalKind::interrupt())?))
+        Ok::<_, anyhow::Error>((
+            signal(SignalKind::terminate())?,
+            signal(SignalKind::interrupt())?,
+        ))
     })?;
     eprintln!(
         "livegesture serve: listening on {scheme}://{} (WebSocket /v1/stream, page /, /healthz, /metrics)",
