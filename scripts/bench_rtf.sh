@@ -5,6 +5,7 @@
 #
 #   scripts/bench_rtf.sh [BUNDLE]                     # default models/default
 #   SECONDS_OF_SPEECH=600 BACKENDS=ort BENCH_CPU=0 scripts/bench_rtf.sh models/default
+#   BIN=path/to/livegesture scripts/bench_rtf.sh models/diffsheg   # a given build (nothing compiled)
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
@@ -12,8 +13,10 @@ cd "$ROOT"
 source scripts/env.sh >/dev/null 2>&1
 BUNDLE="${1:-models/default}"
 LEN="${SECONDS_OF_SPEECH:-1200}"; BACKENDS="${BACKENDS:-ort tract}"; CPU="${BENCH_CPU:-1}"
-BIN="$ROOT/target/release/livegesture"
-cargo build --release -q -p livegesture
+if [ -z "${BIN:-}" ]; then
+  BIN="$ROOT/target/release/livegesture"
+  cargo build --release -q -p livegesture
+fi
 WORK="$(mktemp -d)"; trap 'rm -rf "$WORK"' EXIT
 "$LIVEGESTURE_PY" scripts/tile_clip.py "$BUNDLE" "$LEN" "$WORK/speech.wav"
 echo "[rtf] $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), load $(cut -d' ' -f1-3 /proc/loadavg), commit $(git rev-parse --short HEAD)"
