@@ -51,7 +51,7 @@ impl Cohort {
         if self.keys.is_empty() {
             self.caches.phase = caches.phase;
         } else if caches.phase != self.caches.phase {
-            caches.phase = self.caches.phase; // MUST-FAIL EXPERIMENT
+            caches.rephase(self.caches.phase)?;
         }
         for slot in self.caches.slots() {
             let have = self.caches.slot_mut(slot);
@@ -96,7 +96,8 @@ impl Cohort {
             }
         }
         if to.caches.phase != self.caches.phase {
-            let _ = at; // MUST-FAIL EXPERIMENT
+            to.caches
+                .rephase_rows(at, self.branch[i], self.caches.phase)?;
         }
         to.keys.push(self.keys[i]);
         to.branch.push(self.branch[i]);
