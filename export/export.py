@@ -42,10 +42,12 @@ from livegesture.stream import generate_clip  # noqa: E402
 from livegesture.forms.decoders_fused import FUSED_DECODERS, check_fused_decoders  # noqa: E402
 from livegesture.forms.experts_fused import FUSED_EXPERTS, check_fused_experts  # noqa: E402
 from livegesture.forms.fusion_attention import ATTENTION_FORM, FUSION_ATTENTION, check_fusion_attention  # noqa: E402
+from livegesture.forms.ring import RING_FORMS, is_ring_cache, ring_base, ring_graph, to_phase, write_entries  # noqa: E402
+from livegesture.models.layers import worst_difference  # noqa: E402
 from livegesture.models.layers import ATTENTION_DOMAIN  # noqa: E402
 
 from .graphs import (ATTENTION_OPSET, StepGraph, attention_components, call_step, component, data_io,  # noqa: E402
-                    fused_components, random_inputs, to_attention_opset)
+                    fused_components, random_inputs, ring_components, to_attention_opset)
 from .bundle_writer import (OPSET, SCHEMA_VERSION, absolute_paths, checkpoint_record, export_provenance,  # noqa: E402
                            file_table, manifest_head, reference_audio, relative_paths, save_stamped, sha256,
                            staged_folder, write_manifest, write_wav)
@@ -57,7 +59,10 @@ REFERENCE_BATCH = 2
 ROLLOUT_SEED = 1234
 FUSED_VS_CANONICAL = 1e-5    # torch fused form vs the canonical eXperts / decoders, every output and cache
 ROLLOUT_FRAMES = 1e-4        # docs/parity.md, rollout frames
-FORMS = ("canonical", "fused", "attention")
+FORMS = ("canonical", "fused", "attention", "ring")
+# the forms written by default: the ring forms (docs/bundle.md#ring-caches) only when asked for (--forms ...,ring)
+DEFAULT_FORMS = ("canonical", "fused", "attention")
+RING_PHASE0 = 7   # the phase of the reference vectors' first step (any: a ring graph reads its phase)
 # The form each backend runs (docs/bundle.md#forms-and-precision). ort runs the fused eXperts: bit-identical to the canonical graphs on
 # ort and faster. tract runs the canonical eXperts: its kernels round differently for another head count (like
 # for another batch size), so the fused form's logits differ from the canonical form's by ~1e-7 on tract, which
@@ -68,9 +73,46 @@ FORMS = ("canonical", "fused", "attention")
 DEFAULT_BACKEND_FORMS = {"ort": "fused", "tract": "attention"}
 
 
-def cache_entries(comp) -> list[dict]:
-    return [{"name": s.name, "input": f"cache.{s.name}", "output": f"new_cache.{s.name}", "dtype": s.dtype,
-             "shape": ["batch", *s.shape], "init": s.init} for s in comp.cache_specs()]
+def cache_entries(comp, ring: bool = False) -> list[dict]:
+    """The manifest's cache entries; a ring graph's attention caches also state ``output_shape``: the graph returns
+    the new entry (one slot of axis -2), which the runtime writes at the phase (docs/bundle.md#ring-caches)."""
+    out = []
+    for s in comp.cache_specs():
+        e = {"name": s.name, "input": f"cache.{s.name}", "output": f"new_cache.{s.name}", "dtype": s.dtype,
+             "shape": ["batch", *s.shape], "init": s.init}
+        if ring and is_ring_cache(s.name):
+            e["output_shape"] = ["batch", *s.shape[:-2], 1, s.shape[-1]]
+        out.append(e)
+    return out
+
+
+@torch.no_grad()
+def check_ring_vs_shift(model, graph: str, steps: int, batch: int = 3, phase0: int = 5, seed: int = 0):
+    """The ring graph's torch step against its shift-layout graph's over ``steps`` chained steps from the zero
+    caches (entries written at consecutive phases from ``phase0``; a stream joins at another phase half way:
+    its shift caches rotated in): every output and every cache (rotated back to the shift layout). Returns
+    (max abs difference, output name, step, scale) of the worst comparison (:func:`worst_difference`)."""
+    base = ring_base(graph)
+    g = torch.Generator().manual_seed(seed)
+    s_cache = component(model, base).init_cache(batch)
+    r_cache = component(model, graph).init_cache(batch)
+    phase = phase0
+    worst = (-1.0, "", 0, 1.0)
+    for t in range(steps):
+        inp = random_inputs(model, base, batch, g)
+        if t == 0 and "prev_token" in inp:
+            inp["prev_token"][:] = model.cfg.bos_token
+        if t == steps // 2:   # the stream's caches join a cohort at another phase
+            r_cache = to_phase(s_cache, 0, phase + 11)
+            phase += 11
+        so, s_cache = call_step(model, base, inp, s_cache)
+        ro, new = call_step(model, graph, {**inp, "phase": torch.full((batch,), phase)}, r_cache)
+        r_cache = write_entries(r_cache, new, phase)
+        phase += 1
+        back = to_phase(r_cache, phase, 0)
+        worst = worst_difference(worst, [(k, ro[k], so[k]) for k in so]
+                                 + [(f"new_cache.{k}", back[k], s_cache[k]) for k in s_cache], t)
+    return worst
 
 
 def export_graph(model, graph: str, path: Path):
@@ -86,7 +128,8 @@ def export_graph(model, graph: str, path: Path):
         warnings.simplefilter("ignore")
         torch.onnx.export(wrapper, args, str(path), input_names=names_in, output_names=names_out,
                           dynamic_axes=dyn, opset_version=OPSET, do_constant_folding=True, dynamo=False,
-                          custom_opsets={ATTENTION_DOMAIN: 1} if graph in attention_components(model) else None)
+                          custom_opsets={ATTENTION_DOMAIN: 1} if (graph in attention_components(model) or ring_base(graph)
+                                                                 == FUSION_ATTENTION) else None)
     m = onnx.load(str(path))
     if any(n.domain == ATTENTION_DOMAIN for n in m.graph.node):
         try:
@@ -104,16 +147,20 @@ def export_graph(model, graph: str, path: Path):
 def graph_reference(model, graph: str, seed: int) -> dict[str, np.ndarray]:
     """Torch inputs and outputs over REFERENCE_STEPS chained steps (batch REFERENCE_BATCH), starting from the
     zero caches, and the caches after the last step: ``step{s}.input.<name>``, ``step{s}.output.<name>``,
-    ``step{S-1}.new_cache.<name>``."""
+    ``step{S-1}.new_cache.<name>`` (a ring graph: the caches after the entries were written at the phase)."""
     g = torch.Generator().manual_seed(seed)
-    comp = component(model, graph)
-    cache = comp.init_cache(REFERENCE_BATCH)
+    cache = component(model, graph).init_cache(REFERENCE_BATCH)
     out = {"n_steps": np.array(REFERENCE_STEPS), "batch": np.array(REFERENCE_BATCH)}
+    ring = ring_base(graph) is not None
     for s in range(REFERENCE_STEPS):
         inp = random_inputs(model, graph, REFERENCE_BATCH, g)
-        if (graph.startswith("expert_") or graph == FUSED_EXPERTS) and s == 0:
+        if (graph.startswith("expert_") or graph.startswith(FUSED_EXPERTS)) and s == 0:
             inp["prev_token"][:] = model.cfg.bos_token
+        if ring:   # consecutive phases; the state is the caches after the runtime's write (docs/bundle.md#ring-caches)
+            inp["phase"][:] = RING_PHASE0 + s
         o, new = call_step(model, graph, inp, cache)
+        if ring:
+            new = write_entries(cache, new, RING_PHASE0 + s)
         for k, v in inp.items():
             out[f"step{s}.input.{k}"] = v.numpy()
         for k, v in o.items():
@@ -137,7 +184,7 @@ def build_bundle(model, out: Path, *, provenance: dict, reference_wav: str | Non
 
 # long: the bundle's files in the order they are verified and written (graphs per form, reference clip, rollout, manifest)
 def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_tokens, log,
-           forms=FORMS, backend_forms: dict | None = None) -> dict:
+           forms=DEFAULT_FORMS, backend_forms: dict | None = None) -> dict:
     backend_forms = dict(backend_forms or DEFAULT_BACKEND_FORMS)
     cfg = model.cfg
     names = model.region_names
@@ -156,7 +203,7 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
         np.savez_compressed(tmp / "reference" / f"{graph}.npz", **graph_reference(model, graph, seed=len(graphs)))
         ins, outs = data_io(model, graph)
         graphs.append({"name": graph, "file": path.name, "component": type(comp).__name__, **entry,
-                       "inputs": ins, "outputs": outs, "caches": cache_entries(comp),
+                       "inputs": ins, "outputs": outs, "caches": cache_entries(comp, ring_base(graph) is not None),
                        "reference": f"reference/{graph}.npz"})
         return e_ort
 
@@ -205,6 +252,33 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
                          "ort_vs_torch_max_abs": e_ort, "ort_vs_torch_scale": s_ort}
         log(f"  {graph:<16} form-vs-canonical {e_can:.2e} (scale {s_can:.3g})  ort-vs-torch {e_ort:.2e} "
             f"(scale {s_ort:.3g})  ({time.time() - t0:.1f}s)")
+
+    # the ring forms (docs/bundle.md#ring-caches): the ring variant of each graph with attention caches of the
+    # forms written, checked against its shift-layout graph's torch step, then like every graph
+    ring_forms = {}
+    for rform, base_form in (RING_FORMS.items() if "ring" in forms else ()):
+        if base_form not in forms or (base_form == "fused" and not fused_graphs) or (
+                base_form == ATTENTION_FORM and not attention_graphs):
+            continue
+        shift = ([FUSED_EXPERTS, "fusion"] if base_form == "fused"
+                 else [*(f"expert_{r}" for r in names), FUSION_ATTENTION])
+        for base in shift:
+            graph = ring_graph(base)
+            if any(g["name"] == graph for g in graphs):
+                continue
+            t0 = time.time()
+            steps = 2 * max(cfg.history, cfg.audio_window, cfg.fuse_window) + 3
+            e_can, out_name, step, s_can = check_ring_vs_shift(model, graph, steps)
+            if not e_can <= FUSED_VS_CANONICAL * s_can:
+                fail(graph, out_name, step, e_can, FUSED_VS_CANONICAL, f"torch ring form vs the shift layout ({base})",
+                     s_can)
+            e_ort, s_ort = export_checked(graph, ring_components(model)[graph], {"region": None, "form": rform})
+            checks[graph] = {"torch_form_vs_canonical_max_abs": e_can, "torch_form_vs_canonical_scale": s_can,
+                             "torch_form_vs_canonical_against": base,
+                             "ort_vs_torch_max_abs": e_ort, "ort_vs_torch_scale": s_ort}
+            log(f"  {graph:<16} ring-vs-shift {e_can:.2e} (scale {s_can:.3g})  ort-vs-torch {e_ort:.2e} "
+                f"(scale {s_ort:.3g})  ({time.time() - t0:.1f}s)")
+        ring_forms[rform] = shift
 
     # reference clip, its log-mel frames, and a whole seeded rollout of >= rollout_tokens steps
     clip, clip_desc = reference_audio(reference_wav, ref_seconds)
@@ -282,6 +356,25 @@ def _build(model, tmp: Path, *, provenance, reference_wav, ref_seconds, rollout_
                         "is opset 23. The form runs the canonical eXperts and decoders",
         }
 
+    ring_contract = ("the ring layout of the caches (docs/bundle.md#ring-caches): each graph <g>_ring has <g>'s inputs "
+                     "then phase (batch,) int64, the cohort's write position c, the same in every row; its attention "
+                     "caches are read-only inputs of <g>'s shapes whose slot axis (-2, W - 1 slots) is a ring: slot "
+                     "j holds the entry ((c mod (W - 1)) - 1 - j) mod (W - 1) + 1 tokens old; new_cache.<name> is the "
+                     "new entry (output_shape: one slot), which the caller writes into slot c mod (W - 1) before "
+                     "stepping at c + 1; new_cache.step as in <g>. Caches at phase a move to phase b by rolling the "
+                     "slot axis by (b - a) mod (W - 1); the shift layout is phase 0")
+    for rform, shift in ring_forms.items():
+        base = forms_manifest[RING_FORMS[rform]]
+        forms_manifest[rform] = {
+            "experts": [ring_graph(g) if ring_graph(g) in {x["name"] for x in graphs} else g
+                        for g in base["experts"]],
+            "decoders": base["decoders"],
+            "fusion": ring_graph(base.get("fusion", "fusion")),
+            "ring": True,
+            **({"opset": base["opset"]} if "opset" in base else {}),
+            "contract": f"the {RING_FORMS[rform]} form on ring caches: " + ring_contract,
+        }
+
     files.update(file_table(tmp))
     manifest = {
         **manifest_head("livegesture", "LiveGesture", cfg, model, {
@@ -333,10 +426,12 @@ def main(argv=None):
     ap.add_argument("--rollout-tokens", type=int, default=1000, help="length of the reference rollout (>= 1000 for CI)")
     ap.add_argument("--rollout-windows", type=int, default=5,
                     help="diffsheg: FOPPAS windows of the reference rollout (>= 4; the last one is shorter)")
-    ap.add_argument("--forms", default=",".join(FORMS),
+    ap.add_argument("--forms", default=",".join(DEFAULT_FORMS),
                     help="graph forms to write (docs/bundle.md#forms-and-precision): canonical (always), fused (the four eXperts as one "
-                         "graph on a region axis, the four SVQ decoders as one graph) and attention (the fusion "
-                         "with the opset-23 Attention op, fusion_attention); default all")
+                         "graph on a region axis, the four SVQ decoders as one graph), attention (the fusion "
+                         "with the opset-23 Attention op, fusion_attention) and ring (the forms fused_ring and "
+                         "attention_ring of the forms written: their graphs on ring caches, docs/bundle.md#ring-caches); "
+                         "default canonical,fused,attention")
     ap.add_argument("--backend-forms", default=",".join(f"{b}={f}" for b, f in DEFAULT_BACKEND_FORMS.items()),
                     help="the form each backend runs by default, e.g. ort=fused,tract=attention (a form not "
                          "written falls back to canonical)")
@@ -417,16 +512,17 @@ def main(argv=None):
     print(f"exporting {family} {model.cfg.name} -> {out}")
     forms = [f.strip() for f in args.forms.split(",") if f.strip()]
     if "canonical" not in forms or any(f not in FORMS for f in forms):
-        print(f"export failed: --forms {args.forms}: expected canonical[,fused][,attention]", file=sys.stderr)
+        print(f"export failed: --forms {args.forms}: expected canonical[,fused][,attention][,ring]", file=sys.stderr)
         return 2
     try:
         backend_forms = dict(kv.split("=", 1) for kv in args.backend_forms.split(",") if kv.strip())
     except ValueError:
         backend_forms = None
     if (not backend_forms or set(backend_forms) - {"ort", "tract"}
-            or any(f not in FORMS for f in backend_forms.values())):
+            or any(f not in (*FORMS, *RING_FORMS) or f == "ring" for f in backend_forms.values())):
         print(f"export failed: --backend-forms {args.backend_forms}: expected BACKEND=FORM pairs "
-              f"(backends ort, tract; forms {', '.join(FORMS)})", file=sys.stderr)
+              f"(backends ort, tract; forms {', '.join(f for f in (*FORMS, *RING_FORMS) if f != 'ring')})",
+              file=sys.stderr)
         return 2
     given = {"forms": tuple(forms), "backend_forms": backend_forms, "rollout_windows": args.rollout_windows}
     kw = {"builder": fam.resolve(fam.exporter), **{k: given[k] for k in fam.export_options if k in given}}

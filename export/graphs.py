@@ -5,9 +5,13 @@ Naming (the contract with the runtime, recorded in manifest.json):
                      experts_fused (docs/bundle.md#forms-and-precision fused form of the four eXperts): prev_token (B, R), audio, cond |
                      fusion: hidden_upper, hidden_hands, hidden_lower, hidden_face, audio, cond |
                      fusion_attention (docs/bundle.md#forms-and-precision form ``attention``): fusion's inputs |
-                     decoder_<r>: token | decoders_fused (docs/bundle.md#forms-and-precision fused form of the four decoders): token (B, R)
+                     decoder_<r>: token | decoders_fused (docs/bundle.md#forms-and-precision fused form of the four decoders): token (B, R) |
+                     <graph>_ring (docs/bundle.md#ring-caches, the ring variant of expert_<r>, experts_fused, fusion,
+                     fusion_attention): <graph>'s inputs, then phase (B,) int64 (the cohort's write position, the
+                     same in every row)
   data outputs       audio | hidden | logits | motion
-  caches             input ``cache.<name>``, output ``new_cache.<name>``, in the component's cache_specs order
+  caches             input ``cache.<name>``, output ``new_cache.<name>``, in the component's cache_specs order (a ring
+                     graph returns the new entry of each attention cache, one slot, as ``new_cache.<name>``)
 """
 from __future__ import annotations
 
@@ -17,6 +21,7 @@ import torch.nn as nn
 from livegesture.forms.experts_fused import FUSED_EXPERTS, FusedExperts
 from livegesture.forms.decoders_fused import FUSED_DECODERS, FusedDecoders
 from livegesture.forms.fusion_attention import FUSION_ATTENTION, FusionAttention
+from livegesture.forms.ring import RingStep, ring_base, ring_graph
 from livegesture.models.layers import ATTENTION_DOMAIN
 from livegesture.models.model import LiveGesture
 
@@ -43,6 +48,21 @@ def attention_components(model: LiveGesture) -> dict[str, nn.Module]:
     return cached
 
 
+def ring_components(model: LiveGesture) -> dict[str, nn.Module]:
+    """The ring variants (docs/bundle.md#ring-caches) of the graphs that carry attention caches, by graph name:
+    ``expert_<r>_ring``, ``experts_fused_ring``, ``fusion_ring``, ``fusion_attention_ring`` (:class:`RingStep`
+    around the shift-layout component; cached on the model like :func:`fused_components`)."""
+    cached = getattr(model, "_ring_components", None)
+    if cached is None:
+        shift = {f"expert_{r}": model.experts[r] for r in model.region_names}
+        shift["fusion"] = model.fuse
+        shift[FUSED_EXPERTS] = fused_components(model)[FUSED_EXPERTS]
+        shift[FUSION_ATTENTION] = attention_components(model)[FUSION_ATTENTION]
+        cached = {ring_graph(g): RingStep(c).eval() for g, c in shift.items()}
+        object.__setattr__(model, "_ring_components", cached)
+    return cached
+
+
 def component(model: LiveGesture, graph: str) -> nn.Module:
     """The step component of a canonical graph (``model.components()``) or of another form's graph."""
     comps = model.components()
@@ -51,6 +71,8 @@ def component(model: LiveGesture, graph: str) -> nn.Module:
     for forms in (fused_components(model), attention_components(model)):
         if graph in forms:
             return forms[graph]
+    if ring_base(graph) is not None and graph in ring_components(model):
+        return ring_components(model)[graph]
     raise ValueError(f"unknown graph {graph!r}")
 
 
@@ -93,6 +115,10 @@ def data_io(model: LiveGesture, graph: str) -> tuple[list[dict], list[dict]]:
     cfg = model.cfg
     d, Da, K = cfg.d_model, cfg.audio_dim, cfg.codebook_size
     f32, i64 = "float32", "int64"
+    base = ring_base(graph)
+    if base is not None:   # a ring graph: its shift-layout graph's, and the phase (docs/bundle.md#ring-caches)
+        ins, outs = data_io(model, base)
+        return ins + [{"name": "phase", "dtype": i64, "shape": ["batch"]}], outs
     if graph == "audio_encoder":
         return ([{"name": "mel", "dtype": f32, "shape": ["batch", cfg.frontend.mel_frames_per_token, cfg.frontend.n_mels]}],
                 [{"name": "audio", "dtype": f32, "shape": ["batch", Da]}])
@@ -126,19 +152,27 @@ def data_io(model: LiveGesture, graph: str) -> tuple[list[dict], list[dict]]:
 
 
 def call_step(model: LiveGesture, graph: str, inputs: dict, cache: dict) -> tuple[dict, dict]:
-    """Run a component's torch step with named inputs."""
+    """Run a component's torch step with named inputs. A ring graph (docs/bundle.md#ring-caches) reads its
+    caches in ring order at ``inputs['phase'][0]`` and returns the new entries of its attention caches."""
     comp = component(model, graph)
+    base = ring_base(graph)
+    if base is not None:
+        phase = inputs["phase"][0]
+        step = lambda *a: comp.step(*a, cache=cache, phase=phase)  # noqa: E731
+        graph = base
+    else:
+        step = lambda *a: comp.step(*a, cache)  # noqa: E731
     if graph == "audio_encoder":
-        return comp.step(inputs["mel"], cache)
+        return step(inputs["mel"])
     if graph.startswith("expert_") or graph == FUSED_EXPERTS:
-        return comp.step(inputs["prev_token"], inputs["audio"], inputs["cond"], cache)
+        return step(inputs["prev_token"], inputs["audio"], inputs["cond"])
     if graph in ("fusion", FUSION_ATTENTION):
         hidden = {r: inputs[f"hidden_{r}"] for r in model.region_names}
         if "audio" not in inputs:    # a fusion that reads no audio (data_io): any audio gives the same step
             B = hidden[model.region_names[0]].shape[0]
             inputs = {**inputs, "audio": torch.zeros(B, model.cfg.audio_dim), "cond": torch.ones(B)}
-        return comp.step(hidden, inputs["audio"], inputs["cond"], cache)
-    return comp.step(inputs["token"], cache)
+        return step(hidden, inputs["audio"], inputs["cond"])
+    return step(inputs["token"])
 
 
 class StepGraph(nn.Module):
@@ -174,6 +208,8 @@ def random_inputs(model: LiveGesture, graph: str, batch: int, gen: torch.Generat
         name = spec["name"]
         if name in ("prev_token", "token"):
             out[name] = torch.randint(0, cfg.codebook_size, shape, generator=gen)
+        elif name == "phase":   # one write position for every row (the cohort's)
+            out[name] = torch.full(shape, int(torch.randint(0, 1000, (1,), generator=gen)), dtype=torch.int64)
         elif name == "cond":
             out[name] = torch.tensor([1.0 if i % 2 == 0 else 0.0 for i in range(batch)])
         elif name == "mel":

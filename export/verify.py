@@ -8,7 +8,8 @@ Inf on either side fails).
    sequence longer than every window: catches a step that reads the future or drops a cache update;
 2. the ONNX graph: onnx.checker, opset >= 17, no If/Loop, static ranks, batch axis dynamic;
 3. onnxruntime vs the torch step over chained steps with batch sizes 1, 2 and 5 (1e-5 scaled, torch the
-   reference).
+   reference); a ring graph (docs/bundle.md#ring-caches) is chained at consecutive phases from a random one,
+   each side's entries written into its caches at the phase (:func:`livegesture.forms.ring.write_entries`).
 """
 from __future__ import annotations
 
@@ -17,6 +18,8 @@ import torch
 
 from livegesture.compare import diff
 from livegesture.models.model import LiveGesture
+
+from livegesture.forms.ring import ring_base, write_entries
 
 from .graphs import call_step, component, random_inputs
 
@@ -119,13 +122,19 @@ def check_ort_vs_torch(model: LiveGesture, graph: str, path: str, n_steps: int =
     comp = component(model, graph)
     specs = comp.cache_specs()
     out_names = [o.name for o in sess.get_outputs()]
+    ring = ring_base(graph) is not None
     worst = (0.0, 1.0)   # (error, scale) of the worst comparison relative to its scale
     for B in batches:
         g = torch.Generator().manual_seed(seed + B)
         t_cache = comp.init_cache(B)
         o_cache = {s.name: t_cache[s.name].numpy() for s in specs}
+        phase0 = None
         for step in range(n_steps):
             inp = random_inputs(model, graph, B, g)
+            if ring:   # consecutive phases from the first step's random one
+                phase0 = int(inp["phase"][0]) if phase0 is None else phase0
+                inp["phase"][:] = phase0 + step
+                t_cache_in = t_cache
             t_out, t_cache = call_step(model, graph, inp, t_cache)
             feed = {k: v.numpy() for k, v in inp.items()}
             feed.update({f"cache.{k}": v for k, v in o_cache.items()})
@@ -145,5 +154,11 @@ def check_ort_vs_torch(model: LiveGesture, graph: str, path: str, n_steps: int =
                          d.describe())
                 if d.scaled_error > worst[0] / worst[1]:
                     worst = (d.max_abs, d.scale)
-            o_cache = {s.name: res[f"new_cache.{s.name}"] for s in specs}   # ORT chains its own caches
+            if ring:   # each side writes its own entries into its own caches at the phase
+                new = {s.name: torch.from_numpy(res[f"new_cache.{s.name}"]) for s in specs}
+                o_cache = {k: v.numpy() for k, v in write_entries(
+                    {k: torch.from_numpy(v) for k, v in o_cache.items()}, new, phase0 + step).items()}
+                t_cache = write_entries(t_cache_in, t_cache, phase0 + step)
+            else:
+                o_cache = {s.name: res[f"new_cache.{s.name}"] for s in specs}   # ORT chains its own caches
     return worst

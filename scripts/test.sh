@@ -47,6 +47,12 @@ mkdir -p target/test-bundles
 # the Rust tests (runtime and parity suite) use this fresh export (parity-tests/src/lib.rs)
 export LIVEGESTURE_TEST_BUNDLE="$PWD/target/test-bundles/tiny"
 
+stage "export the tiny config with the ring forms (docs/bundle.md#ring-caches) -> target/test-bundles/tiny-ring"
+# the same weights; each backend runs its ring form; a 300-token reference rollout (~20 s; parity-tests/src/lib.rs)
+"$LIVEGESTURE_PY" export/export.py --config tiny --random-seed 0 --forms canonical,fused,attention,ring \
+  --backend-forms ort=fused_ring,tract=attention_ring --rollout-tokens 300 --out target/test-bundles/tiny-ring
+export LIVEGESTURE_RING_TEST_BUNDLE="$PWD/target/test-bundles/tiny-ring"
+
 stage "export the DiffSHEG tiny config (random weights) -> target/test-bundles/diffsheg-tiny"
 "$LIVEGESTURE_PY" export/export.py --family diffsheg --config tiny --random-seed 0 --out target/test-bundles/diffsheg-tiny
 export LIVEGESTURE_DIFFSHEG_TINY_BUNDLE="$PWD/target/test-bundles/diffsheg-tiny"
@@ -90,6 +96,9 @@ ORT_OLDEST="$("$LIVEGESTURE_PY" -c 'import onnxruntime; print(onnxruntime.__vers
 stage "parity: fresh tiny export, both backends (ONNX Runtime $ORT_OLDEST)"
 ./target/release/livegesture parity --bundle target/test-bundles/tiny --backends ort,tract \
   --junit target/parity/tiny.xml
+stage "parity: fresh tiny export with the ring forms, both backends (ONNX Runtime $ORT_OLDEST)"
+./target/release/livegesture parity --bundle target/test-bundles/tiny-ring --backends ort,tract \
+  --junit target/parity/tiny-ring.xml
 stage "parity: fresh DiffSHEG tiny export, both backends (ONNX Runtime $ORT_OLDEST)"
 ./target/release/livegesture parity --bundle target/test-bundles/diffsheg-tiny --backends ort,tract \
   --junit target/parity/diffsheg-tiny.xml

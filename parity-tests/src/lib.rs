@@ -12,6 +12,9 @@
 //! - the tiny random-weight DiffSHEG bundle ([`diffsheg_tiny_bundle`]), the same way: the folder in
 //!   [`DIFFSHEG_TEST_BUNDLE_ENV`] (`LIVEGESTURE_DIFFSHEG_TINY_BUNDLE`), else exported with
 //!   [`DIFFSHEG_EXPORT_ARGS`] into `target/tmp/test-bundles/diffsheg-tiny-<hash>`;
+//! - the tiny bundle with the ring forms (docs/bundle.md#ring-caches; [`ring_bundle`]), the same way:
+//!   the folder in [`RING_TEST_BUNDLE_ENV`] (`LIVEGESTURE_RING_TEST_BUNDLE`), else exported with
+//!   [`RING_EXPORT_ARGS`] into `target/tmp/test-bundles/tiny-ring-<hash>`;
 //! - copies of a bundle to corrupt ([`copy_bundle`]) or with one graph broken by
 //!   `tools/break_bundle.py` ([`break_bundle`]);
 //! - the bundle's reference rollout through the library's own reader
@@ -37,6 +40,24 @@ pub const TEST_BUNDLE_ENV: &str = "LIVEGESTURE_TEST_BUNDLE";
 
 /// `export/export.py` arguments of the tiny test bundle (as `scripts/test.sh` exports it).
 pub const EXPORT_ARGS: &[&str] = &["--config", "tiny", "--random-seed", "0"];
+
+/// Environment variable naming the tiny test bundle with the ring forms exported by the test command.
+pub const RING_TEST_BUNDLE_ENV: &str = "LIVEGESTURE_RING_TEST_BUNDLE";
+
+/// `export/export.py` arguments of the tiny bundle with the ring forms (docs/bundle.md#ring-caches),
+/// which each backend runs by default (as `scripts/test.sh` exports it; a 300-token reference rollout).
+pub const RING_EXPORT_ARGS: &[&str] = &[
+    "--config",
+    "tiny",
+    "--random-seed",
+    "0",
+    "--forms",
+    "canonical,fused,attention,ring",
+    "--backend-forms",
+    "ort=fused_ring,tract=attention_ring",
+    "--rollout-tokens",
+    "300",
+];
 
 /// Environment variable naming the tiny DiffSHEG test bundle exported by the test command.
 pub const DIFFSHEG_TEST_BUNDLE_ENV: &str = "LIVEGESTURE_DIFFSHEG_TINY_BUNDLE";
@@ -179,6 +200,13 @@ fn env_or_export(var: &str, name: &str, args: &[&str]) -> PathBuf {
 pub fn tiny_bundle() -> PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| env_or_export(TEST_BUNDLE_ENV, "tiny", EXPORT_ARGS))
+        .clone()
+}
+
+/// The tiny test bundle with the ring forms of this run (see the crate docs).
+pub fn ring_bundle() -> PathBuf {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| env_or_export(RING_TEST_BUNDLE_ENV, "tiny-ring", RING_EXPORT_ARGS))
         .clone()
 }
 

@@ -393,3 +393,62 @@ def test_graph_forms_live_apart_from_the_fuse_component():
         assert hasattr(importlib.import_module(f"livegesture.forms.{mod}"), cls)
     models = ROOT / "python" / "livegesture" / "models"
     assert not {p.name for p in models.glob("fus*.py")} - {"fuse.py"}
+
+
+def test_ring_forms_are_listed_checked_and_replay_with_the_write(tmp_path):
+    """docs/bundle.md#ring-caches: --forms ...,ring writes fused_ring and attention_ring; each ring graph takes a
+    phase, returns one slot per attention cache (output_shape) and replays its reference vectors on onnxruntime
+    when the entries are written at the reference's phase."""
+    import onnxruntime as ort
+    from livegesture.forms.ring import write_entries
+    out = tmp_path / "ring"
+    m = exporter.build_bundle(scrambled_model("tiny", seed=4), out, provenance={"training": "none (test)"},
+                              reference_wav=None, ref_seconds=1.0, rollout_tokens=6, log=lambda *a: None,
+                              forms=("canonical", "fused", "attention", "ring"),
+                              backend_forms={"ort": "fused_ring", "tract": "attention_ring"})
+    jsonschema.validate(m, json.loads((ROOT / "export" / "manifest.schema.json").read_text()))
+    assert m["forms"]["fused_ring"]["experts"] == ["experts_fused_ring"] and m["forms"]["fused_ring"]["ring"]
+    assert m["forms"]["attention_ring"]["fusion"] == "fusion_attention_ring"
+    assert m["backend_forms"] == {"ort": "fused_ring", "tract": "attention_ring"}
+    ring = [g for g in m["graphs"] if g["name"].endswith("_ring")]
+    assert sorted(g["name"] for g in ring) == sorted(["experts_fused_ring", "fusion_ring", "fusion_attention_ring",
+                                                      *(f"expert_{r}_ring" for r in ("upper", "hands", "lower", "face"))])
+    for g in ring:
+        assert g["inputs"][-1] == {"name": "phase", "dtype": "int64", "shape": ["batch"]}
+        for c in g["caches"]:
+            assert ("output_shape" in c) == (c["name"] != "step")
+        assert m["checks"][g["name"]]["torch_form_vs_canonical_max_abs"] <= 1e-5 * m["checks"][g["name"]][
+            "torch_form_vs_canonical_scale"]
+        ref = np.load(out / g["reference"])
+        sess = ort.InferenceSession(str(out / g["file"]), providers=["CPUExecutionProvider"])
+        names = [o.name for o in sess.get_outputs()]
+        cache = {c["name"]: torch.zeros([int(ref["batch"]), *c["shape"][1:]],
+                                        dtype=torch.int64 if c["dtype"] == "int64" else torch.float32)
+                 for c in g["caches"]}
+        for s in range(int(ref["n_steps"])):
+            feed = {i["name"]: ref[f"step{s}.input.{i['name']}"] for i in g["inputs"]}
+            feed.update({f"cache.{k}": v.numpy() for k, v in cache.items()})
+            res = dict(zip(names, sess.run(None, feed)))
+            for o in g["outputs"]:
+                assert_within(res[o["name"]], ref[f"step{s}.output.{o['name']}"], 1e-5, f"{g['name']} step {s}")
+            new = {k: torch.from_numpy(res[f"new_cache.{k}"]) for k in cache}
+            cache = write_entries(cache, new, int(feed["phase"][0]))
+        for k, v in cache.items():
+            assert_within(v.numpy(), ref[f"step{int(ref['n_steps']) - 1}.new_cache.{k}"], 1e-5, f"{g['name']} {k}")
+
+
+def test_a_ring_graph_reading_at_the_wrong_phase_fails_the_export_check(monkeypatch):
+    """Each ring graph's torch step is checked against its shift-layout graph before anything is written
+    (``check_ring_vs_shift``, bound 1e-5 scaled): a ring read one slot off (the graph's rotation and the
+    runtime's write disagree) fails it."""
+    from livegesture.forms import ring
+    model = scrambled_model("tiny")
+    steps = 2 * max(model.cfg.history, model.cfg.audio_window, model.cfg.fuse_window) + 3
+    for graph in ("experts_fused_ring", "fusion_attention_ring"):
+        err, _, _, scale = exporter.check_ring_vs_shift(model, graph, steps)
+        assert err <= 1e-5 * scale, graph
+    orig = ring.ring_order
+    monkeypatch.setattr(ring, "ring_order", lambda window, phase: orig(window, phase + 1))
+    for graph in ("experts_fused_ring", "fusion_attention_ring"):
+        err, _, _, scale = exporter.check_ring_vs_shift(model, graph, steps)
+        assert err > 100 * 1e-5 * scale, f"{graph}: a ring read one slot off went unnoticed ({err:.2e})"

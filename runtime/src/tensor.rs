@@ -388,6 +388,103 @@ impl Tensor {
         Ok(())
     }
 
+    /// (rows, blocks per row, slots, values per slot) of a tensor viewed as `(batch, .., slots,
+    /// last)`: axis -2 the slots of a ring cache (docs/bundle.md#ring-caches).
+    fn slot_view(&self) -> Result<(usize, usize, usize, usize)> {
+        let r = self.shape.len();
+        ensure!(
+            r >= 3,
+            "a ring cache has a batch axis, a slot axis (-2) and a last axis; got shape {:?}",
+            self.shape
+        );
+        Ok((
+            self.shape[0],
+            self.shape[1..r - 2].iter().product(),
+            self.shape[r - 2],
+            self.shape[r - 1],
+        ))
+    }
+
+    /// Writes rows `src_start .. src_start + count` of `entry` (one slot: this tensor's row shape
+    /// with axis -2 of size 1, same dtype) into slot `slot` of axis -2 of rows `dst_start ..
+    /// dst_start + count` of this tensor, in place: a ring cache's write of its new entry.
+    pub fn write_slot(
+        &mut self,
+        dst_start: usize,
+        entry: &Tensor,
+        src_start: usize,
+        count: usize,
+        slot: usize,
+    ) -> Result<()> {
+        let (_, outer, slots, last) = self.slot_view()?;
+        let r = self.shape.len();
+        ensure!(
+            entry.shape.len() == r
+                && entry.shape[1..r - 2] == self.shape[1..r - 2]
+                && entry.shape[r - 2] == 1
+                && entry.shape[r - 1] == last
+                && entry.dtype() == self.dtype(),
+            "cannot write an entry of shape {:?} ({}) into a slot of a cache of shape {:?} ({})",
+            entry.shape,
+            entry.dtype(),
+            self.shape,
+            self.dtype()
+        );
+        ensure!(slot < slots, "slot {slot} of a cache of {slots} slots");
+        self.check_rows(dst_start, count)?;
+        entry.check_rows(src_start, count)?;
+        fn write<T: Copy>(
+            dst: &mut [T],
+            src: &[T],
+            n: usize,
+            d0: usize,
+            s0: usize,
+            geo: (usize, usize, usize, usize),
+        ) {
+            let (outer, slots, last, slot) = geo;
+            for row in 0..n {
+                for o in 0..outer {
+                    let d = (((d0 + row) * outer + o) * slots + slot) * last;
+                    let s = ((s0 + row) * outer + o) * last;
+                    dst[d..d + last].copy_from_slice(&src[s..s + last]);
+                }
+            }
+        }
+        let geo = (outer, slots, last, slot);
+        match (&mut self.data, &entry.data) {
+            (TensorData::F32(a), TensorData::F32(b)) => {
+                write(a, b, count, dst_start, src_start, geo)
+            }
+            (TensorData::I64(a), TensorData::I64(b)) => {
+                write(a, b, count, dst_start, src_start, geo)
+            }
+            _ => unreachable!("dtypes checked above"),
+        }
+        Ok(())
+    }
+
+    /// Rolls axis -2 of rows `start .. start + count` by `shift` slots, in place (slot `j` moves to
+    /// `(j + shift) mod slots`, as `torch.roll`): a ring cache moved to another phase.
+    pub fn roll_slots(&mut self, start: usize, count: usize, shift: usize) -> Result<()> {
+        let (_, outer, slots, last) = self.slot_view()?;
+        self.check_rows(start, count)?;
+        let k = shift % slots.max(1);
+        if k == 0 {
+            return Ok(());
+        }
+        let block = slots * last;
+        let range = start * outer * block..(start + count) * outer * block;
+        match &mut self.data {
+            TensorData::F32(v) => v[range]
+                .chunks_mut(block)
+                .for_each(|b| b.rotate_right(k * last)),
+            TensorData::I64(v) => v[range]
+                .chunks_mut(block)
+                .for_each(|b| b.rotate_right(k * last)),
+        }
+        Ok(())
+    }
+
     /// Copies rows `start .. start + dst.batch()` of this tensor into `dst` (same dtype and row
     /// shape), in place.
     pub fn copy_rows_to(&self, start: usize, dst: &mut Tensor) -> Result<()> {
@@ -408,6 +505,34 @@ impl Tensor {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ring_slot_write_and_roll() {
+        // 2 rows, 2 blocks, 3 slots of 2 values
+        let mut c = Tensor::f32(vec![2, 2, 3, 2], (0..24).map(|x| x as f32).collect()).unwrap();
+        let e = Tensor::f32(
+            vec![2, 2, 1, 2],
+            vec![-1.0, -2.0, -3.0, -4.0, -5.0, -6.0, -7.0, -8.0],
+        )
+        .unwrap();
+        c.write_slot(1, &e, 0, 1, 2).unwrap();
+        let v = c.as_f32("c").unwrap();
+        assert_eq!(
+            &v[12..24],
+            &[12.0, 13.0, 14.0, 15.0, -1.0, -2.0, 18.0, 19.0, 20.0, 21.0, -3.0, -4.0]
+        );
+        assert_eq!(&v[..12], &(0..12).map(|x| x as f32).collect::<Vec<_>>()[..]);
+        c.roll_slots(0, 1, 1).unwrap();
+        let v = c.as_f32("c").unwrap();
+        assert_eq!(
+            &v[..12],
+            &[4.0, 5.0, 0.0, 1.0, 2.0, 3.0, 10.0, 11.0, 6.0, 7.0, 8.0, 9.0]
+        );
+        // an entry of the wrong shape and a slot out of range are errors
+        let bad = Tensor::f32(vec![2, 2, 2, 2], vec![0.0; 16]).unwrap();
+        assert!(c.write_slot(0, &bad, 0, 1, 0).is_err());
+        assert!(c.write_slot(0, &e, 0, 1, 3).is_err());
+    }
 
     #[test]
     fn concat_split_round_trip() {

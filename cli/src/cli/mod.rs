@@ -58,7 +58,8 @@ pub struct Cli {
     pub command: Command,
     /// LiveGesture: form of the region eXperts, fusion and decoders (docs/bundle.md#forms-and-precision): auto (the bundle's
     /// form for the backend, see `info`), canonical (one graph per region), fused (one graph for the
-    /// four regions) or attention (the fusion with the ONNX Attention op, `fusion_attention`).
+    /// four regions), attention (the fusion with the ONNX Attention op, `fusion_attention`), or
+    /// fused_ring / attention_ring (those two on ring caches, docs/bundle.md#ring-caches).
     #[arg(
         long,
         global = true,

@@ -1,8 +1,10 @@
 """Ring caches with a cohort phase: the torch reference of a step-graph cache layout (issue 42 item 1).
 
-Measured at graph level and not exported yet (BENCHMARKS.md, "Where a token's time goes, and ring caches with a
-cohort phase": at N = 48 the eXperts and the fusion took 0.49-0.73x the time of the shift layout): this module
-fixes the layout's numerics and its contract for the exporter and the runtime that will use it.
+Measured at graph level (BENCHMARKS.md, "Where a token's time goes, and ring caches with a cohort phase": at
+N = 48 the eXperts and the fusion took 0.49-0.73x the time of the shift layout). This module fixes the layout's
+numerics and its contract; the exporter writes the ring forms ``fused_ring`` and ``attention_ring``
+(docs/bundle.md#ring-caches) with the graphs named ``<graph>_ring`` (:func:`ring_graph`), and the runtime writes
+the entries in place.
 
 **The shift layout** (every shipped graph, :meth:`livegesture.models.layers.WindowedAttention.step`): an
 attention cache holds the previous W - 1 keys (or values), oldest first, on its slot axis (-2); each step
@@ -42,9 +44,33 @@ from ..models.layers import AttentionOp, WindowedAttention, check_cache, check_s
 from .experts_fused import FusedExperts
 
 
+RING_SUFFIX = "_ring"
+# the ring form of each shift-layout form that carries attention caches in its own graphs
+RING_FORMS = {"fused_ring": "fused", "attention_ring": "attention"}
+
+
+def ring_graph(graph: str) -> str:
+    """The name of the ring variant of a shift-layout graph (``fusion`` -> ``fusion_ring``)."""
+    return graph + RING_SUFFIX
+
+
+def ring_base(graph: str) -> str | None:
+    """The shift-layout graph a ring graph is the variant of (``fusion_ring`` -> ``fusion``); None otherwise."""
+    return graph[:-len(RING_SUFFIX)] if graph.endswith(RING_SUFFIX) else None
+
+
+def is_ring_cache(name: str) -> bool:
+    """Every cache of a ring graph but ``step`` is an attention cache written at the phase."""
+    return name != "step"
+
+
 def ring_order(window: int, phase: torch.Tensor) -> torch.Tensor:
-    """(W - 1,) int64: ring slot ``j`` holds the entry of shift slot ``(j - p) mod (W - 1)``, p = phase mod (W - 1)."""
-    return torch.remainder(torch.arange(window - 1, device=phase.device) - phase, window - 1)
+    """(W - 1,) int64: ring slot ``j`` holds the entry of shift slot ``(j - p) mod (W - 1)``, p = phase mod (W - 1).
+    Computed as ``(j + (W - 1) - p) mod (W - 1)`` so that no ``Mod`` of the graph sees a negative operand: tract 0.23
+    takes an int64 ``Mod`` (fmod 0) with C's sign (of the dividend), where ONNX and torch take the divisor's, and a
+    negative index gathers from the end of the table (the fusion's W-entry tables: the wrong entry)."""
+    p = torch.remainder(phase, window - 1)
+    return torch.remainder(torch.arange(window - 1, device=phase.device) + (window - 1) - p, window - 1)
 
 
 def _qrot_blocks(qrot: torch.Tensor, hd: int, window: int, order: torch.Tensor):

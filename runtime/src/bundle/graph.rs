@@ -133,6 +133,11 @@ pub struct CacheSpec {
     pub shape: Vec<Dim>,
     #[serde(default = "zeros_init")]
     pub init: String,
+    /// Present for a ring cache (docs/bundle.md#ring-caches): the graph reads the cache and returns
+    /// only its new entry, of this shape (the cache's with axis -2 of size 1), which the caller
+    /// writes into slot `phase mod (slots)` of axis -2.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub output_shape: Option<Vec<Dim>>,
 }
 
 fn zeros_init() -> String {
@@ -150,10 +155,45 @@ impl CacheSpec {
         self.row_len() * self.dtype.size()
     }
 
+    /// True for a ring cache: the graph returns its new entry ([`CacheSpec::output_shape`]).
+    pub fn is_ring(&self) -> bool {
+        self.output_shape.is_some()
+    }
+
+    /// The shape of the graph's output for this cache: the new entry of a ring cache, else the
+    /// cache's shape.
+    pub fn output_shape(&self) -> &[Dim] {
+        self.output_shape.as_deref().unwrap_or(&self.shape)
+    }
+
+    /// Stores the graph's output `out` for this cache into `cache` (`phase`: the write position the
+    /// graph ran at): a ring cache gets the new entry written into slot `phase mod (slots)` of axis
+    /// -2 of every row; any other cache is replaced by `out`.
+    pub fn store_output(&self, cache: &mut Tensor, out: Tensor, phase: u64) -> anyhow::Result<()> {
+        if !self.is_ring() {
+            *cache = out;
+            return Ok(());
+        }
+        let rows = out.batch();
+        let slot = ring_slot(cache, phase)?;
+        cache.write_slot(0, &out, 0, rows, slot)
+    }
+
     /// The initial cache for `batch` rows: zeros of the manifest's shape and dtype.
     pub fn zeros(&self, batch: usize) -> Tensor {
         Tensor::zeros(self.dtype, concrete_shape(&self.shape, batch))
     }
+}
+
+/// The slot of axis -2 of a ring cache that the entry of a step at `phase` goes to.
+pub fn ring_slot(cache: &Tensor, phase: u64) -> anyhow::Result<usize> {
+    let r = cache.shape.len();
+    anyhow::ensure!(
+        r >= 3 && cache.shape[r - 2] > 0,
+        "a ring cache has a batch axis and a slot axis (-2) before its last, got shape {:?}",
+        cache.shape
+    );
+    Ok((phase % cache.shape[r - 2] as u64) as usize)
 }
 
 /// One step graph of the bundle.
@@ -212,9 +252,15 @@ impl GraphSpec {
             .chain(
                 self.caches
                     .iter()
-                    .map(|c| (c.output.as_str(), c.dtype, c.shape.as_slice())),
+                    .map(|c| (c.output.as_str(), c.dtype, c.output_shape())),
             )
             .collect()
+    }
+
+    /// True for a graph on ring caches (docs/bundle.md#ring-caches): it reads a `phase` input and
+    /// returns the new entries of its ring caches.
+    pub fn is_ring(&self) -> bool {
+        self.caches.iter().any(CacheSpec::is_ring)
     }
 
     /// Cache bytes per batch row.

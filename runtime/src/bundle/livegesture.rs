@@ -195,8 +195,15 @@ pub struct FormGraphs {
 /// The canonical fusion graph's name.
 pub const FUSION: &str = "fusion";
 
-/// The form names the runtime knows.
-pub const FORMS: [&str; 3] = ["canonical", "fused", "attention"];
+/// The form names the runtime knows (`fused_ring`, `attention_ring`: the `fused` and `attention`
+/// forms on ring caches, docs/bundle.md#ring-caches).
+pub const FORMS: [&str; 5] = [
+    "canonical",
+    "fused",
+    "attention",
+    "fused_ring",
+    "attention_ring",
+];
 
 /// The LiveGesture sections of `manifest.json` (see the module docs).
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
@@ -357,7 +364,7 @@ impl LiveGestureManifest {
                     "forms: unknown form '{name}' (this runtime knows {FORMS:?})"
                 ));
             }
-            let want = if name == "fused" {
+            let want = if name == "fused" || name == "fused_ring" {
                 1
             } else {
                 self.regions.len()

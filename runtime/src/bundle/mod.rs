@@ -56,7 +56,8 @@ mod onnx;
 
 pub use diffsheg::DiffshegManifest;
 pub use graph::{
-    concrete_shape, has_named_axis, shape_fits, shape_string, CacheSpec, Dim, GraphSpec, TensorSpec,
+    concrete_shape, has_named_axis, ring_slot, shape_fits, shape_string, CacheSpec, Dim, GraphSpec,
+    TensorSpec,
 };
 pub use livegesture::{
     check_coverage, FormGraphs, FormSpec, LiveGestureManifest, RegionPart, RegionSpec,
@@ -667,6 +668,24 @@ impl Manifest {
                         c.name,
                         shape_string(&c.shape)
                     ));
+                }
+                if let Some(o) = &c.output_shape {
+                    // a ring cache returns one slot of axis -2 (docs/bundle.md#ring-caches)
+                    let r = c.shape.len();
+                    let one_slot = r >= 3
+                        && o.len() == r
+                        && o[..r - 2] == c.shape[..r - 2]
+                        && o[r - 2] == Dim::Fixed(1)
+                        && o[r - 1] == c.shape[r - 1];
+                    if !one_slot {
+                        return Err(format!(
+                            "graph '{}': cache '{}' has output_shape {}; a ring cache's entry is its shape {} with axis -2 of size 1",
+                            g.name,
+                            c.name,
+                            shape_string(o),
+                            shape_string(&c.shape)
+                        ));
+                    }
                 }
                 let (input, output) =
                     (format!("cache.{}", c.name), format!("new_cache.{}", c.name));

@@ -334,6 +334,10 @@ pub enum GraphForm {
     /// The canonical eXperts and decoders and the fusion with its attention cores as the ONNX
     /// `Attention` op (`fusion_attention`).
     Attention,
+    /// The fused form on ring caches (`experts_fused_ring`, `fusion_ring`; docs/bundle.md#ring-caches).
+    FusedRing,
+    /// The attention form on ring caches (`expert_<region>_ring`, `fusion_attention_ring`).
+    AttentionRing,
 }
 
 impl std::fmt::Display for GraphForm {
@@ -343,6 +347,8 @@ impl std::fmt::Display for GraphForm {
             GraphForm::Canonical => "canonical",
             GraphForm::Fused => "fused",
             GraphForm::Attention => "attention",
+            GraphForm::FusedRing => "fused_ring",
+            GraphForm::AttentionRing => "attention_ring",
         })
     }
 }
@@ -355,8 +361,10 @@ impl std::str::FromStr for GraphForm {
             "canonical" => Ok(GraphForm::Canonical),
             "fused" => Ok(GraphForm::Fused),
             "attention" => Ok(GraphForm::Attention),
+            "fused_ring" => Ok(GraphForm::FusedRing),
+            "attention_ring" => Ok(GraphForm::AttentionRing),
             other => Err(format!(
-                "unknown form '{other}'; expected auto, canonical, fused or attention"
+                "unknown form '{other}'; expected auto, canonical, fused, attention, fused_ring or attention_ring"
             )),
         }
     }

@@ -11,5 +11,6 @@ mod no_flags_in_core;
 mod numerics;
 mod pipeline;
 mod portable_parity;
+mod ring;
 mod run_into;
 mod step_many;

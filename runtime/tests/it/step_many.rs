@@ -235,10 +235,16 @@ fn foreign_streams_step_alone_and_a_bad_job_fails_alone() {
 #[test]
 fn livegesture_streams_changing_company_keep_their_frames() {
     let (bundle, m) = load(common::tiny_bundle());
+    check_changing_company(&bundle, m.as_ref());
+}
+
+/// The body of [`livegesture_streams_changing_company_keep_their_frames`], for any LiveGesture
+/// bundle and model (also run on ring caches, `super::ring`).
+pub(crate) fn check_changing_company(bundle: &Bundle, m: &dyn MotionModel) {
     let tok = bundle.frontend().token_end(0) as usize;
     let n = 5;
     let len = tok * 14 + 321;
-    let audios: Vec<Vec<f32>> = (0..n).map(|i| audio(&bundle, i * 5003, len)).collect();
+    let audios: Vec<Vec<f32>> = (0..n).map(|i| audio(bundle, i * 5003, len)).collect();
     let os: Vec<StreamOptions> = (0..n)
         .map(|i| opts(i as u64 + 1, (i == 2).then_some(1.0)))
         .collect();
@@ -248,7 +254,7 @@ fn livegesture_streams_changing_company_keep_their_frames() {
     let mut out: Vec<Vec<Frame>> = vec![Vec::new(); n];
     // a stream that steps with the others and is dropped while its caches are stacked with theirs
     let mut extra = Some(m.new_stream(&opts(99, None)).unwrap());
-    let filler = audio(&bundle, 0, tok);
+    let filler = audio(bundle, 0, tok);
     for round in 0..12 {
         let mut jobs = Vec::new();
         let mut who = Vec::new();
@@ -306,13 +312,13 @@ fn livegesture_streams_changing_company_keep_their_frames() {
         out[i].extend(r.expect("job"));
     }
     for i in 0..n {
-        let want = alone(m.as_ref(), &os[i], &audios[i]);
+        let want = alone(m, &os[i], &audios[i]);
         assert_eq!(out[i].len(), want.len(), "stream {i}: frame count");
         let d = max_diff(&out[i], &want);
         assert!(d <= BOUND, "stream {i}: together vs alone differ by {d}");
     }
     // the comparison can fail: another stream's audio gives other motion
-    assert!(max_diff(&out[0], &alone(m.as_ref(), &os[0], &audios[1])) > BOUND);
+    assert!(max_diff(&out[0], &alone(m, &os[0], &audios[1])) > BOUND);
 }
 
 /// Streams of **one** model stepped on two threads at the same time (issue 37 item 4: the graphs are

@@ -19,6 +19,8 @@ enum Role {
     Audio,
     Cond,
     Hidden(usize),
+    /// The write position of a graph on ring caches (docs/bundle.md#ring-caches), from the store.
+    Phase,
 }
 
 /// One loaded graph with the roles of its data inputs.
@@ -47,6 +49,7 @@ impl Stage {
                 "token" => Role::Token,
                 "audio" => Role::Audio,
                 "cond" => Role::Cond,
+                "phase" if spec.is_ring() => Role::Phase,
                 n => match n
                     .strip_prefix("hidden_")
                     .and_then(|r| regions.iter().position(|x| x == r))
@@ -104,8 +107,27 @@ impl Stage {
         data: impl FnMut(Role) -> Result<Tensor>,
     ) -> Result<Tensor> {
         let (caches, spare) = store.take(slot)?;
-        let (out, new, old) = self.run(data, caches, spare)?;
-        store.put(slot, new, old)?;
+        let out = if self.spec.is_ring() {
+            // the caches are read-only inputs; the entries are written at the phase (no buffers)
+            let rows = caches.first().map_or(0, Tensor::batch);
+            let phase = i64::try_from(store.phase()).context("ring phase out of range")?;
+            let mut phase = Some(Tensor::i64(vec![rows], vec![phase; rows])?);
+            let mut data = data;
+            let (out, entries, caches) = self.run(
+                |r| match r {
+                    Role::Phase => phase.take().context("phase used twice"),
+                    other => data(other),
+                },
+                caches,
+                Vec::new(),
+            )?;
+            store.put_ring(slot, entries, caches, spare, &self.spec.caches)?;
+            out
+        } else {
+            let (out, new, old) = self.run(data, caches, spare)?;
+            store.put(slot, new, old)?;
+            out
+        };
         out.into_iter()
             .next()
             .with_context(|| format!("{} returned no output", self.spec.name))
@@ -202,6 +224,7 @@ impl LiveGestureGraphs {
         let logits = self.run_fusion(store, &branches, hidden)?;
         let (tokens, logits) = self.sample(streams, &branches, &logits)?;
         let feats = self.run_decoders(store, &tokens)?;
+        store.advance_phase();
         let mut results = Vec::with_capacity(streams.len());
         for (i, ((s, toks), lg)) in streams.iter_mut().zip(tokens).zip(logits).enumerate() {
             let frames = self.assemble_frames(&feats, i, s.t)?;

@@ -45,8 +45,14 @@ impl Cohort {
         self.keys.iter().position(|&k| k == key)
     }
 
-    /// Appends a member's caches (copied).
-    fn push(&mut self, key: u64, branch: usize, caches: &Caches) -> Result<()> {
+    /// Appends a member's caches (copied; its ring caches first moved to the cohort's phase, or
+    /// the cohort takes its phase when empty).
+    fn push(&mut self, key: u64, branch: usize, caches: &mut Caches) -> Result<()> {
+        if self.keys.is_empty() {
+            self.caches.phase = caches.phase;
+        } else if caches.phase != self.caches.phase {
+            caches.rephase(self.caches.phase)?;
+        }
         for slot in self.caches.slots() {
             let have = self.caches.slot_mut(slot);
             let add = caches.slot(slot);
@@ -75,13 +81,23 @@ impl Cohort {
     }
 
     /// Moves member `i` to the end of `to` (its rows copied once, then removed here).
+    /// Its ring caches' rows are rotated to `to`'s phase as they arrive (`to` takes this phase
+    /// when empty).
     fn move_to(&mut self, i: usize, to: &mut Cohort, empty: &Caches) -> Result<()> {
+        let at: usize = to.branch.iter().sum();
+        if to.keys.is_empty() {
+            to.caches.phase = self.caches.phase;
+        }
         for slot in self.caches.slots() {
             let (start, count) = self.rows_of(i, slot.branched());
             let have = to.caches.slot_mut(slot);
             for (h, src) in have.iter_mut().zip(self.caches.slot(slot)) {
                 h.append_rows_of(src, start, count)?;
             }
+        }
+        if to.caches.phase != self.caches.phase {
+            to.caches
+                .rephase_rows(at, self.branch[i], self.caches.phase)?;
         }
         to.keys.push(self.keys[i]);
         to.branch.push(self.branch[i]);
@@ -294,7 +310,7 @@ impl Cohorts {
                         self.groups.swap_remove(from);
                     }
                 } else {
-                    target.push(m.key, branch, &m.stream.caches)?;
+                    target.push(m.key, branch, &mut m.stream.caches)?;
                     m.stream.caches = empty_slots(&self.empty);
                     *m.away = true;
                 }
@@ -323,5 +339,7 @@ fn empty_slots(template: &Caches) -> Caches {
         experts: vec![Vec::new(); template.experts.len()],
         fusion: Vec::new(),
         decoders: vec![Vec::new(); template.decoders.len()],
+        phase: 0,
+        ring: template.ring.clone(),
     }
 }

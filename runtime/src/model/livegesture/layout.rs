@@ -158,10 +158,16 @@ pub fn describe(bundle: &Bundle) -> Result<Description> {
                 forms
                     .iter()
                     .map(|(k, g)| format!(
-                        "{k}: eXperts {}, fusion {}, decoders {}",
+                        "{k}: eXperts {}, fusion {}, decoders {}{}",
                         g.experts.join(" "),
                         g.fusion,
-                        g.decoders.join(" ")
+                        g.decoders.join(" "),
+                        // docs/bundle.md#ring-caches: the form's graphs read their caches in place
+                        if bundle.graph(&g.fusion).is_ok_and(|s| s.is_ring()) {
+                            " (ring caches)"
+                        } else {
+                            ""
+                        }
                     ))
                     .collect::<Vec<_>>()
                     .join("; "),

@@ -87,7 +87,7 @@ pub use stream::{cut_frames, StepLogits, Stream, TokenStep};
 
 use crate::model::regions::{resolve_layouts, RegionLayout};
 use crate::model::GraphForm;
-use caches::{Caches, SeparateCaches};
+use caches::{Caches, SeparateCaches, Slot};
 use chain::Stage;
 use stream::StreamState;
 
@@ -109,6 +109,8 @@ pub struct LiveGestureGraphs {
     /// The region SVQ decoders: one stage per region (canonical form, and the fused form of a bundle
     /// without `decoders_fused`) or one for all (`decoders_fused`).
     decoders: Vec<Stage>,
+    /// The ring caches of the form (docs/bundle.md#ring-caches; empty for the shift layout).
+    ring: caches::RingMask,
     /// Buffers of [`LiveGestureGraphs::step_batch`] reused from step to step (taken by one step at
     /// a time; a step that finds them taken uses fresh ones).
     scratch: std::sync::Mutex<caches::Scratch>,
@@ -194,6 +196,39 @@ impl LiveGestureGraphs {
             chain::check_decoder_output(d, &[l.dim], fpt)?;
         }
         let s = &lg.sampling;
+        // which caches the graphs of the form write at the phase (a form is on ring caches or not)
+        let mut ring = Vec::new();
+        for (slot, stage) in std::iter::once((Slot::AudioEncoder, &audio_encoder))
+            .chain(
+                experts
+                    .iter()
+                    .enumerate()
+                    .map(|(i, e)| (Slot::Expert(i), e)),
+            )
+            .chain(std::iter::once((Slot::Fusion, &fusion)))
+            .chain(
+                decoders
+                    .iter()
+                    .enumerate()
+                    .map(|(i, d)| (Slot::Decoder(i), d)),
+            )
+        {
+            if stage.spec.is_ring() {
+                ensure!(
+                    slot.branched(),
+                    "graph '{}': ring caches in a graph without guidance branches (only the eXperts and the fusion have attention caches)",
+                    stage.spec.name
+                );
+                ring.push((
+                    slot,
+                    stage.spec.caches.iter().map(|c| c.is_ring()).collect(),
+                ));
+            }
+        }
+        ensure!(
+            ring.is_empty() || ring.len() == experts.len() + 1,
+            "form '{form}': some of its eXperts and fusion graphs are on ring caches and some are not (docs/bundle.md#ring-caches)"
+        );
         Ok(LiveGestureGraphs {
             frontend: bundle.frontend().clone(),
             regions,
@@ -207,6 +242,7 @@ impl LiveGestureGraphs {
             form,
             fusion,
             decoders,
+            ring: std::sync::Arc::new(ring),
             scratch: Default::default(),
         })
     }
@@ -289,7 +325,14 @@ impl LiveGestureGraphs {
                 .iter()
                 .map(|d| caches::zeros_for(&d.spec.caches, rows))
                 .collect(),
+            phase: 0,
+            ring: self.ring.clone(),
         }
+    }
+
+    /// True when the form's eXperts and fusion run on ring caches (docs/bundle.md#ring-caches).
+    pub fn ring_caches(&self) -> bool {
+        !self.ring.is_empty()
     }
 
     /// Prepares every graph's backend for steps of up to `max_streams` streams before the first
@@ -420,13 +463,19 @@ impl LiveGestureGraphs {
             .try_lock()
             .map(|mut s| std::mem::take(&mut *s))
             .unwrap_or_default();
+        // ring caches: every stream's at the first one's phase (the others' rows rotated)
+        let phase = streams[0].caches.phase;
         let mut store = SeparateCaches {
             caches: Vec::with_capacity(streams.len()),
             branch_rows: Vec::with_capacity(streams.len()),
             scratch: &mut scratch,
+            phase,
         };
         for s in streams.iter_mut() {
             let s = &mut **s;
+            if s.caches.phase != phase {
+                s.caches.rephase(phase)?;
+            }
             store.branch_rows.push(s.state.branch_rows());
             states.push(&mut s.state);
             store.caches.push(&mut s.caches);
