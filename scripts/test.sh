@@ -27,6 +27,10 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/env.sh
+# the package from THIS checkout, whichever checkout the (shared, cached) venv's editable install points at: a
+# second checkout on the same machine that ran scripts/env.sh re-points it (a fresh-clone run here once imported
+# another worktree's livegesture and looked for its real-speech data beside that worktree)
+export PYTHONPATH="$PWD/python${PYTHONPATH:+:$PYTHONPATH}"
 
 t0=$SECONDS
 stage() { echo; echo "=== $* ($(( SECONDS - t0 )) s elapsed)"; }
