@@ -52,7 +52,8 @@ mkdir -p target/test-bundles
 export LIVEGESTURE_TEST_BUNDLE="$PWD/target/test-bundles/tiny"
 
 stage "export the tiny config with the ring forms (docs/bundle.md#ring-caches) -> target/test-bundles/tiny-ring"
-# the same weights; each backend runs its ring form; a 300-token reference rollout (~20 s; parity-tests/src/lib.rs)
+# the same weights; each backend runs its ring form; a 300-token reference rollout (52 s at load 7 on the 2-core VM;
+# parity-tests/src/lib.rs)
 "$LIVEGESTURE_PY" export/export.py --config tiny --random-seed 0 --forms canonical,fused,attention,ring \
   --backend-forms ort=fused_ring,tract=attention_ring --rollout-tokens 300 --out target/test-bundles/tiny-ring
 export LIVEGESTURE_RING_TEST_BUNDLE="$PWD/target/test-bundles/tiny-ring"
