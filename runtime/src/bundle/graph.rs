@@ -268,6 +268,50 @@ impl GraphSpec {
         self.caches.iter().map(CacheSpec::row_bytes).sum()
     }
 
+    /// The caches after one step of this graph run standalone (a reference chain: the parity
+    /// checks), given its `inputs` in graph order (data inputs, then the caches it read) and its
+    /// `outputs` in graph order. A graph on ring caches (docs/bundle.md#ring-caches) gets each
+    /// new entry written into the cache it read at the step's phase (its `phase` input, the same in
+    /// every row; read from row 0), and the cache outputs of `outputs` are replaced by the caches
+    /// after the write, so that what is compared and chained is a whole cache either way; any
+    /// other graph's caches are its cache outputs.
+    pub fn chain_caches(
+        &self,
+        mut inputs: Vec<Tensor>,
+        outputs: &mut [Tensor],
+    ) -> anyhow::Result<Vec<Tensor>> {
+        use anyhow::Context as _;
+        let n_data = self.inputs.len();
+        let n_out = self.outputs.len();
+        anyhow::ensure!(
+            inputs.len() == n_data + self.caches.len() && outputs.len() == n_out + self.caches.len(),
+            "graph '{}': {} inputs and {} outputs for {} data inputs, {} data outputs and {} caches",
+            self.name,
+            inputs.len(),
+            outputs.len(),
+            n_data,
+            n_out,
+            self.caches.len()
+        );
+        let Some(k) = self.input_index("phase").filter(|_| self.is_ring()) else {
+            return Ok(outputs[n_out..].to_vec());
+        };
+        let phase = *inputs[k]
+            .as_i64("phase")?
+            .first()
+            .with_context(|| format!("graph '{}': its phase input has no rows", self.name))?;
+        let phase = u64::try_from(phase)
+            .with_context(|| format!("graph '{}': a negative ring phase {phase}", self.name))?;
+        let mut caches = inputs.split_off(n_data);
+        for (j, c) in self.caches.iter().enumerate() {
+            let o = std::mem::take(&mut outputs[n_out + j]);
+            c.store_output(&mut caches[j], o, phase)
+                .with_context(|| format!("graph '{}', cache '{}'", self.name, c.name))?;
+            outputs[n_out + j] = caches[j].clone();
+        }
+        Ok(caches)
+    }
+
     /// Index of the data input `name`.
     pub fn input_index(&self, name: &str) -> Option<usize> {
         self.inputs.iter().position(|i| i.name == name)

@@ -24,36 +24,13 @@ pub(super) fn chain_graph(
             .iter()
             .map(|i| refv.get(&format!("step{s}.input.{}", i.name)).cloned())
             .collect::<Result<_, _>>()?;
-        // a graph on ring caches (docs/bundle.md#ring-caches): its entries are written into the
-        // caches at the step's phase (the reference's `phase` input, the same in every row), and
-        // the caches after the write are what is compared and chained
-        let phase = match spec.input_index("phase").filter(|_| spec.is_ring()) {
-            Some(k) => Some(
-                *inputs[k]
-                    .as_i64("phase")?
-                    .first()
-                    .context("the reference's phase input has no rows")?,
-            ),
-            None => None,
-        };
         inputs.extend(caches);
         let mut out = runner
             .run(&inputs)
             .with_context(|| format!("{} step {s}", backend.name()))?;
-        let n_data = spec.inputs.len();
-        caches = match phase {
-            Some(p) => {
-                let p = u64::try_from(p).context("a negative ring phase in the reference")?;
-                let mut old = inputs.split_off(n_data);
-                for (k, c) in spec.caches.iter().enumerate() {
-                    let o = std::mem::take(&mut out[spec.outputs.len() + k]);
-                    c.store_output(&mut old[k], o, p)?;
-                    out[spec.outputs.len() + k] = old[k].clone();
-                }
-                old
-            }
-            None => out[spec.outputs.len()..].to_vec(),
-        };
+        // a graph on ring caches (docs/bundle.md#ring-caches): its entries are written into the
+        // caches at the step's phase, and the caches after the write are compared and chained
+        caches = spec.chain_caches(inputs, &mut out)?;
         all.push(out);
     }
     Ok(all)
