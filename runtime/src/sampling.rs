@@ -98,7 +98,8 @@ pub fn guide(cond: &[f32], uncond: Option<&[f32]>, gamma: f64) -> Result<Vec<f64
 pub struct TokenDistribution {
     /// Guided logits divided by the temperature, by token index (all finite).
     pub logits: Vec<f64>,
-    /// Every token index, by logit descending, ties by index ascending.
+    /// Token indices by logit descending, ties by index ascending: the first `max(kept, 2)` (at most
+    /// K) in that order, the rest after them in no particular order.
     pub order: Vec<usize>,
     /// How many indices of `order` are kept (top-k; all when `top_k` is 0 or `>= K`).
     pub kept: usize,
@@ -146,13 +147,23 @@ impl TokenDistribution {
         let k = g.len();
         let mut order: Vec<usize> = (0..k).collect();
         // g descending, index ascending. All values are finite, so partial_cmp is total here, and it
-        // treats -0.0 == 0.0 as numpy's sort does.
-        order.sort_unstable_by(|&a, &b| {
+        // treats -0.0 == 0.0 as numpy's sort does. Ties broken by index make it a strict total
+        // order, so the kept prefix is the same whether the rest is sorted or only partitioned off:
+        // top-k partitions first (O(K)), then sorts the prefix it keeps.
+        let by_logit = |&a: &usize, &b: &usize| {
             g[b].partial_cmp(&g[a])
                 .unwrap_or(std::cmp::Ordering::Equal)
                 .then(a.cmp(&b))
-        });
+        };
         let kept = if top_k > 0 && top_k < k { top_k } else { k };
+        // at least the first two in order (the margin between the first two: parity's divergence)
+        let sorted = kept.max(2).min(k);
+        if sorted < k {
+            order.select_nth_unstable_by(sorted - 1, by_logit);
+            order[..sorted].sort_unstable_by(by_logit);
+        } else {
+            order.sort_unstable_by(by_logit);
+        }
         let g0 = g[order[0]];
         let weights: Vec<f64> = order[..kept].iter().map(|&i| (g[i] - g0).exp()).collect();
         let mut total = 0.0f64;
@@ -261,6 +272,48 @@ mod tests {
         }
         assert!(counts[3..].iter().all(|&n| n == 0));
         assert!(counts[..3].iter().all(|&n| n > 900), "{counts:?}");
+    }
+
+    #[test]
+    fn top_k_keeps_what_a_full_sort_keeps() {
+        // logits with many ties (a few distinct values), guided and not: the kept prefix, its
+        // weights and their sum equal those of sorting every index (the definition's step 3)
+        let mut rng = SplitMix64::new(42);
+        for trial in 0..200 {
+            let k = 1 + (rng.next_u64() % 300) as usize;
+            let levels = 1 + rng.next_u64() % 12;
+            let c: Vec<f32> = (0..k)
+                .map(|_| (rng.next_u64() % levels) as f32 * 0.25 - 1.0)
+                .collect();
+            let u: Vec<f32> = c.iter().map(|x| x * 0.5).collect();
+            let uncond = (trial % 2 == 0).then_some(u.as_slice());
+            for top_k in [0, 1, 2, 3, 32, k.saturating_sub(1), k, k + 1] {
+                let d = TokenDistribution::new(&c, uncond, 1.5, 0.8, top_k).unwrap();
+                let mut full: Vec<usize> = (0..k).collect();
+                full.sort_by(|&a, &b| {
+                    d.logits[b]
+                        .partial_cmp(&d.logits[a])
+                        .unwrap()
+                        .then(a.cmp(&b))
+                });
+                let kept = if top_k > 0 && top_k < k { top_k } else { k };
+                assert_eq!(d.kept, kept);
+                let sorted = kept.max(2).min(k);
+                assert_eq!(d.order[..sorted], full[..sorted], "k {k} top_k {top_k}");
+                let mut rest = d.order[sorted..].to_vec();
+                rest.sort_unstable();
+                let mut want = full[sorted..].to_vec();
+                want.sort_unstable();
+                assert_eq!(rest, want);
+                let g0 = d.logits[full[0]];
+                let w: Vec<f64> = full[..kept]
+                    .iter()
+                    .map(|&i| (d.logits[i] - g0).exp())
+                    .collect();
+                assert_eq!(d.weights, w);
+                assert_eq!(d.total, w.iter().fold(0.0, |a, x| a + x));
+            }
+        }
     }
 
     #[test]

@@ -285,6 +285,16 @@ impl Tensor {
         Ok(())
     }
 
+    /// Makes room for `rows` more rows on the batch axis, so that appending them does not grow the
+    /// buffer step by step (each growth copies every row so far).
+    pub fn reserve_rows(&mut self, rows: usize) {
+        let n = rows * self.row_len();
+        match &mut self.data {
+            TensorData::F32(v) => v.reserve(n),
+            TensorData::I64(v) => v.reserve(n),
+        }
+    }
+
     /// Appends rows `start .. start + count` of `src` (same dtype and row shape) on the batch axis,
     /// in place (no intermediate copy).
     pub fn append_rows_of(&mut self, src: &Tensor, start: usize, count: usize) -> Result<()> {

@@ -497,6 +497,9 @@ impl MotionModel for FacedModel {
     fn prepare_batches(&self, max_streams: usize) -> Result<()> {
         self.inner.prepare_batches(max_streams)
     }
+    fn streams_regrouped(&self) -> u64 {
+        self.inner.streams_regrouped()
+    }
     fn step_many(&self, jobs: &mut [StreamJob<'_>]) -> Vec<Result<Vec<Frame>>> {
         // the body steps batched in the family's model; each stream's face after it (batch 1)
         if !jobs.iter_mut().all(|j| {

@@ -151,6 +151,14 @@ pub trait MotionModel: Send + Sync {
         Ok(())
     }
 
+    /// How many times so far a stream's state had to be copied because the streams stepped with it
+    /// in [`MotionModel::step_many`] changed (a family that keeps the state of streams stepped
+    /// together stacked between calls: LiveGesture's cohorts). A server whose sessions keep their
+    /// company tick after tick adds nothing here in the steady state. The default: 0.
+    fn streams_regrouped(&self) -> u64 {
+        0
+    }
+
     /// [`MotionModel::step_many`] for jobs that push audio only.
     fn push_many(&self, jobs: &mut [(&mut dyn MotionStream, &[f32])]) -> Vec<Result<Vec<Frame>>> {
         let mut js: Vec<StreamJob<'_>> = jobs

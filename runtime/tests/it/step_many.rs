@@ -321,6 +321,111 @@ pub(crate) fn check_changing_company(bundle: &Bundle, m: &dyn MotionModel) {
     assert!(max_diff(&out[0], &alone(m, &os[0], &audios[1])) > BOUND);
 }
 
+/// Streams stepped in the same company call after call are not copied again (their caches stay
+/// stacked: `MotionModel::streams_regrouped` counts each joining once); a change of company copies
+/// only the streams that change it.
+#[test]
+fn livegesture_streams_in_steady_company_are_not_copied() {
+    let (bundle, m) = load(common::tiny_bundle());
+    let len = bundle.frontend().token_end(12) as usize;
+    let audios: Vec<Vec<f32>> = (0..3).map(|i| audio(&bundle, i * 4001, len)).collect();
+    let mut streams: Vec<Box<dyn MotionStream>> = (0..3)
+        .map(|i| m.new_stream(&opts(i + 1, None)).unwrap())
+        .collect();
+    assert_eq!(m.streams_regrouped(), 0);
+    // the streams of `who` together, each pushed exactly the audio that completes its next token
+    let step = |streams: &mut [Box<dyn MotionStream>], who: &[usize]| {
+        let mut jobs: Vec<StreamJob> = streams
+            .iter_mut()
+            .enumerate()
+            .filter(|(i, _)| who.contains(i))
+            .map(|(i, s)| {
+                let (from, to) = (s.samples_received(), s.next_unit_samples());
+                StreamJob::push(s.as_mut(), &audios[i][from as usize..to as usize])
+            })
+            .collect();
+        for r in m.step_many(&mut jobs) {
+            assert!(!r.expect("job").is_empty(), "a token step without frames");
+        }
+    };
+    // the three together, four tokens: each copied into the cohort once
+    for k in 0..4 {
+        step(&mut streams, &[0, 1, 2]);
+        assert_eq!(m.streams_regrouped(), 3, "after token {k}");
+    }
+    // stream 2 sits out: it leaves the cohort (copied once), the other two stay
+    step(&mut streams, &[0, 1]);
+    assert_eq!(m.streams_regrouped(), 4);
+    step(&mut streams, &[2]);
+    assert_eq!(m.streams_regrouped(), 4);
+    // back together: stream 2 joins again
+    step(&mut streams, &[0, 1, 2]);
+    assert_eq!(m.streams_regrouped(), 5);
+    step(&mut streams, &[0, 1, 2]);
+    assert_eq!(m.streams_regrouped(), 5);
+}
+
+/// Two cohorts due in one call (a server behind its tick grid steps two slots at once) step apart
+/// as they are, copying nothing, and every stream keeps the frames it gets alone.
+#[test]
+fn livegesture_whole_cohorts_due_together_step_apart() {
+    let (bundle, m) = load(common::tiny_bundle());
+    let n = 24;
+    let len = bundle.frontend().token_end(7) as usize + 100;
+    let audios: Vec<Vec<f32>> = (0..n).map(|i| audio(&bundle, i * 997, len)).collect();
+    let os: Vec<StreamOptions> = (0..n).map(|i| opts(i as u64 + 7, None)).collect();
+    let mut streams: Vec<Box<dyn MotionStream>> =
+        os.iter().map(|o| m.new_stream(o).unwrap()).collect();
+    let mut out: Vec<Vec<Frame>> = vec![Vec::new(); n];
+    let mut step = |streams: &mut [Box<dyn MotionStream>], who: std::ops::Range<usize>| {
+        let mut jobs: Vec<StreamJob> = Vec::new();
+        for (i, s) in streams.iter_mut().enumerate() {
+            if who.contains(&i) {
+                let (from, to) = (
+                    s.samples_received() as usize,
+                    s.next_unit_samples() as usize,
+                );
+                jobs.push(StreamJob::push(s.as_mut(), &audios[i][from..to]));
+            }
+        }
+        for (i, r) in who.zip(m.step_many(&mut jobs)) {
+            out[i].extend(r.expect("job"));
+        }
+    };
+    // two cohorts of 12 (two slots), then both in every call
+    for _ in 0..3 {
+        step(&mut streams, 0..12);
+        step(&mut streams, 12..24);
+    }
+    assert_eq!(m.streams_regrouped(), 24);
+    for _ in 0..3 {
+        step(&mut streams, 0..24);
+    }
+    assert_eq!(m.streams_regrouped(), 24, "whole cohorts were copied");
+    let mut jobs: Vec<StreamJob> = streams
+        .iter_mut()
+        .enumerate()
+        .map(|(i, s)| {
+            let from = s.samples_received() as usize;
+            StreamJob::push_and_finish(
+                s.as_mut(),
+                &audios[i][from..],
+                AudioSpan::at_16k(len as u64),
+            )
+        })
+        .collect();
+    for (i, r) in m.step_many(&mut jobs).into_iter().enumerate() {
+        out[i].extend(r.expect("job"));
+    }
+    drop(jobs);
+    for i in 0..n {
+        let want = alone(m.as_ref(), &os[i], &audios[i]);
+        assert_eq!(out[i].len(), want.len(), "stream {i}: frame count");
+        let d = max_diff(&out[i], &want);
+        assert!(d <= BOUND, "stream {i}: apart vs alone differ by {d}");
+    }
+}
+
 /// Streams of **one** model stepped on two threads at the same time (issue 37 item 4: the graphs are
 /// shared, each run has its own plan state or session) give exactly the frames each gives alone:
 /// same seed, same frames, whatever the interleaving. Both families, both backends; every push on

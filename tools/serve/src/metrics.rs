@@ -162,6 +162,8 @@ pub struct Metrics {
     pub tokens_total: AtomicU64,
     pub frames_total: AtomicU64,
     pub steps_total: AtomicU64,
+    /// The model's [`livegesture::model::MotionModel::streams_regrouped`] (set after each step).
+    pub streams_regrouped_total: AtomicU64,
     pub audio_samples_total: AtomicU64,
     refusals: [AtomicU64; REFUSAL_REASONS.len()],
     pub batch_size: Histogram,
@@ -187,6 +189,7 @@ impl Metrics {
             tokens_total: AtomicU64::new(0),
             frames_total: AtomicU64::new(0),
             steps_total: AtomicU64::new(0),
+            streams_regrouped_total: AtomicU64::new(0),
             audio_samples_total: AtomicU64::new(0),
             refusals: Default::default(),
             batch_size: Histogram::new(&[
@@ -254,6 +257,13 @@ impl Metrics {
             "counter",
             "Batched token steps (one run of every graph).",
             ld(&self.steps_total),
+        );
+        g(
+            &mut o,
+            "livegesture_streams_regrouped_total",
+            "counter",
+            "Streams whose stacked state was copied because their step-mates changed (0 in a steady state).",
+            ld(&self.streams_regrouped_total),
         );
         g(
             &mut o,

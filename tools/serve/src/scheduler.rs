@@ -10,11 +10,21 @@
 //! whole number of slots per token (slots of about `batch_wait`: 33.3 ms for 30 ms); a tick steps
 //! every due session in one `step_many` call and queues the frames, and when every live session is
 //! due it steps at once. A real-time session completes its tokens at a steady phase, so it falls in
-//! the same slot tick after tick, with the same company: batches of the sessions of one slot, no
-//! wait past the slot's end, and the model keeps the caches of sessions stepped together stacked
-//! between ticks (a session late by a slot steps with the next one). A session's frames are
-//! therefore those it gets on its own: a stream is chunk-size invariant, and batching changes only the
-//! backend's rounding (docs/parity.md).
+//! the same slot tick after tick, with the same company: batches of the sessions of one slot, and
+//! the model keeps the caches of sessions stepped together stacked between ticks.
+//!
+//! A session keeps its slot (its *home*, the slot of its last step) against the jitter of message
+//! arrival: with 20 ms messages the audio completing a token arrives 0 to 13.3 ms after the token's
+//! end, so a session whose phase lies near a slot boundary would fall on either side of it, token
+//! by token, and each change of company copies its caches (1.7 MB for `models/default`) between
+//! cohorts (measured: 11 % of a server's CPU at 48 sessions, docs/serve.md#the-tick-grid). A
+//! session due one slot *before* its home therefore waits for its home slot (at most one slot
+//! more); one due later moves its home there (it cannot step earlier), so a session's home settles
+//! on the later side of its jitter and stays. A session due two or more slots from home (a client
+//! that paused, or caught up) takes the slot it is due in. A tick steps the sessions whose slot has
+//! come (or every due one when all are due): one due after the tick's grid point waits for its own.
+//! A session's frames are therefore those it gets on its own: a stream is chunk-size invariant, and
+//! batching changes only the backend's rounding (docs/parity.md).
 //!
 //! At the end of a session's audio ([`Cmd::End`]) the session is due at once; its job ends the stream
 //! with the input's own span (docs/output.md: the last unit completed with silence, exactly
@@ -61,6 +71,10 @@ struct Sess {
     held: Vec<f32>,
     /// When the session became due (the arrival of the audio completing a unit, or of the end).
     due_since: Option<Instant>,
+    /// When a due session steps: the grid point of its slot (see the module docs).
+    deadline: Option<Instant>,
+    /// The slot of the token grid (`0 .. slots_per_token`) of the session's last step.
+    home: Option<u64>,
     /// 16 kHz samples forwarded by the reader (pushed, held, or dropped after an end or a cut).
     samples_in: u64,
     /// 16 kHz samples pushed into the stream (or dropped): credits are given back for these.
@@ -141,6 +155,8 @@ pub struct BatchScheduler {
     /// The tick grid: ticks fall on `epoch + k * slot`.
     epoch: Instant,
     slot: Duration,
+    /// Slots per token: grid point `k` is slot `k % slots_per_token` of its token.
+    slots_per_token: u64,
 }
 
 impl BatchScheduler {
@@ -150,31 +166,38 @@ impl BatchScheduler {
         metrics: Arc<Metrics>,
         cfg: SchedConfig,
     ) -> Self {
+        let slot = tick_slot(&frontend, cfg.batch_wait);
         Self {
             trace: Trace::from_env(),
             model,
             sessions: HashMap::new(),
             metrics,
-            slot: tick_slot(&frontend, cfg.batch_wait),
+            slots_per_token: slots_per_token(&frontend, slot),
+            slot,
             frontend,
             epoch: Instant::now(),
         }
     }
 
     /// When to step, once a session is due: at once when every live session is due, else at the
-    /// end of the slot the oldest due session's audio arrived in. `None`: nothing is due.
+    /// earliest grid point among the due sessions' slots. `None`: nothing is due.
     fn due(&self) -> Option<(Instant, bool)> {
         let t0 = self
             .sessions
             .values()
             .filter(|s| !s.dead)
-            .filter_map(|s| s.due_since)
+            .filter_map(|s| s.deadline)
             .min()?;
         let all = self
             .sessions
             .values()
             .all(|s| s.dead || s.due_since.is_some());
-        Some((grid_after(self.epoch, self.slot, t0), all))
+        Some((t0, all))
+    }
+
+    /// The grid point a session due at `at` steps at, given its home slot (see the module docs).
+    fn deadline_for(&self, at: Instant, home: Option<u64>) -> Instant {
+        slot_deadline(self.epoch, self.slot, self.slots_per_token, at, home)
     }
 
     /// Runs until every command sender is dropped.
@@ -202,7 +225,7 @@ impl BatchScheduler {
                         match rx.try_recv() {
                             Ok(c) => Some(c),
                             Err(_) => {
-                                self.tick(deadline);
+                                self.tick(deadline, all_due);
                                 continue;
                             }
                         }
@@ -290,6 +313,8 @@ impl BatchScheduler {
                 stats: SessionStats::default(),
                 held: Vec::new(),
                 due_since: None,
+                deadline: None,
+                home: None,
                 samples_in: 0,
                 samples_done: 0,
                 tokens_credited: 0,
@@ -332,7 +357,13 @@ impl BatchScheduler {
             self.give_credits(sid);
         } else {
             s.held.extend_from_slice(&samples);
-            s.due_since.get_or_insert(at);
+            if s.due_since.is_none() {
+                let home = s.home;
+                let deadline = self.deadline_for(at, home);
+                let s = self.sessions.get_mut(&sid).expect("looked up above");
+                s.due_since = Some(at);
+                s.deadline = Some(deadline);
+            }
         }
     }
 
@@ -344,7 +375,14 @@ impl BatchScheduler {
             return;
         }
         s.end = Some(input);
-        s.due_since.get_or_insert_with(Instant::now);
+        if s.due_since.is_none() {
+            // the end steps in the slot it arrives in (no company to keep after it)
+            let now = Instant::now();
+            let deadline = self.deadline_for(now, None);
+            let s = self.sessions.get_mut(&sid).expect("looked up above");
+            s.due_since = Some(now);
+            s.deadline = Some(deadline);
+        }
     }
 
     /// Gives back the credits of the session's audio that has been pushed (or dropped).
@@ -359,14 +397,23 @@ impl BatchScheduler {
         }
     }
 
-    /// One [`MotionModel::step_many`] call for every due session (`deadline`: when it was due).
-    fn tick(&mut self, deadline: Instant) {
+    /// One [`MotionModel::step_many`] call for every session whose slot has come (`all`: every due
+    /// session; `deadline`: the earliest of their grid points).
+    fn tick(&mut self, deadline: Instant, all: bool) {
+        let now = Instant::now();
+        let (epoch, slot, n) = (self.epoch, self.slot, self.slots_per_token);
         let mut sids = Vec::new();
         let mut jobs = Vec::new();
+        let mut homes = Vec::new();
         for (sid, s) in self.sessions.iter_mut() {
             if s.dead || s.due_since.is_none() {
                 continue;
             }
+            let at = s.deadline.unwrap_or(now);
+            if !all && at > now {
+                continue;
+            }
+            homes.push(slot_index(epoch, slot, n, at));
             sids.push((
                 *sid,
                 s.due_since.unwrap_or_else(Instant::now),
@@ -408,12 +455,17 @@ impl BatchScheduler {
         self.metrics.step_seconds.observe((done - t0).as_secs_f64());
         self.metrics.steps_total.fetch_add(1, Ordering::Relaxed);
         self.metrics.batch_size.observe(sids.len() as f64);
-        for ((sid, at, ended), r) in sids.into_iter().zip(results) {
+        self.metrics
+            .streams_regrouped_total
+            .store(self.model.streams_regrouped(), Ordering::Relaxed);
+        for (((sid, at, ended), r), home) in sids.into_iter().zip(results).zip(homes) {
             let Some(s) = self.sessions.get_mut(&sid) else {
                 continue;
             };
             s.held.clear();
             s.due_since = None;
+            s.deadline = None;
+            s.home = Some(home);
             s.samples_done = s.samples_in;
             self.give_credits(sid);
             match r {
@@ -503,6 +555,7 @@ impl BatchScheduler {
             s.dead = true;
             s.held = Vec::new();
             s.due_since = None;
+            s.deadline = None;
             s.samples_done = s.samples_in;
         }
         self.give_credits(sid);
@@ -575,15 +628,66 @@ fn tick_slot(f: &FrontendConfig, wait: Duration) -> Duration {
     token.div_f64(n)
 }
 
+/// Slots of `slot` per token (1 without a grid).
+fn slots_per_token(f: &FrontendConfig, slot: Duration) -> u64 {
+    if slot.is_zero() {
+        return 1;
+    }
+    let token = f.frames_per_token as f64 / f.fps.max(1) as f64;
+    (token / slot.as_secs_f64()).round().max(1.0) as u64
+}
+
+/// The index `k` of the first instant of the grid `epoch + k * slot` at or after `t` (0 without a
+/// grid).
+fn grid_index_after(epoch: Instant, slot: Duration, t: Instant) -> u128 {
+    if slot.is_zero() {
+        return 0;
+    }
+    let since = t.saturating_duration_since(epoch).as_nanos();
+    since.div_ceil(slot.as_nanos().max(1))
+}
+
+/// The grid point a session due at `at` steps at on the grid `epoch + k * slot` of `n` slots per
+/// token, given its home slot: the first grid point at or after `at`, or the one after it when that
+/// is the slot just before `home` (`n >= 3`, where a slot earlier and a slot later differ). Without
+/// a grid: `at`.
+fn slot_deadline(
+    epoch: Instant,
+    slot: Duration,
+    n: u64,
+    at: Instant,
+    home: Option<u64>,
+) -> Instant {
+    if slot.is_zero() {
+        return at;
+    }
+    let k = grid_index_after(epoch, slot, at);
+    match home {
+        Some(h) if n >= 3 && (k % n as u128) as u64 == (h + n - 1) % n => {
+            grid_point(epoch, slot, k + 1)
+        }
+        _ => grid_point(epoch, slot, k),
+    }
+}
+
+/// The slot of the token (`0 .. n`) of grid point `t` (of the grid `epoch + k * slot`, `n` slots per
+/// token).
+fn slot_index(epoch: Instant, slot: Duration, n: u64, t: Instant) -> u64 {
+    (grid_index_after(epoch, slot, t) % n.max(1) as u128) as u64
+}
+
+/// Grid point `k`: `epoch + k * slot`.
+fn grid_point(epoch: Instant, slot: Duration, k: u128) -> Instant {
+    epoch + Duration::from_nanos((k * slot.as_nanos()).min(u64::MAX as u128) as u64)
+}
+
 /// The first instant of the grid `epoch + k * slot` at or after `t`.
+#[cfg(test)]
 fn grid_after(epoch: Instant, slot: Duration, t: Instant) -> Instant {
     if slot.is_zero() {
         return t;
     }
-    let since = t.saturating_duration_since(epoch).as_nanos();
-    let s = slot.as_nanos().max(1);
-    let k = since.div_ceil(s);
-    epoch + Duration::from_nanos((k * s).min(u64::MAX as u128) as u64)
+    grid_point(epoch, slot, grid_index_after(epoch, slot, t))
 }
 
 #[cfg(test)]
@@ -608,5 +712,40 @@ mod grid_tests {
             e + 3 * slot
         );
         assert_eq!(grid_after(e, Duration::ZERO, e + slot), e + slot);
+    }
+
+    #[test]
+    fn a_session_keeps_its_slot_against_jitter() {
+        let f = FrontendConfig::default();
+        let slot = tick_slot(&f, Duration::from_millis(30));
+        let n = slots_per_token(&f, slot);
+        assert_eq!(n, 4);
+        let e = Instant::now();
+        let ms = |x: f64| Duration::from_secs_f64(x / 1e3);
+        // a phase 1 ms before grid point 5 (slot 1 of its token): jitter of 0 to 13.3 ms puts the
+        // audio on either side of it
+        let early = e + 5 * slot - ms(1.0);
+        let late = e + 5 * slot + ms(12.0);
+        // a new session takes the slot it is due in
+        assert_eq!(slot_deadline(e, slot, n, early, None), e + 5 * slot);
+        assert_eq!(slot_deadline(e, slot, n, late, None), e + 6 * slot);
+        // at home in slot 2 (grid point 6), an early token waits for it; a late one is in it anyway
+        assert_eq!(slot_deadline(e, slot, n, early, Some(2)), e + 6 * slot);
+        assert_eq!(slot_deadline(e, slot, n, late, Some(2)), e + 6 * slot);
+        // at home in slot 1, a late one moves on (it cannot step earlier)
+        assert_eq!(slot_deadline(e, slot, n, late, Some(1)), e + 6 * slot);
+        // two slots from home (a client that paused or caught up): the slot it is due in
+        assert_eq!(slot_deadline(e, slot, n, early, Some(3)), e + 5 * slot);
+        assert_eq!(
+            slot_deadline(e, slot, n, early + slot, Some(0)),
+            e + 6 * slot
+        );
+        // the slot before home wraps around the token: slot 3 is just before slot 0
+        let t = e + 7 * slot - ms(1.0); // due in grid point 7, slot 3
+        assert_eq!(slot_deadline(e, slot, n, t, Some(0)), e + 8 * slot);
+        // two slots per token cannot tell earlier from later: no waiting
+        assert_eq!(slot_deadline(e, 2 * slot, 2, early, Some(1)), e + 6 * slot);
+        // without a grid: at once
+        assert_eq!(slot_deadline(e, Duration::ZERO, 1, late, Some(0)), late);
     }
 }

@@ -92,6 +92,20 @@ impl Caches {
         Ok(())
     }
 
+    /// Makes room for `streams` more streams of `branch_rows` rows in all in the branched graphs.
+    pub(super) fn reserve(&mut self, streams: usize, branch_rows: usize) {
+        for slot in self.slots() {
+            let rows = if slot.branched() {
+                branch_rows
+            } else {
+                streams
+            };
+            for t in self.slot_mut(slot).iter_mut() {
+                t.reserve_rows(rows);
+            }
+        }
+    }
+
     pub(super) fn slots(&self) -> Vec<Slot> {
         let n = self.experts.len();
         std::iter::once(Slot::AudioEncoder)

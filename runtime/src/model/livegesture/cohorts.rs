@@ -20,6 +20,13 @@ use ndarray::Array2;
 use super::caches::{Caches, StackedCaches};
 use super::{LiveGestureGraphs, Stream, TokenStep};
 
+/// The smallest cohort stepped apart from the other streams of a step ([`Cohorts::plan`]): a step
+/// apart costs its graph runs' fixed part (ort: about 3.5 ms on the 2-core AMD VM of BENCHMARKS.md,
+/// the one-stream chain less the per-stream cost), gathering costs copying each stream in and out
+/// again (about 0.25 ms per stream of `models/default`'s 1.74 MB, buffers growing included): even
+/// from about 12 streams.
+pub(super) const MIN_APART: usize = 12;
+
 /// Caches of streams stepped together, stacked in member order.
 #[derive(Debug)]
 struct Cohort {
@@ -134,6 +141,9 @@ pub(super) struct Cohorts {
     /// Every cache tensor with zero rows (the layout of a cohort).
     empty: Caches,
     next_key: u64,
+    /// Streams whose caches were copied so far: into a cohort (from home or another cohort), or out
+    /// of one into a cohort of their own (left behind by their step-mates).
+    moved: u64,
 }
 
 /// A stream of a [`Cohorts::step`]: its key and the stream (its caches are in a cohort when `away`).
@@ -149,7 +159,58 @@ impl Cohorts {
             groups: Vec::new(),
             empty,
             next_key: 0,
+            moved: 0,
         }
+    }
+
+    /// Streams whose caches were copied between cohorts so far: each stream stepped in other
+    /// company than last time (a new stream, one whose step-mates changed) counts once, and so does
+    /// each stream left behind by its step-mates.
+    pub(super) fn moved(&self) -> u64 {
+        self.moved
+    }
+
+    /// Splits the streams of one token step (`keys`) into groups stepped apart (indices into
+    /// `keys`): each cohort of at least [`MIN_APART`] streams whose streams are all in `keys` is a
+    /// group of its own (stepped as it is, nothing copied), and the other streams one more group
+    /// (gathered by [`Cohorts::step`]), or part of the largest group when they are fewer than
+    /// [`MIN_APART`]. One group (all of `keys`) when nothing is apart.
+    ///
+    /// A server behind its tick grid steps the sessions of several slots at once; gathering them in
+    /// one cohort copied every one of them (and again when their slots step apart next time):
+    /// measured at 72 sessions on one core, steps of 72 sessions took 150-180 ms where steps of 18
+    /// took 25 ms, and the server never caught up.
+    pub(super) fn plan(&self, keys: &[u64]) -> Vec<Vec<usize>> {
+        let n = keys.len();
+        if n < 2 * MIN_APART {
+            return vec![(0..n).collect()];
+        }
+        let pos: std::collections::HashMap<u64, usize> =
+            keys.iter().enumerate().map(|(i, &k)| (k, i)).collect();
+        let mut apart: Vec<Vec<usize>> = Vec::new();
+        let mut taken = vec![false; n];
+        for c in &self.groups {
+            if c.keys.len() >= MIN_APART && c.keys.iter().all(|k| pos.contains_key(k)) {
+                let g: Vec<usize> = c.keys.iter().map(|k| pos[k]).collect();
+                for &i in &g {
+                    taken[i] = true;
+                }
+                apart.push(g);
+            }
+        }
+        let rest: Vec<usize> = (0..n).filter(|&i| !taken[i]).collect();
+        if rest.is_empty() {
+            return apart;
+        }
+        if rest.len() >= MIN_APART {
+            apart.push(rest);
+            return apart;
+        }
+        match apart.iter_mut().max_by_key(|g| g.len()) {
+            Some(largest) => largest.extend(rest),
+            None => apart.push(rest),
+        }
+        apart
     }
 
     /// A key for a new stream.
@@ -279,10 +340,20 @@ impl Cohorts {
                     .collect();
                 if !others.is_empty() {
                     let mut rest = Cohort::new(&self.empty);
+                    let c = &self.groups[g];
+                    let branch_rows = c
+                        .keys
+                        .iter()
+                        .zip(&c.branch)
+                        .filter(|(k, _)| !is_member(**k))
+                        .map(|(_, b)| b)
+                        .sum();
+                    rest.caches.reserve(others.len(), branch_rows);
                     for k in others {
                         let c = &mut self.groups[g];
                         let i = c.position(k).ok_or_else(|| anyhow!("lost stream {k}"))?;
                         c.move_to(i, &mut rest, &self.empty)?;
+                        self.moved += 1;
                     }
                     self.groups.push(rest);
                 }
@@ -295,11 +366,19 @@ impl Cohorts {
         };
         // the streams not in it yet join: from home (their own caches), or from another cohort
         let mut target = std::mem::replace(&mut self.groups[g], Cohort::new(&self.empty));
+        // room for the joining streams at once (growing the buffers stream by stream copies them)
+        let joining: Vec<usize> = members
+            .iter()
+            .filter(|m| target.position(m.key).is_none())
+            .map(|m| m.stream.state.branch_rows())
+            .collect();
+        target.caches.reserve(joining.len(), joining.iter().sum());
         let r = (|| -> Result<()> {
             for m in members.iter_mut() {
                 if target.position(m.key).is_some() {
                     continue;
                 }
+                self.moved += 1;
                 let branch = m.stream.state.branch_rows();
                 if *m.away {
                     let (from, i) = self
@@ -341,5 +420,72 @@ fn empty_slots(template: &Caches) -> Caches {
         decoders: vec![Vec::new(); template.decoders.len()],
         phase: 0,
         ring: template.ring.clone(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cohorts(groups: &[std::ops::RangeInclusive<u64>]) -> Cohorts {
+        let empty = empty_slots(&Caches {
+            audio_encoder: Vec::new(),
+            experts: Vec::new(),
+            fusion: Vec::new(),
+            decoders: Vec::new(),
+            phase: 0,
+            ring: Default::default(),
+        });
+        let mut c = Cohorts::new(empty);
+        for keys in groups {
+            let mut g = Cohort::new(&c.empty);
+            g.keys = keys.clone().collect();
+            g.branch = vec![2; g.keys.len()];
+            c.groups.push(g);
+        }
+        c
+    }
+
+    /// The keys of each group of `plan(keys)`.
+    fn plan(c: &Cohorts, keys: &[u64]) -> Vec<Vec<u64>> {
+        c.plan(keys)
+            .into_iter()
+            .map(|g| g.into_iter().map(|i| keys[i]).collect())
+            .collect()
+    }
+
+    #[test]
+    fn whole_cohorts_step_apart_and_stragglers_join_the_largest() {
+        assert_eq!(MIN_APART, 12);
+        let c = cohorts(&[1..=12, 13..=26, 27..=29]);
+        let a: Vec<u64> = (1..=12).collect();
+        let b: Vec<u64> = (13..=26).collect();
+        let ab: Vec<u64> = a.iter().chain(&b).copied().collect();
+        // two whole cohorts: apart, each in its cohort's order
+        assert_eq!(plan(&c, &ab), vec![a.clone(), b.clone()]);
+        // and a straggler of a third (or a whole small cohort): with the largest
+        let mut with = ab.clone();
+        with.push(28);
+        let mut b28 = b.clone();
+        b28.push(28);
+        assert_eq!(plan(&c, &with), vec![a.clone(), b28]);
+        let mut abc = ab.clone();
+        abc.extend(27..=29);
+        let mut bc = b.clone();
+        bc.extend(27..=29);
+        assert_eq!(plan(&c, &abc), vec![a.clone(), bc]);
+        // a cohort not all due is gathered with the rest: apart when they are many
+        let mut partial = a.clone();
+        partial.extend(13..=25);
+        assert_eq!(plan(&c, &partial), vec![a.clone(), (13..=25).collect()]);
+        // fewer than two cohorts' worth: one group
+        assert_eq!(plan(&c, &a), vec![a.clone()]);
+        // many streams of no cohort (new sessions): one group
+        let fresh: Vec<u64> = (100..140).collect();
+        assert_eq!(plan(&c, &fresh), vec![fresh.clone()]);
+        // a whole cohort and as many new streams: apart
+        let mut mixed = fresh[..12].to_vec();
+        mixed.extend(&a);
+        assert_eq!(plan(&c, &mixed), vec![a.clone(), fresh[..12].to_vec()]);
     }
 }

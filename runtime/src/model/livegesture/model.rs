@@ -109,6 +109,11 @@ impl MotionModel for LiveGestureModel {
         }))
     }
 
+    /// Streams whose stacked caches were copied between cohorts (their step-mates changed).
+    fn streams_regrouped(&self) -> u64 {
+        self.cohorts.lock().map_or(0, |c| c.moved())
+    }
+
     /// Every graph's backend prepares batch sizes up to `max_streams` streams
     /// ([`LiveGestureGraphs::prepare_batches`]).
     fn prepare_batches(&self, max_streams: usize) -> Result<()> {
@@ -282,19 +287,40 @@ fn step_rounds(p: &LiveGestureGraphs, c: &mut Cohorts, mine: &mut [Pending<'_>])
         if members.is_empty() {
             return;
         }
-        let r = c.step(p, &mut members, &blocks);
-        drop(members);
-        match r {
-            Ok(steps) => {
-                for (k, st) in owners.into_iter().zip(steps) {
-                    mine[k].steps.push(st);
+        // whole cohorts step apart (`Cohorts::plan`); usually one group
+        let keys: Vec<u64> = members.iter().map(|m| m.key).collect();
+        let plan = c.plan(&keys);
+        let one = plan.len() == 1;
+        let mut results: Vec<Option<Result<TokenStep, String>>> =
+            (0..members.len()).map(|_| None).collect();
+        let mut slots: Vec<Option<Member<'_>>> = members.into_iter().map(Some).collect();
+        for group in plan {
+            let mut part: Vec<Member<'_>> = group.iter().filter_map(|&i| slots[i].take()).collect();
+            let part_blocks: Vec<Array2<f32>> = if one {
+                std::mem::take(&mut blocks)
+            } else {
+                group.iter().map(|&i| blocks[i].clone()).collect()
+            };
+            match c.step(p, &mut part, &part_blocks) {
+                Ok(steps) => {
+                    for (&i, st) in group.iter().zip(steps) {
+                        results[i] = Some(Ok(st));
+                    }
+                }
+                Err(e) => {
+                    let msg = format!("{e:#}");
+                    for &i in &group {
+                        results[i] = Some(Err(msg.clone()));
+                    }
                 }
             }
-            Err(e) => {
-                let msg = format!("{e:#}");
-                for k in owners {
-                    mine[k].failed = Some(msg.clone());
-                }
+        }
+        drop(slots);
+        for (k, r) in owners.into_iter().zip(results) {
+            match r {
+                Some(Ok(st)) => mine[k].steps.push(st),
+                Some(Err(msg)) => mine[k].failed = Some(msg),
+                None => mine[k].failed = Some("a stream was left out of its step".into()),
             }
         }
     }
