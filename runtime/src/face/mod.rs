@@ -299,67 +299,18 @@ impl FaceGraph {
         self.frontend.frames_per_token as usize
     }
 
-    /// One token of several streams in one graph run: `mels[i]` (M, n_mels) row-major and
-    /// `caches[i]` (replaced by the new ones) of stream i -> each stream's token's frames' (visemes,
-    /// arkit_mouth). One stream runs as [`FaceGraph::step`] does; a server's streams share one run
-    /// instead of one run each (the graph's ~160 nodes cost about as much for one row as for 64).
-    fn step_many(
+    /// One token of one stream: `mel` (M, n_mels) row-major and the stream's caches (replaced by the new
+    /// ones) -> the token's frames' (visemes, arkit_mouth).
+    fn step(
         &self,
-        mels: Vec<Vec<f32>>,
-        caches: &mut [&mut Vec<Tensor>],
-    ) -> Result<Vec<Vec<FaceOut>>> {
-        let n = mels.len();
-        ensure!(
-            n == caches.len(),
-            "face: {n} mel blocks for {} streams",
-            caches.len()
-        );
-        if n == 1 {
-            let mel = mels.into_iter().next().unwrap_or_default();
-            return Ok(vec![self.step(mel, caches[0])?]);
-        }
+        mel: Vec<f32>,
+        caches: &mut Vec<Tensor>,
+    ) -> Result<Vec<([f32; VISEME_DIM], [f32; ARKIT_DIM])>> {
         let m = self.frontend.mel_frames_per_token as usize;
         let n_mels = self.frontend.n_mels;
-        let mut inputs = Vec::with_capacity(1 + self.spec.caches.len());
-        inputs.push(Tensor::f32(vec![n, m, n_mels], mels.concat())?);
-        for c in 0..self.spec.caches.len() {
-            let parts: Vec<&Tensor> = caches
-                .iter()
-                .map(|cs| {
-                    cs.get(c).ok_or_else(|| {
-                        anyhow!(
-                            "face: a stream with {} caches, expected {}",
-                            cs.len(),
-                            self.spec.caches.len()
-                        )
-                    })
-                })
-                .collect::<Result<_>>()?;
-            let mut stacked = Tensor::f32(vec![0], Vec::new())?;
-            stacked.stack_from(&parts)?;
-            inputs.push(stacked);
-        }
+        let mut inputs = vec![Tensor::f32(vec![1, m, n_mels], mel)?];
+        inputs.append(caches);
         let out = self.runner.run(&inputs)?;
-        self.check_outputs(&out, n)?;
-        let f = self.frames_per_token();
-        let vis = out[0].as_f32("face visemes")?;
-        let ark = out[1].as_f32("face arkit_mouth")?;
-        let mut res = Vec::with_capacity(n);
-        for (i, cs) in caches.iter_mut().enumerate() {
-            for (c, t) in cs.iter_mut().enumerate() {
-                *t = out[2 + c].rows(i, 1)?;
-            }
-            res.push(split_frames(
-                &vis[i * f * VISEME_DIM..(i + 1) * f * VISEME_DIM],
-                &ark[i * f * ARKIT_DIM..(i + 1) * f * ARKIT_DIM],
-                f,
-            ));
-        }
-        Ok(res)
-    }
-
-    /// `out` is the graph's outputs for `rows` streams: visemes, arkit_mouth and the caches.
-    fn check_outputs(&self, out: &[Tensor], rows: usize) -> Result<()> {
         ensure!(
             out.len() == 2 + self.spec.caches.len(),
             "face graph '{}': {} outputs, expected {}",
@@ -367,64 +318,29 @@ impl FaceGraph {
             out.len(),
             2 + self.spec.caches.len()
         );
+        *caches = out[2..].to_vec();
         let f = self.frames_per_token();
-        let (vis, ark) = (
-            out[0].as_f32("face visemes")?,
-            out[1].as_f32("face arkit_mouth")?,
-        );
+        let vis = out[0].as_f32("face visemes")?;
+        let ark = out[1].as_f32("face arkit_mouth")?;
         ensure!(
-            vis.len() == rows * f * VISEME_DIM && ark.len() == rows * f * ARKIT_DIM,
-            "face graph '{}': outputs of {} and {} values for {rows} streams, expected {} and {}",
+            vis.len() == f * VISEME_DIM && ark.len() == f * ARKIT_DIM,
+            "face graph '{}': outputs of {} and {} values, expected {} and {}",
             self.spec.name,
             vis.len(),
             ark.len(),
-            rows * f * VISEME_DIM,
-            rows * f * ARKIT_DIM
+            f * VISEME_DIM,
+            f * ARKIT_DIM
         );
-        for t in &out[2..] {
-            ensure!(
-                t.batch() == rows,
-                "face graph '{}': a cache output of {} rows for {rows} streams",
-                self.spec.name,
-                t.batch()
-            );
-        }
-        Ok(())
+        Ok((0..f)
+            .map(|j| {
+                let mut v = [0f32; VISEME_DIM];
+                v.copy_from_slice(&vis[j * VISEME_DIM..(j + 1) * VISEME_DIM]);
+                let mut a = [0f32; ARKIT_DIM];
+                a.copy_from_slice(&ark[j * ARKIT_DIM..(j + 1) * ARKIT_DIM]);
+                (v, a)
+            })
+            .collect())
     }
-
-    /// One token of one stream: `mel` (M, n_mels) row-major and the stream's caches (replaced by the new
-    /// ones) -> the token's frames' (visemes, arkit_mouth).
-    fn step(&self, mel: Vec<f32>, caches: &mut Vec<Tensor>) -> Result<Vec<FaceOut>> {
-        let m = self.frontend.mel_frames_per_token as usize;
-        let n_mels = self.frontend.n_mels;
-        let mut inputs = vec![Tensor::f32(vec![1, m, n_mels], mel)?];
-        inputs.append(caches);
-        let mut out = self.runner.run(&inputs)?;
-        self.check_outputs(&out, 1)?;
-        let res = split_frames(
-            out[0].as_f32("face visemes")?,
-            out[1].as_f32("face arkit_mouth")?,
-            self.frames_per_token(),
-        );
-        *caches = out.split_off(2);
-        Ok(res)
-    }
-}
-
-/// One frame's face graph outputs: (visemes, arkit_mouth).
-type FaceOut = ([f32; VISEME_DIM], [f32; ARKIT_DIM]);
-
-/// One stream's token of `f` frames, from its rows of the graph's outputs.
-fn split_frames(vis: &[f32], ark: &[f32], f: usize) -> Vec<FaceOut> {
-    (0..f)
-        .map(|j| {
-            let mut v = [0f32; VISEME_DIM];
-            v.copy_from_slice(&vis[j * VISEME_DIM..(j + 1) * VISEME_DIM]);
-            let mut a = [0f32; ARKIT_DIM];
-            a.copy_from_slice(&ark[j * ARKIT_DIM..(j + 1) * ARKIT_DIM]);
-            (v, a)
-        })
-        .collect()
 }
 
 /// One stream's face state (see the module docs).
@@ -464,36 +380,20 @@ impl FaceStream {
 
     /// Pushes 16 kHz samples (the same the body gets); computes the face of every token they complete.
     pub fn push(&mut self, samples: &[f32]) -> Result<()> {
-        for mel in self.mels(samples)? {
-            let out = self.graph.step(mel, &mut self.caches)?;
-            self.take(out);
+        for tok in self.mel.push(samples)? {
+            let mel = tok.iter().copied().collect();
+            for (vis, mut arkit) in self.graph.step(mel, &mut self.caches)? {
+                let w = self.blink.next_weight();
+                for &i in &BLINK_SHAPES {
+                    arkit[i] = arkit[i].max(w).clamp(0.0, 1.0);
+                }
+                self.pending.push_back(FaceValues {
+                    arkit,
+                    visemes: vis,
+                });
+            }
         }
         Ok(())
-    }
-
-    /// Pushes 16 kHz samples into the frontend: the log-mel blocks of the tokens they complete, for
-    /// the graph (then [`FaceStream::take`] each token's outputs, in order).
-    fn mels(&mut self, samples: &[f32]) -> Result<Vec<Vec<f32>>> {
-        Ok(self
-            .mel
-            .push(samples)?
-            .into_iter()
-            .map(|tok| tok.iter().copied().collect())
-            .collect())
-    }
-
-    /// Keeps one token's graph outputs, with the blinks, for its frames.
-    fn take(&mut self, out: Vec<FaceOut>) {
-        for (vis, mut arkit) in out {
-            let w = self.blink.next_weight();
-            for &i in &BLINK_SHAPES {
-                arkit[i] = arkit[i].max(w).clamp(0.0, 1.0);
-            }
-            self.pending.push_back(FaceValues {
-                arkit,
-                visemes: vis,
-            });
-        }
     }
 
     /// Sets `frames`' face (consecutive indices, each at or after the last one attached). At the end of a
@@ -595,10 +495,7 @@ impl MotionModel for FacedModel {
         }))
     }
     fn prepare_batches(&self, max_streams: usize) -> Result<()> {
-        self.inner.prepare_batches(max_streams)?;
-        // the face runs the streams of a step in one batch too
-        let sizes: Vec<usize> = (1..=max_streams.max(1)).collect();
-        self.graph.runner.prepare_batches(&sizes)
+        self.inner.prepare_batches(max_streams)
     }
     fn streams_regrouped(&self) -> u64 {
         self.inner.streams_regrouped()
@@ -631,60 +528,13 @@ impl MotionModel for FacedModel {
         }
         let results = self.inner.step_many(&mut inner_jobs);
         drop(inner_jobs);
-        // every stream's face tokens, token by token: one graph run per round for the streams that
-        // have one more
-        let mut results: Vec<Result<Vec<Frame>>> = results;
-        let mut mels: Vec<VecDeque<Vec<f32>>> = Vec::with_capacity(faces.len());
-        for ((r, face), (audio, _)) in results.iter_mut().zip(faces.iter_mut()).zip(&meta) {
-            match (r.is_ok(), face.mels(audio)) {
-                (true, Ok(m)) => mels.push(m.into()),
-                (true, Err(e)) => {
-                    *r = Err(e);
-                    mels.push(VecDeque::new());
-                }
-                (false, _) => mels.push(VecDeque::new()),
-            }
-        }
-        loop {
-            let who: Vec<usize> = (0..faces.len()).filter(|&i| !mels[i].is_empty()).collect();
-            if who.is_empty() {
-                break;
-            }
-            let blocks: Vec<Vec<f32>> = who.iter().filter_map(|&i| mels[i].pop_front()).collect();
-            let stepped = {
-                let mut caches: Vec<&mut Vec<Tensor>> = Vec::with_capacity(who.len());
-                let mut rest = faces.iter_mut().enumerate();
-                for &i in &who {
-                    for (j, f) in rest.by_ref() {
-                        if j == i {
-                            caches.push(&mut f.caches);
-                            break;
-                        }
-                    }
-                }
-                self.graph.step_many(blocks, &mut caches)
-            };
-            match stepped {
-                Ok(outs) => {
-                    for (&i, out) in who.iter().zip(outs) {
-                        faces[i].take(out);
-                    }
-                }
-                Err(e) => {
-                    let msg = format!("{e:#}");
-                    for &i in &who {
-                        results[i] = Err(anyhow!("{msg}"));
-                        mels[i].clear();
-                    }
-                }
-            }
-        }
         results
             .into_iter()
             .zip(faces)
             .zip(meta)
-            .map(|((r, face), (_, end))| {
+            .map(|((r, face), (audio, end))| {
                 let mut frames = r?;
+                face.push(audio)?;
                 face.attach(&mut frames, end)?;
                 Ok(frames)
             })
