@@ -27,6 +27,14 @@ use super::{LiveGestureGraphs, Stream, TokenStep};
 /// from about 12 streams.
 pub(super) const MIN_APART: usize = 12;
 
+/// The most streams stepped in one graph run ([`Cohorts::plan`] splits larger groups evenly). A
+/// server's slots step about a quarter of its sessions each, so this binds only when a server falls
+/// behind or a crowd of new sessions arrives at once: then one cohort of every session (96 on one core,
+/// 2026-11-28) stepped at about 1.9 ms per session where slots of 16-20 took about 1.4 (the stacked
+/// caches of 96 streams, 167 MB, are far from the core's caches), and stayed merged, since all its
+/// streams were due together from then on.
+pub(super) const MAX_STEP: usize = 32;
+
 /// Caches of streams stepped together, stacked in member order.
 #[derive(Debug)]
 struct Cohort {
@@ -174,13 +182,29 @@ impl Cohorts {
     /// `keys`): each cohort of at least [`MIN_APART`] streams whose streams are all in `keys` is a
     /// group of its own (stepped as it is, nothing copied), and the other streams one more group
     /// (gathered by [`Cohorts::step`]), or part of the largest group when they are fewer than
-    /// [`MIN_APART`]. One group (all of `keys`) when nothing is apart.
+    /// [`MIN_APART`]. One group (all of `keys`) when nothing is apart. A group of more than
+    /// [`MAX_STEP`] streams is split evenly into groups of at most that many.
     ///
     /// A server behind its tick grid steps the sessions of several slots at once; gathering them in
     /// one cohort copied every one of them (and again when their slots step apart next time):
     /// measured at 72 sessions on one core, steps of 72 sessions took 150-180 ms where steps of 18
     /// took 25 ms, and the server never caught up.
     pub(super) fn plan(&self, keys: &[u64]) -> Vec<Vec<usize>> {
+        let groups = self.plan_apart(keys);
+        if groups.iter().all(|g| g.len() <= MAX_STEP) {
+            return groups;
+        }
+        let mut out = Vec::new();
+        for g in groups {
+            let parts = g.len().div_ceil(MAX_STEP);
+            let size = g.len().div_ceil(parts);
+            out.extend(g.chunks(size).map(<[usize]>::to_vec));
+        }
+        out
+    }
+
+    /// [`Cohorts::plan`] before groups are cut to [`MAX_STEP`].
+    fn plan_apart(&self, keys: &[u64]) -> Vec<Vec<usize>> {
         let n = keys.len();
         if n < 2 * MIN_APART {
             return vec![(0..n).collect()];
@@ -481,11 +505,31 @@ mod tests {
         // fewer than two cohorts' worth: one group
         assert_eq!(plan(&c, &a), vec![a.clone()]);
         // many streams of no cohort (new sessions): one group
-        let fresh: Vec<u64> = (100..140).collect();
+        let fresh: Vec<u64> = (100..130).collect();
         assert_eq!(plan(&c, &fresh), vec![fresh.clone()]);
         // a whole cohort and as many new streams: apart
         let mut mixed = fresh[..12].to_vec();
         mixed.extend(&a);
         assert_eq!(plan(&c, &mixed), vec![a.clone(), fresh[..12].to_vec()]);
+    }
+
+    #[test]
+    fn no_step_runs_more_than_max_step_streams() {
+        assert_eq!(MAX_STEP, 32);
+        let c = cohorts(&[1..=40]);
+        // a crowd of 86 new streams: three steps of 29, 29 and 28
+        let fresh: Vec<u64> = (100..186).collect();
+        let p = plan(&c, &fresh);
+        assert_eq!(p.iter().map(Vec::len).collect::<Vec<_>>(), vec![29, 29, 28]);
+        assert_eq!(p.concat(), fresh);
+        // a whole cohort of 40 (merged earlier): two steps of 20
+        let all: Vec<u64> = (1..=40).collect();
+        assert_eq!(
+            plan(&c, &all),
+            vec![(1..=20).collect::<Vec<_>>(), (21..=40).collect()]
+        );
+        // 32 stay one step
+        let some: Vec<u64> = (100..132).collect();
+        assert_eq!(plan(&c, &some), vec![some.clone()]);
     }
 }
