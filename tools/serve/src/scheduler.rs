@@ -31,7 +31,7 @@
 //! [`AudioSpan::frames`] frames), then `done` is sent. On shutdown ([`Cmd::Drain`]) the units whose
 //! audio has arrived are stepped, a partial one is not, and the session is closed with 1001.
 //!
-//! From [`COALESCE_FROM`] sessions on, the thread wakes only at the grid's points and takes the
+//! From `COALESCE_FROM` (16) sessions on, the thread wakes only at the grid's points and takes the
 //! messages that arrived since the last one together (each message used to wake it: thousands of
 //! thread switches per second at 64 sessions); what steps when is unchanged, as a due session steps
 //! at its grid point anyway. A join or a shutdown then waits for the next point (at most a slot).
