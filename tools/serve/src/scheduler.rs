@@ -207,6 +207,17 @@ impl BatchScheduler {
         Some((t0, all))
     }
 
+    /// Handles every command already queued; false once every sender is gone.
+    fn drain(&mut self, rx: &mut mpsc::Receiver<Cmd>) -> bool {
+        loop {
+            match rx.try_recv() {
+                Ok(c) => self.handle(c),
+                Err(mpsc::error::TryRecvError::Empty) => return true,
+                Err(mpsc::error::TryRecvError::Disconnected) => return false,
+            }
+        }
+    }
+
     /// Whether the thread wakes only at the grid's points (from [`COALESCE_FROM`] sessions on).
     fn coalesce(&self) -> bool {
         !self.slot.is_zero() && self.sessions.len() >= COALESCE_FROM
@@ -231,18 +242,20 @@ impl BatchScheduler {
         };
         loop {
             if self.coalesce() {
-                // many sessions: wake at the grid's points, not for every message (module docs)
+                // many sessions: wake at the grid's points, not for every message (module docs).
+                // What arrived during the last step first: a session it made due may be due now
+                // (sleeping to the next point with it unseen let a server behind its grid step
+                // every session in one long step per token, measured on tract at 32 sessions)
+                if !self.drain(&mut rx) {
+                    return;
+                }
                 let now = Instant::now();
                 let next = grid_after(self.epoch, self.slot, now);
                 let wake = self.due().map_or(next, |(d, _)| d.min(next));
                 if wake > now {
                     std::thread::sleep(wake - now);
-                }
-                loop {
-                    match rx.try_recv() {
-                        Ok(c) => self.handle(c),
-                        Err(mpsc::error::TryRecvError::Empty) => break,
-                        Err(mpsc::error::TryRecvError::Disconnected) => return,
+                    if !self.drain(&mut rx) {
+                        return;
                     }
                 }
                 if let Some((deadline, all_due)) = self.due() {
