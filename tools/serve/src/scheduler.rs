@@ -23,6 +23,9 @@
 //! on the later side of its jitter and stays. A session due two or more slots from home (a client
 //! that paused, or caught up) takes the slot it is due in. A tick steps the sessions whose slot has
 //! come (or every due one when all are due): one due after the tick's grid point waits for its own.
+//! A tick steps at most as many sessions as take about one and a half slots (the cost per session
+//! measured on the last steps); the others stay due and step right after, so a server behind its
+//! grid does not fall into one long step of every session per token.
 //! A session's frames are therefore those it gets on its own: a stream is chunk-size invariant, and
 //! batching changes only the backend's rounding (docs/parity.md).
 //!
@@ -64,6 +67,9 @@ use super::protocol::{CLOSE_GOING_AWAY, CLOSE_INTERNAL, CLOSE_POLICY};
 /// threads on a core the graphs need). Below it a due session still steps at once when every
 /// session is due (a lone user waits for no grid point).
 const COALESCE_FROM: usize = 16;
+
+/// The fewest sessions a tick's cap ([`BatchScheduler::tick_cap`]) allows.
+const MIN_TICK: usize = 8;
 
 /// Scheduler settings.
 #[derive(Debug, Clone)]
@@ -169,6 +175,8 @@ pub struct BatchScheduler {
     slot: Duration,
     /// Slots per token: grid point `k` is slot `k % slots_per_token` of its token.
     slots_per_token: u64,
+    /// A step's time per session (seconds; moving average of steps of at least 4 sessions).
+    step_per_session: Option<f64>,
 }
 
 impl BatchScheduler {
@@ -185,6 +193,7 @@ impl BatchScheduler {
             sessions: HashMap::new(),
             metrics,
             slots_per_token: slots_per_token(&frontend, slot),
+            step_per_session: None,
             slot,
             frontend,
             epoch: Instant::now(),
@@ -215,6 +224,20 @@ impl BatchScheduler {
                 Err(mpsc::error::TryRecvError::Empty) => return true,
                 Err(mpsc::error::TryRecvError::Disconnected) => return false,
             }
+        }
+    }
+
+    /// The most sessions one tick steps: as many as take about one and a half slots at the measured
+    /// cost per session (at least [`MIN_TICK`]; no bound without a grid or before a measurement).
+    /// A server behind its grid would otherwise step every due session in one long step, and keep
+    /// doing so, all its sessions then being due together: measured on tract at 32 sessions, one step
+    /// of 120 ms per token, every frame waiting for it.
+    fn tick_cap(&self) -> usize {
+        match self.step_per_session {
+            Some(per) if !self.slot.is_zero() && per > 0.0 => {
+                ((1.5 * self.slot.as_secs_f64() / per) as usize).max(MIN_TICK)
+            }
+            _ => usize::MAX,
         }
     }
 
@@ -454,17 +477,27 @@ impl BatchScheduler {
     fn tick(&mut self, deadline: Instant, all: bool) {
         let now = Instant::now();
         let (epoch, slot, n) = (self.epoch, self.slot, self.slots_per_token);
+        // the sessions whose slot has come, the earliest first, at most `tick_cap` of them: the
+        // others stay due and step right after (their frames do not wait for one long step)
+        let mut ready: Vec<(Instant, u64)> = self
+            .sessions
+            .iter()
+            .filter(|(_, s)| !s.dead && s.due_since.is_some())
+            .map(|(sid, s)| (s.deadline.unwrap_or(now), *sid))
+            .filter(|(at, _)| all || *at <= now)
+            .collect();
+        ready.sort_unstable();
+        ready.truncate(self.tick_cap());
+        let mut chosen: Vec<u64> = ready.iter().map(|r| r.1).collect();
+        chosen.sort_unstable();
         let mut sids = Vec::new();
         let mut jobs = Vec::new();
         let mut homes = Vec::new();
         for (sid, s) in self.sessions.iter_mut() {
-            if s.dead || s.due_since.is_none() {
+            if chosen.binary_search(sid).is_err() {
                 continue;
             }
             let at = s.deadline.unwrap_or(now);
-            if !all && at > now {
-                continue;
-            }
             homes.push(slot_index(epoch, slot, n, at));
             sids.push((
                 *sid,
@@ -505,6 +538,11 @@ impl BatchScheduler {
             let _ = tr.out.flush();
         }
         self.metrics.step_seconds.observe((done - t0).as_secs_f64());
+        if sids.len() >= 4 {
+            let per = (done - t0).as_secs_f64() / sids.len() as f64;
+            self.step_per_session =
+                Some(self.step_per_session.map_or(per, |e| 0.9 * e + 0.1 * per));
+        }
         self.metrics.steps_total.fetch_add(1, Ordering::Relaxed);
         self.metrics.batch_size.observe(sids.len() as f64);
         self.metrics
