@@ -17,7 +17,7 @@
 //! arrival: with 20 ms messages the audio completing a token arrives 0 to 13.3 ms after the token's
 //! end, so a session whose phase lies near a slot boundary would fall on either side of it, token
 //! by token, and each change of company copies its caches (1.7 MB for `models/default`) between
-//! cohorts (measured: 11 % of a server's CPU at 48 sessions, docs/serve.md#the-tick-grid). A
+//! cohorts (measured: 11 % of a server's CPU at 48 sessions, docs/serve.md#capacity-per-core). A
 //! session due one slot *before* its home therefore waits for its home slot (at most one slot
 //! more); one due later moves its home there (it cannot step earlier), so a session's home settles
 //! on the later side of its jitter and stays. A session due two or more slots from home (a client
@@ -249,9 +249,14 @@ impl BatchScheduler {
         !self.slot.is_zero() && self.sessions.len() >= COALESCE_FROM
     }
 
-    /// The grid point a session due at `at` steps at, given its home slot (see the module docs).
-    fn deadline_for(&self, at: Instant, home: Option<u64>) -> Instant {
-        slot_deadline(self.epoch, self.slot, self.slots_per_token, at, home)
+    /// Makes a session due since `at`: it steps at the grid point of its slot given its home slot
+    /// (`home`; none: the slot it is due in; see the module docs).
+    fn make_due(&mut self, sid: u64, at: Instant, home: Option<u64>) {
+        let deadline = slot_deadline(self.epoch, self.slot, self.slots_per_token, at, home);
+        if let Some(s) = self.sessions.get_mut(&sid) {
+            s.due_since = Some(at);
+            s.deadline = Some(deadline);
+        }
     }
 
     /// Runs until every command sender is dropped.
@@ -437,10 +442,7 @@ impl BatchScheduler {
             s.held.extend_from_slice(&samples);
             if s.due_since.is_none() {
                 let home = s.home;
-                let deadline = self.deadline_for(at, home);
-                let s = self.sessions.get_mut(&sid).expect("looked up above");
-                s.due_since = Some(at);
-                s.deadline = Some(deadline);
+                self.make_due(sid, at, home);
             }
         }
     }
@@ -455,11 +457,7 @@ impl BatchScheduler {
         s.end = Some(input);
         if s.due_since.is_none() {
             // the end steps in the slot it arrives in (no company to keep after it)
-            let now = Instant::now();
-            let deadline = self.deadline_for(now, None);
-            let s = self.sessions.get_mut(&sid).expect("looked up above");
-            s.due_since = Some(now);
-            s.deadline = Some(deadline);
+            self.make_due(sid, Instant::now(), None);
         }
     }
 

@@ -356,24 +356,19 @@ impl Cohorts {
         let g = match best {
             Some((n, g)) if n > 0 && keep(n, g) <= members.len() => {
                 // its other streams move to a cohort of their own
-                let others: Vec<u64> = self.groups[g]
+                // (key, branch rows) of each
+                let others: Vec<(u64, usize)> = self.groups[g]
                     .keys
                     .iter()
                     .copied()
-                    .filter(|&k| !is_member(k))
+                    .zip(self.groups[g].branch.iter().copied())
+                    .filter(|&(k, _)| !is_member(k))
                     .collect();
                 if !others.is_empty() {
                     let mut rest = Cohort::new(&self.empty);
-                    let c = &self.groups[g];
-                    let branch_rows = c
-                        .keys
-                        .iter()
-                        .zip(&c.branch)
-                        .filter(|(k, _)| !is_member(**k))
-                        .map(|(_, b)| b)
-                        .sum();
+                    let branch_rows = others.iter().map(|&(_, b)| b).sum();
                     rest.caches.reserve(others.len(), branch_rows);
-                    for k in others {
+                    for (k, _) in others {
                         let c = &mut self.groups[g];
                         let i = c.position(k).ok_or_else(|| anyhow!("lost stream {k}"))?;
                         c.move_to(i, &mut rest, &self.empty)?;

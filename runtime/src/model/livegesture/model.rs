@@ -290,17 +290,14 @@ fn step_rounds(p: &LiveGestureGraphs, c: &mut Cohorts, mine: &mut [Pending<'_>])
         // whole cohorts step apart (`Cohorts::plan`); usually one group
         let keys: Vec<u64> = members.iter().map(|m| m.key).collect();
         let plan = c.plan(&keys);
-        let one = plan.len() == 1;
+        let mut blocks: Vec<Option<Array2<f32>>> = blocks.into_iter().map(Some).collect();
         let mut results: Vec<Option<Result<TokenStep, String>>> =
             (0..members.len()).map(|_| None).collect();
         let mut slots: Vec<Option<Member<'_>>> = members.into_iter().map(Some).collect();
         for group in plan {
             let mut part: Vec<Member<'_>> = group.iter().filter_map(|&i| slots[i].take()).collect();
-            let part_blocks: Vec<Array2<f32>> = if one {
-                std::mem::take(&mut blocks)
-            } else {
-                group.iter().map(|&i| blocks[i].clone()).collect()
-            };
+            let part_blocks: Vec<Array2<f32>> =
+                group.iter().filter_map(|&i| blocks[i].take()).collect();
             match c.step(p, &mut part, &part_blocks) {
                 Ok(steps) => {
                     for (&i, st) in group.iter().zip(steps) {
