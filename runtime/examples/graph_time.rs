@@ -1,6 +1,10 @@
 //! Times one graph of a bundle in a tight loop (pseudo-random data inputs, caches fed back), for profiling a
 //! backend; `THRASH_MB=n` reads n MiB of other memory between runs, as the other graphs of a step do.
 //!   cargo run --release --example graph_time -- models/default expert_upper 2 ort
+//! `SYMBOLIC=1`: tract runs the plan with the batch left symbolic (what `serve` runs for more than
+//! two rows and no prepared plan of its row count) instead of a plan optimised for this batch.
+//! `PREPARED=1`: as `serve` prepares it (tract: the plan of the next row count of
+//! [`livegesture::backend::tract::TRACT_ROW_BUCKETS`], the run padded to it).
 //! Prints the median wall time and the median CPU time of the calling thread per run (one intra-op
 //! thread: all of the run), which a shared core's preemptions do not inflate.
 use std::time::Instant;
@@ -23,6 +27,11 @@ fn main() -> anyhow::Result<()> {
         ..Default::default()
     })?;
     let g = be.load(&spec, &bundle.graph_path(&spec))?;
+    if std::env::var_os("SYMBOLIC").is_some() {
+        g.prepare_batches(&[])?;
+    } else if std::env::var_os("PREPARED").is_some() {
+        g.prepare_batches(&[batch])?;
+    }
     let mut inputs: Vec<Tensor> = spec
         .all_inputs()
         .iter()

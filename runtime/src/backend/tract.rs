@@ -23,7 +23,7 @@ use super::pool::Pool;
 use super::{
     check_inputs, check_outputs, Backend, DType, GraphRunner, Tensor as LgTensor, TensorData,
 };
-use crate::bundle::GraphSpec;
+use crate::bundle::{Dim, GraphSpec};
 
 /// The tract backend.
 #[derive(Debug, Default, Clone)]
@@ -59,12 +59,23 @@ impl Backend for TractBackend {
     }
 }
 
-/// Batch sizes (rows) up to which [`GraphRunner::prepare_batches`] optimises a plan per size;
-/// larger ones run on one plan with the batch left symbolic. A per-size plan runs 10-20% faster than
-/// the symbolic one at 8-64 rows, but holds its own packed weights (the default bundle: about 34 MiB
-/// per size) and takes 0.1-0.2 s to optimise: one per size up to 64 sessions would be 2 GiB. One
-/// stream alone (1 row, 2 with guidance) keeps its per-size plans.
-pub const TRACT_PREPARED_ROWS: usize = 2;
+/// Row counts that get a plan of their own once [`GraphRunner::prepare_batches`] has run: a step of
+/// another row count (a graph whose only symbol is the batch, every batched input and output with
+/// the batch first) runs on the plan of the next larger count, its inputs padded with copies of
+/// their last row and its outputs cut back to its own rows (rows are independent in every step
+/// graph, so a padded run returns the same rows as a plan of that exact size, up to float rounding).
+/// A plan optimised for a size runs the default bundle's graphs at 0.48-0.60x the time of the plan
+/// with the batch left symbolic at 16 and 32 rows (`SYMBOLIC=1 graph_time`, BENCHMARKS.md), which
+/// cannot pick tract's unicast elementwise kernels; each plan holds its own packed weights (about
+/// 34 MiB for the default bundle's graphs), so the ladder grows by about 1.5x per step: a padded
+/// run does at most 50 % more rows (a third at and above 4 rows), on average about 15 %.
+/// Larger row counts run on the symbolic plan.
+pub const TRACT_ROW_BUCKETS: &[usize] = &[1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64];
+
+/// The smallest row count of [`TRACT_ROW_BUCKETS`] that holds `rows`.
+pub fn row_bucket(rows: usize) -> Option<usize> {
+    TRACT_ROW_BUCKETS.iter().copied().find(|&b| b >= rows)
+}
 
 /// A graph loaded with tract.
 pub struct TractGraph {
@@ -79,6 +90,12 @@ pub struct TractGraph {
     /// After [`GraphRunner::prepare_batches`]: one plan with every symbol left symbolic (sizes
     /// resolved at run time), for the sizes without a plan of their own: no new plan is built.
     symbolic: Mutex<Option<Arc<Plan>>>,
+    /// True when the only symbol is the batch and every input and output that has it has it first:
+    /// a run may then be padded to the row count of a prepared plan ([`TRACT_ROW_BUCKETS`]).
+    paddable: bool,
+    /// The input and output positions whose first axis is the batch (when `paddable`).
+    batched_inputs: Vec<bool>,
+    batched_outputs: Vec<bool>,
 }
 
 /// An optimised plan (immutable, shared by every run) and its idle run states.
@@ -125,6 +142,13 @@ impl TractGraph {
         Self::from_inference(spec, path, model)
     }
 
+    /// The row counts (the sizes of each symbol) that have a plan optimised for them, smallest first.
+    pub fn plan_sizes(&self) -> Vec<Vec<usize>> {
+        let mut k: Vec<Vec<usize>> = lock(&self.plans).keys().cloned().collect();
+        k.sort();
+        k
+    }
+
     /// Parses and declutters the ONNX file's `bytes` (`path` names it in messages).
     pub fn load_bytes(spec: &GraphSpec, path: &Path, bytes: &[u8]) -> Result<Self> {
         let what = || {
@@ -164,13 +188,36 @@ impl TractGraph {
                 }
             }
         }
+        let leading = |shapes: Vec<(&str, DType, &[Dim])>| -> Option<Vec<bool>> {
+            shapes
+                .iter()
+                .map(|(_, _, shape)| {
+                    let at: Vec<usize> = (0..shape.len())
+                        .filter(|&a| shape[a] == Dim::Batch)
+                        .collect();
+                    match at.as_slice() {
+                        [] => Some(false),
+                        [0] => Some(true),
+                        _ => None,
+                    }
+                })
+                .collect()
+        };
+        let (batched_inputs, batched_outputs) =
+            match (leading(spec.all_inputs()), leading(spec.all_outputs())) {
+                (Some(i), Some(o)) if symbols.len() == 1 => (i, o),
+                _ => (Vec::new(), Vec::new()),
+            };
         Ok(Self {
             spec: spec.clone(),
             path: path.display().to_string(),
             typed,
+            paddable: !batched_inputs.is_empty(),
             symbols,
             plans: Mutex::default(),
             symbolic: Mutex::default(),
+            batched_inputs,
+            batched_outputs,
         })
     }
 
@@ -214,19 +261,55 @@ impl TractGraph {
         Ok(Plan::new(plan))
     }
 
-    /// The plan for the sizes of `inputs`: its own, else the symbolic one once prepared, else one
-    /// optimised now (outside the table's lock; a plan built by two threads at once is kept once).
-    fn plan_for(&self, inputs: &[LgTensor]) -> Result<Arc<Plan>> {
+    /// The plan for the sizes of `inputs` and the row count it runs: its own size's plan, else
+    /// (once prepared) the plan of the next prepared row count ([`TRACT_ROW_BUCKETS`]; the run is
+    /// padded to it), else the symbolic one once prepared, else one optimised now (outside the
+    /// table's lock; a plan built by two threads at once is kept once).
+    fn plan_for(&self, inputs: &[LgTensor], batch: usize) -> Result<(Arc<Plan>, usize)> {
         let key = self.key_of(inputs);
         if let Some(p) = lock(&self.plans).get(&key) {
-            return Ok(Arc::clone(p));
+            return Ok((Arc::clone(p), batch));
         }
         if let Some(p) = lock(&self.symbolic).as_ref() {
-            return Ok(Arc::clone(p));
+            let padded = self.paddable.then(|| row_bucket(batch)).flatten();
+            if let Some(rows) = padded {
+                if let Some(b) = lock(&self.plans).get(&vec![rows]) {
+                    return Ok((Arc::clone(b), rows));
+                }
+            }
+            return Ok((Arc::clone(p), batch));
         }
         let built = Arc::new(self.build(&key)?);
-        Ok(Arc::clone(lock(&self.plans).entry(key).or_insert(built)))
+        Ok((
+            Arc::clone(lock(&self.plans).entry(key).or_insert(built)),
+            batch,
+        ))
     }
+}
+
+/// `t` as a tract tensor of `rows` rows (its batch axis first): the missing rows are copies of its
+/// last row.
+fn to_tract_padded(t: &LgTensor, rows: usize) -> Result<TValue> {
+    let (have, row) = (t.batch(), t.row_len());
+    if rows == have || have == 0 {
+        return to_tract(t);
+    }
+    let mut shape = t.shape.clone();
+    shape[0] = rows;
+    fn pad<T: Copy>(v: &[T], row: usize, rows: usize) -> Vec<T> {
+        let mut out = Vec::with_capacity(rows * row);
+        out.extend_from_slice(v);
+        let last = &v[v.len() - row..];
+        while out.len() < rows * row {
+            out.extend_from_slice(last);
+        }
+        out
+    }
+    let tensor = match &t.data {
+        TensorData::F32(v) => tract_onnx::prelude::Tensor::from_shape(&shape, &pad(v, row, rows))?,
+        TensorData::I64(v) => tract_onnx::prelude::Tensor::from_shape(&shape, &pad(v, row, rows))?,
+    };
+    Ok(tensor.into())
 }
 
 fn to_tract(t: &LgTensor) -> Result<TValue> {
@@ -237,28 +320,36 @@ fn to_tract(t: &LgTensor) -> Result<TValue> {
     Ok(tensor.into())
 }
 
-fn from_tract(v: &TValue, want: DType, what: &str) -> Result<LgTensor> {
-    let shape = v.shape().to_vec();
+/// The tract value `v` as a tensor of dtype `want`; with `rows`, only its first `rows` rows (a padded
+/// run's own rows; the batch axis first).
+fn from_tract(v: &TValue, want: DType, what: &str, rows: Option<usize>) -> Result<LgTensor> {
+    let mut shape = v.shape().to_vec();
+    let keep = match rows {
+        Some(r) if shape.first().is_some_and(|&b| b > r) => {
+            let row: usize = shape[1..].iter().product();
+            shape[0] = r;
+            Some(r * row)
+        }
+        _ => None,
+    };
+    fn take<T: Datum + Copy>(
+        v: &TValue,
+        what: &str,
+        kind: &str,
+        keep: Option<usize>,
+    ) -> Result<Vec<T>> {
+        let a = v
+            .to_plain_array_view::<T>()
+            .with_context(|| format!("{what}: expected {kind}"))?;
+        // a contiguous view (the usual case) is one memcpy, not an element iterator
+        Ok(match a.as_slice() {
+            Some(s) => s[..keep.unwrap_or(s.len())].to_vec(),
+            None => a.iter().copied().take(keep.unwrap_or(usize::MAX)).collect(),
+        })
+    }
     match want {
-        DType::F32 => {
-            let a = v
-                .to_plain_array_view::<f32>()
-                .with_context(|| format!("{what}: expected float32"))?;
-            // a contiguous view (the usual case) is one memcpy, not an element iterator
-            let data = a
-                .as_slice()
-                .map_or_else(|| a.iter().copied().collect(), <[f32]>::to_vec);
-            LgTensor::f32(shape, data)
-        }
-        DType::I64 => {
-            let a = v
-                .to_plain_array_view::<i64>()
-                .with_context(|| format!("{what}: expected int64"))?;
-            let data = a
-                .as_slice()
-                .map_or_else(|| a.iter().copied().collect(), <[i64]>::to_vec);
-            LgTensor::i64(shape, data)
-        }
+        DType::F32 => LgTensor::f32(shape, take::<f32>(v, what, "float32", keep)?),
+        DType::I64 => LgTensor::i64(shape, take::<i64>(v, what, "int64", keep)?),
     }
 }
 
@@ -267,12 +358,20 @@ impl GraphRunner for TractGraph {
         &self.spec
     }
 
-    /// Builds the plans of the batch sizes in `sizes` up to [`TRACT_PREPARED_ROWS`] (a graph whose
-    /// only symbol is the batch), and one plan with the symbols left symbolic that every other size
-    /// runs on from now on: no run afterwards optimises a plan (0.1-0.2 s on a new batch size).
+    /// Builds the plans of the row counts of [`TRACT_ROW_BUCKETS`] that runs of the batch sizes in
+    /// `sizes` will use (a graph whose only symbol is the batch, with it first everywhere; else the
+    /// sizes up to 2 rows), and one plan with the symbols left symbolic for every other size: no
+    /// run afterwards optimises a plan (0.1-0.2 s on a new size).
     fn prepare_batches(&self, sizes: &[usize]) -> Result<()> {
         if self.symbols.len() == 1 {
-            for &b in sizes.iter().filter(|&&b| b <= TRACT_PREPARED_ROWS) {
+            let mut want: Vec<usize> = if self.paddable {
+                sizes.iter().filter_map(|&b| row_bucket(b)).collect()
+            } else {
+                sizes.iter().copied().filter(|&b| b <= 2).collect()
+            };
+            want.sort_unstable();
+            want.dedup();
+            for b in want {
                 if !lock(&self.plans).contains_key(&vec![b]) {
                     let plan = Arc::new(self.build(&[b])?);
                     lock(&self.plans).entry(vec![b]).or_insert(plan);
@@ -299,9 +398,23 @@ impl GraphRunner for TractGraph {
 
     fn run(&self, inputs: &[LgTensor]) -> Result<Vec<LgTensor>> {
         let batch = check_inputs(&self.spec, inputs)?;
-        let tv: TVec<TValue> = inputs.iter().map(to_tract).collect::<Result<_>>()?;
+        let (plan, rows) = self.plan_for(inputs, batch)?;
+        let tv: TVec<TValue> = if rows == batch {
+            inputs.iter().map(to_tract).collect::<Result<_>>()?
+        } else {
+            inputs
+                .iter()
+                .zip(&self.batched_inputs)
+                .map(|(t, &b)| {
+                    if b {
+                        to_tract_padded(t, rows)
+                    } else {
+                        to_tract(t)
+                    }
+                })
+                .collect::<Result<_>>()?
+        };
         let name = &self.spec.name;
-        let plan = self.plan_for(inputs)?;
         let outs = plan
             .states
             .with(
@@ -323,8 +436,10 @@ impl GraphRunner for TractGraph {
         let out = outs
             .iter()
             .zip(specs)
-            .map(|(v, (oname, dtype, _))| {
-                from_tract(v, dtype, &format!("graph '{name}' output '{oname}'"))
+            .enumerate()
+            .map(|(k, (v, (oname, dtype, _)))| {
+                let cut = (rows != batch && self.batched_outputs[k]).then_some(batch);
+                from_tract(v, dtype, &format!("graph '{name}' output '{oname}'"), cut)
             })
             .collect::<Result<Vec<_>>>()?;
         check_outputs(&self.spec, &out, batch)?;

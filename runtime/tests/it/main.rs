@@ -14,3 +14,4 @@ mod portable_parity;
 mod ring;
 mod run_into;
 mod step_many;
+mod tract_plans;

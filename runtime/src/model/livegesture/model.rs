@@ -114,10 +114,11 @@ impl MotionModel for LiveGestureModel {
         self.cohorts.lock().map_or(0, |c| c.moved())
     }
 
-    /// Every graph's backend prepares batch sizes up to `max_streams` streams
-    /// ([`LiveGestureGraphs::prepare_batches`]).
+    /// Every graph's backend prepares batch sizes up to `max_streams` streams, or the most one
+    /// step runs (`MAX_STEP`: larger company steps in groups) ([`LiveGestureGraphs::prepare_batches`]).
     fn prepare_batches(&self, max_streams: usize) -> Result<()> {
-        self.graphs.prepare_batches(max_streams)
+        self.graphs
+            .prepare_batches(max_streams.min(super::cohorts::MAX_STEP))
     }
 
     /// Pushes every job's audio into its stream's frontend, then steps token by token: each round
