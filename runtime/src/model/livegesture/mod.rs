@@ -338,8 +338,10 @@ impl LiveGestureGraphs {
     /// Prepares every graph's backend for steps of up to `max_streams` streams before the first
     /// of them ([`crate::backend::GraphRunner::prepare_batches`] with every batch size, in rows: the
     /// expert and fusion graphs carry two rows per guided stream): tract optimises the plans of the
-    /// smallest sizes and one with the batch left symbolic for all others, so that no later step
-    /// optimises a plan; ort prepares nothing.
+    /// row counts of its ladder that cover these sizes
+    /// ([`crate::backend::tract::TRACT_ROW_BUCKETS`]; other counts run padded to the next one) and
+    /// one with the batch left symbolic for larger ones, so that no later step optimises a plan;
+    /// ort prepares nothing.
     pub fn prepare_batches(&self, max_streams: usize) -> Result<()> {
         let (one, two): (Vec<usize>, Vec<usize>) = (
             (1..=max_streams.max(1)).collect(),
