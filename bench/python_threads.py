@@ -28,7 +28,10 @@ import wave
 
 import numpy as np
 
-import livegesture_runtime as lgr
+try:
+    import livegesture_runtime as lgr
+except ImportError:  # --help works without the module (a fresh venv before the bindings are installed)
+    lgr = None
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -84,6 +87,9 @@ def main():
     ap.add_argument("--reps", type=int, default=7, help="counted repetitions of each mode (plus one warm-up)")
     ap.add_argument("--chunk", type=int, default=2133, help="samples per push (2133 = one token at 16 kHz)")
     a = ap.parse_args()
+    if lgr is None:
+        raise SystemExit("python_threads.py: the livegesture_runtime module is not installed "
+                         "(pip install ./bindings/python)")
 
     with wave.open(str(ROOT / "models/default/reference/clip.wav"), "rb") as w:
         clip = np.frombuffer(w.readframes(w.getnframes()), dtype="<i2").astype(np.float32) / 32768
