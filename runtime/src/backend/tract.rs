@@ -64,8 +64,8 @@ impl Backend for TractBackend {
 /// the batch first) runs on the plan of the next larger count, its inputs padded with copies of
 /// their last row and its outputs cut back to its own rows (rows are independent in every step
 /// graph, so a padded run returns the same rows as a plan of that exact size, up to float rounding).
-/// A plan optimised for a size runs the default bundle's graphs at 0.48-0.60x the time of the plan
-/// with the batch left symbolic at 16 and 32 rows (`SYMBOLIC=1 graph_time`, BENCHMARKS.md), which
+/// A plan optimised for a size runs the default bundle's graphs at 0.49-0.67x the time of the plan
+/// with the batch left symbolic at 16 and 32 rows (`tract_symbolic`, BENCHMARKS.md), which
 /// cannot pick tract's unicast elementwise kernels; each plan holds its own packed weights (about
 /// 34 MiB for the default bundle's graphs), so the ladder grows by about 1.5x per step: a padded
 /// run does at most 50 % more rows (a third at and above 4 rows), on average about 15 %.
@@ -90,10 +90,8 @@ pub struct TractGraph {
     /// After [`GraphRunner::prepare_batches`]: one plan with every symbol left symbolic (sizes
     /// resolved at run time), for the sizes without a plan of their own: no new plan is built.
     symbolic: Mutex<Option<Arc<Plan>>>,
-    /// True when the only symbol is the batch and every input and output that has it has it first:
-    /// a run may then be padded to the row count of a prepared plan ([`TRACT_ROW_BUCKETS`]).
-    paddable: bool,
-    /// The input and output positions whose first axis is the batch (when `paddable`).
+    /// The input and output positions whose first axis is the batch; empty unless the only symbol
+    /// is the batch and every input and output that has it has it first (`paddable`).
     batched_inputs: Vec<bool>,
     batched_outputs: Vec<bool>,
 }
@@ -140,6 +138,11 @@ impl TractGraph {
         };
         let model = tract_onnx::onnx().model_for_path(path).with_context(what)?;
         Self::from_inference(spec, path, model)
+    }
+
+    /// True when a run may be padded to the row count of a prepared plan ([`TRACT_ROW_BUCKETS`]).
+    fn paddable(&self) -> bool {
+        !self.batched_inputs.is_empty()
     }
 
     /// The row counts (the sizes of each symbol) that have a plan optimised for them, smallest first.
@@ -212,7 +215,6 @@ impl TractGraph {
             spec: spec.clone(),
             path: path.display().to_string(),
             typed,
-            paddable: !batched_inputs.is_empty(),
             symbols,
             plans: Mutex::default(),
             symbolic: Mutex::default(),
@@ -271,7 +273,7 @@ impl TractGraph {
             return Ok((Arc::clone(p), batch));
         }
         if let Some(p) = lock(&self.symbolic).as_ref() {
-            let padded = self.paddable.then(|| row_bucket(batch)).flatten();
+            let padded = self.paddable().then(|| row_bucket(batch)).flatten();
             if let Some(rows) = padded {
                 if let Some(b) = lock(&self.plans).get(&vec![rows]) {
                     return Ok((Arc::clone(b), rows));
@@ -364,7 +366,7 @@ impl GraphRunner for TractGraph {
     /// run afterwards optimises a plan (0.1-0.2 s on a new size).
     fn prepare_batches(&self, sizes: &[usize]) -> Result<()> {
         if self.symbols.len() == 1 {
-            let mut want: Vec<usize> = if self.paddable {
+            let mut want: Vec<usize> = if self.paddable() {
                 sizes.iter().filter_map(|&b| row_bucket(b)).collect()
             } else {
                 sizes.iter().copied().filter(|&b| b <= 2).collect()
