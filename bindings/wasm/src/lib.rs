@@ -224,6 +224,18 @@ pub fn viseme_names() -> Vec<String> {
         .collect()
 }
 
+/// The files a page downloads to run the bundle whose `manifest.json` is `manifest` on tract
+/// ([`Model::load`] with `complete` false): the graphs tract runs with its default form, decoders
+/// and face channel (`Manifest::graph_files_run_by`), in manifest order.
+#[wasm_bindgen(js_name = filesToLoad)]
+pub fn files_to_load(manifest: &[u8]) -> Result<Vec<String>, JsError> {
+    let text = std::str::from_utf8(manifest)
+        .map_err(|e| JsError::new(&format!("manifest.json: not UTF-8 text: {e}")))?;
+    let m = livegesture::bundle::parse_manifest(text, std::path::Path::new("manifest.json"))
+        .map_err(js_err)?;
+    Ok(m.graph_files_run_by("tract"))
+}
+
 /// A verified bundle loaded on tract: makes streams.
 #[wasm_bindgen]
 pub struct Model {
@@ -233,12 +245,18 @@ pub struct Model {
 
 #[wasm_bindgen]
 impl Model {
-    /// Verifies the bundle's files (every file `manifest.json` lists, with its size and sha256) and
-    /// loads its graphs on tract. `name` stands for the bundle in messages (e.g. its URL). With
-    /// `complete` false, listed files other than graphs may be left out (a page that only runs
-    /// the model need not download the reference vectors; `parity` then fails naming them).
+    /// Verifies the bundle's files (every file given, with the size and sha256 `manifest.json`
+    /// lists) and loads its graphs on tract. `name` stands for the bundle in messages (e.g. its
+    /// URL). With `complete` false, only the graphs tract runs need be given ([`files_to_load`]: a
+    /// page that only runs the model need not download the other forms or the reference vectors;
+    /// `parity` then fails naming what is missing); with `complete` true, every listed file.
     pub fn load(name: String, files: BundleFiles, complete: bool) -> Result<Model, JsError> {
-        let bundle = Bundle::from_some_files(name, files.files, complete).map_err(js_err)?;
+        let bundle = if complete {
+            Bundle::from_files(name, files.files)
+        } else {
+            Bundle::from_files_run_by(name, files.files, "tract")
+        }
+        .map_err(js_err)?;
         let model = model::load(&bundle, &TractBackend::new()).map_err(anyhow_err)?;
         Ok(Model { bundle, model })
     }

@@ -374,6 +374,32 @@ impl Bundle {
         files: BTreeMap<String, Vec<u8>>,
         complete: bool,
     ) -> Result<Self, BundleError> {
+        let required = if complete {
+            Required::All
+        } else {
+            Required::Graphs
+        };
+        Self::from_files_required(name, files, required)
+    }
+
+    /// Like [`Bundle::from_some_files`], but the only graphs required are those `backend` runs with
+    /// its default choices ([`Manifest::graph_files_run_by`]): a page downloads the ~30 MB that tract
+    /// runs of the default bundle's 96 MB of forms. Every file given is still checked (size, sha256,
+    /// graph I/O); loading a model that needs a graph not given fails naming the file
+    /// ([`BundleError::MissingFile`]).
+    pub fn from_files_run_by(
+        name: impl Into<PathBuf>,
+        files: BTreeMap<String, Vec<u8>>,
+        backend: &str,
+    ) -> Result<Self, BundleError> {
+        Self::from_files_required(name, files, Required::RunBy(backend))
+    }
+
+    fn from_files_required(
+        name: impl Into<PathBuf>,
+        files: BTreeMap<String, Vec<u8>>,
+        required: Required<'_>,
+    ) -> Result<Self, BundleError> {
         let dir = name.into();
         let mpath = dir.join("manifest.json");
         let Some(raw) = files.get("manifest.json") else {
@@ -389,7 +415,7 @@ impl Bundle {
             manifest,
             memory: Some(Arc::new(files)),
         };
-        bundle.verify_files_given(complete)?;
+        bundle.verify_files_given(required)?;
         bundle.check_consistency()?;
         Ok(bundle)
     }
@@ -560,12 +586,12 @@ impl Bundle {
 
     /// Checks size and sha256 of every listed file, that graph files are listed, and the ONNX I/O.
     fn verify_files(&self) -> Result<(), BundleError> {
-        self.verify_files_given(true)
+        self.verify_files_given(Required::All)
     }
 
-    /// [`Bundle::verify_files`]; with `complete` false, listed files that are not graphs may be
-    /// absent from an in-memory bundle ([`Bundle::from_some_files`]).
-    fn verify_files_given(&self, complete: bool) -> Result<(), BundleError> {
+    /// [`Bundle::verify_files`]; listed files that `required` does not name may be absent from an
+    /// in-memory bundle ([`Bundle::from_some_files`], [`Bundle::from_files_run_by`]).
+    fn verify_files_given(&self, required: Required<'_>) -> Result<(), BundleError> {
         let mut graph_bytes: BTreeMap<&str, Cow<'_, [u8]>> = BTreeMap::new();
         let graph_files: Vec<&str> = self
             .manifest
@@ -573,6 +599,16 @@ impl Bundle {
             .iter()
             .map(|g| g.file.as_str())
             .collect();
+        let run: Vec<String> = match required {
+            Required::RunBy(backend) => self.manifest.graph_files_run_by(backend),
+            _ => Vec::new(),
+        };
+        let is_required = |rel: &str| match required {
+            Required::All => true,
+            Required::Graphs => graph_files.contains(&rel),
+            Required::RunBy(_) => run.iter().any(|f| f == rel),
+        };
+        let absent = |rel: &str| self.memory.as_ref().is_some_and(|m| !m.contains_key(rel));
         for (rel, entry) in &self.manifest.files {
             if rel.starts_with('/') || rel.split('/').any(|c| c == "..") {
                 return Err(
@@ -580,8 +616,7 @@ impl Bundle {
                 );
             }
             let path = self.dir.join(rel);
-            let optional = !complete && !graph_files.contains(&rel.as_str());
-            if optional && self.memory.as_ref().is_some_and(|m| !m.contains_key(rel)) {
+            if !is_required(rel) && absent(rel) {
                 continue;
             }
             let bytes = self.read(rel)?;
@@ -609,6 +644,9 @@ impl Bundle {
         for g in &self.manifest.graphs {
             let path = self.graph_path(g);
             let Some(bytes) = graph_bytes.get(g.file.as_str()) else {
+                if !is_required(&g.file) && absent(&g.file) {
+                    continue;
+                }
                 let exists = match &self.memory {
                     Some(files) => files.contains_key(&g.file),
                     None => path.exists(),
@@ -628,7 +666,40 @@ impl Bundle {
     }
 }
 
+/// Which listed files an in-memory bundle must hold ([`Bundle::verify_files_given`]).
+#[derive(Clone, Copy)]
+enum Required<'a> {
+    /// Every listed file.
+    All,
+    /// Every graph (other files may be left out).
+    Graphs,
+    /// The graphs this backend runs by default ([`Manifest::graph_files_run_by`]).
+    RunBy(&'a str),
+}
+
 impl Manifest {
+    /// The files of the graphs `backend` (`tract`, `ort`) runs with its default choices (`--form
+    /// auto`, the bundle's face channel): for LiveGesture the audio encoder, the fusion and eXperts
+    /// of the backend's form ([`LiveGestureManifest::default_form`]), the decoders it runs with it
+    /// ([`LiveGestureManifest::default_decoders`]) and the face graph; for DiffSHEG, or a form the
+    /// bundle does not carry (loading then names it), every graph. In manifest order.
+    pub fn graph_files_run_by(&self, backend: &str) -> Vec<String> {
+        let names: Option<Vec<String>> = self.livegesture.as_ref().and_then(|lg| {
+            let forms = lg.form_graphs();
+            let form = forms.get(lg.default_form(backend))?;
+            let mut n = vec!["audio_encoder".to_string(), form.fusion.clone()];
+            n.extend(form.experts.iter().cloned());
+            n.extend(lg.default_decoders(backend));
+            n.extend(self.face.iter().map(|f| f.graph.clone()));
+            Some(n)
+        });
+        self.graphs
+            .iter()
+            .filter(|g| names.as_ref().is_none_or(|n| n.contains(&g.name)))
+            .map(|g| g.file.clone())
+            .collect()
+    }
+
     /// Checks the manifest against itself, without reading any file: the family-common part, then the
     /// sections of its family (see the module docs). The error says what is wrong.
     pub fn check(&self) -> Result<(), String> {

@@ -1,7 +1,7 @@
 //! A bundle given as bytes (`Bundle::from_files`, what the WebAssembly build loads; docs/wasm.md):
 //! the same verification as a folder (sha256, size, graph I/O), graphs loaded from memory by tract
-//! give the same frames as from files, and a page may leave out the reference vectors but never a
-//! graph.
+//! give the same frames as from files, and a page may leave out the reference vectors, and (loading
+//! what tract runs) the graphs of the other forms, but never a graph the model runs.
 
 use std::collections::BTreeMap;
 
@@ -81,4 +81,77 @@ fn missing_files_are_refused_unless_optional() {
     f.remove("manifest.json");
     let e = Bundle::from_files("mem/default", f).unwrap_err();
     assert!(matches!(e, BundleError::NoManifest { .. }), "{e}");
+}
+
+#[test]
+fn a_page_may_load_only_the_graphs_tract_runs() {
+    let all = files();
+    let d = Bundle::load(repo_default_bundle()).unwrap();
+    let run = d.manifest().graph_files_run_by("tract");
+    let graph_bytes = |names: &mut dyn Iterator<Item = &String>| -> usize {
+        names.map(|f| all[f.as_str()].len()).sum()
+    };
+    let every: Vec<String> = d.graphs().iter().map(|g| g.file.clone()).collect();
+    let (run_bytes, every_bytes) = (graph_bytes(&mut run.iter()), graph_bytes(&mut every.iter()));
+    // the default bundle carries every form; tract runs one of them (and the face graph)
+    assert!(run.contains(&"audio_encoder.onnx".to_string()), "{run:?}");
+    assert!(run.contains(&"face.onnx".to_string()), "{run:?}");
+    assert!(
+        run_bytes * 2 < every_bytes,
+        "{run_bytes} of {every_bytes} graph bytes: {run:?}"
+    );
+    let some: BTreeMap<String, Vec<u8>> = all
+        .iter()
+        .filter(|(k, _)| *k == "manifest.json" || run.contains(k))
+        .map(|(k, v)| (k.clone(), v.clone()))
+        .collect();
+    // the same frames as the folder with every file
+    let b = Bundle::from_files_run_by("mem/default", some.clone(), "tract").unwrap();
+    let audio: Vec<f32> = (0..16000 * 2)
+        .map(|i| (i as f32 * 0.011).sin() * 0.3)
+        .collect();
+    let opts = StreamOptions {
+        seed: 5,
+        ..Default::default()
+    };
+    let mut out = Vec::new();
+    for bundle in [&b, &d] {
+        let m = model::load(bundle, &TractBackend::new()).unwrap();
+        let mut s = m.new_stream(&opts).unwrap();
+        out.push(s.push_audio(&audio).unwrap());
+    }
+    assert!(!out[0].is_empty());
+    assert_eq!(out[0], out[1]);
+    // asking for every graph, the same files are refused, naming one that is missing
+    let e = Bundle::from_some_files("mem/default", some.clone(), false).unwrap_err();
+    assert!(matches!(e, BundleError::MissingFile { .. }), "{e}");
+    // a graph tract runs may not be left out
+    for gone in ["decoders_fused.onnx", "face.onnx"] {
+        assert!(run.contains(&gone.to_string()), "{run:?}");
+        let mut f = some.clone();
+        f.remove(gone);
+        let e = Bundle::from_files_run_by("mem/default", f, "tract").unwrap_err();
+        assert!(matches!(e, BundleError::MissingFile { .. }), "{e}");
+        assert!(e.to_string().contains(gone), "{e}");
+    }
+    // a graph given but not run is still checked
+    let mut f = some.clone();
+    let mut bad = all["experts_fused_ring.onnx"].clone();
+    let n = bad.len();
+    bad[n / 2] ^= 1;
+    f.insert("experts_fused_ring.onnx".into(), bad);
+    let e = Bundle::from_files_run_by("mem/default", f, "tract").unwrap_err();
+    assert!(matches!(e, BundleError::HashMismatch { .. }), "{e}");
+    // loaded with only ONNX Runtime's graphs, tract's model names a graph it lacks
+    let ort_run = d.manifest().graph_files_run_by("ort");
+    assert_ne!(ort_run, run);
+    let f: BTreeMap<String, Vec<u8>> = all
+        .iter()
+        .filter(|(k, _)| *k == "manifest.json" || ort_run.contains(k))
+        .map(|(k, v)| (k.clone(), v.clone()))
+        .collect();
+    let b = Bundle::from_files_run_by("mem/default", f, "ort").unwrap();
+    let e = model::load(&b, &TractBackend::new()).err().unwrap();
+    let msg = format!("{e:#}");
+    assert!(msg.contains(".onnx"), "{msg}");
 }

@@ -3,6 +3,7 @@
 // result or {error}. The wasm module (wasm-bindgen, --target web) sits beside this file in wasm/.
 //
 //   load     {bundleUrl, files?, complete?}  -> {family, fps, precision, bytes, files, loadMs}
+//            (complete: every file the manifest lists; else only the graphs tract runs)
 //   stream   {seed, guidance?}               -> {stream}                 (a new stream's id)
 //   push     {stream, pcm, sampleRate}       -> frames                   (Float32Array in, transferred)
 //   finish   {stream}                        -> frames
@@ -11,7 +12,7 @@
 //   generate {wav, seed, guidance?}          -> frames of a whole WAV file
 //   parity   {}                              -> {passed, failed, lines}
 // frames = {count, index: Float64Array, poses, trans, expressions, footContact: Float32Array, ms}
-import init, { BundleFiles, Model, lastPanic, simd } from './wasm/livegesture_wasm.js';
+import init, { BundleFiles, Model, filesToLoad, lastPanic, simd } from './wasm/livegesture_wasm.js';
 
 let ready = null;
 let model = null;
@@ -43,8 +44,9 @@ async function load({ bundleUrl, files, complete }) {
   const given = files || {};
   const manifestBytes = given['manifest.json'] ? new Uint8Array(given['manifest.json']) : await fetchBytes(new URL('manifest.json', base));
   const manifest = JSON.parse(new TextDecoder().decode(manifestBytes));
-  const graphs = new Set((manifest.graphs || []).map((g) => g.file));
-  const want = Object.keys(manifest.files || {}).filter((rel) => complete || graphs.has(rel));
+  // complete: every listed file (parity needs the reference vectors); else only the graphs tract
+  // runs (its form, decoders and face graph: about a third of a bundle that carries every form)
+  const want = complete ? Object.keys(manifest.files || {}) : filesToLoad(manifestBytes);
   const bf = new BundleFiles();
   bf.add('manifest.json', manifestBytes);
   let bytes = manifestBytes.length;

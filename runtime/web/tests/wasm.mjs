@@ -90,6 +90,15 @@ try {
     const info = await page.evaluate(() => window.livegestureTest.info());
     note(`model in the page: ${JSON.stringify(info)}`);
     if (info.simd !== true) fail('the WebAssembly module was built without SIMD (+simd128)');
+    // the page downloads the graphs tract runs, not every form the bundle carries (filesToLoad)
+    {
+      const manifest = JSON.parse(readFileSync(join(args.site, 'bundle', 'manifest.json'), 'utf8'));
+      const graphFiles = new Set((manifest.graphs || []).map((g) => g.file));
+      const allGraphs = Object.entries(manifest.files || {}).filter(([f]) => graphFiles.has(f)).reduce((n, [, e]) => n + (e.bytes || 0), 0);
+      note(`the page downloaded ${(info.bytes / 1e6).toFixed(1)} MB in ${info.files} files; the bundle's graphs are ${(allGraphs / 1e6).toFixed(1)} MB in ${graphFiles.size} files`);
+      if (!(info.files >= 2 && info.files <= graphFiles.size + 1)) fail(`the page loaded ${info.files} files (manifest + ${graphFiles.size} graphs at most)`);
+      if (graphFiles.size > 8 && !(info.bytes < allGraphs)) fail(`the page downloaded every graph (${info.bytes} bytes of ${allGraphs}): expected only those tract runs`);
+    }
     await page.click('#mic');
     await page.waitForFunction(() => window.lgState.frames >= 90 || window.lgState.error, null, { timeout: 120000 })
       .catch(async () => fail(`microphone: no frames within 120 s: ${JSON.stringify(await page.evaluate(() => window.lgState))}\n${lines.join('\n')}`));
