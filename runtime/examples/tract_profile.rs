@@ -1,10 +1,12 @@
 //! Per-op time profile of one bundle graph on tract (random data inputs, caches fed back).
 //!   cargo run --release --example tract_profile -- models/default fusion 64
 //!   cargo run --release --example tract_profile -- models/default fusion 64 nodes   # per node, with shapes
+//!   DIM_frames=88 I64_BOUND=2 cargo run --release --example tract_profile -- models/diffsheg denoiser 2
+//!   (DIM_<name>: a named dimension's size; I64_BOUND: integer inputs below it, here the speaker ids)
 use std::collections::HashMap;
 use std::time::Instant;
 
-use livegesture::bundle::Bundle;
+use livegesture::bundle::{concrete_shape, Bundle, Dim, GraphSpec};
 use tract_onnx::prelude::*;
 use tract_onnx::tract_core::plan::eval;
 
@@ -17,36 +19,23 @@ fn main() -> TractResult<()> {
         .model_for_path(bundle.graph_path(&spec))?
         .into_typed()?
         .into_decluttered()?;
-    let sym = typed.symbols.sym("batch");
-    let model = typed.set_symbols(&HashMap::from([(sym, TDim::Val(batch))]))?;
-    let plan = model.into_optimized()?.into_runnable()?;
+    let mut subs = HashMap::from([(typed.symbols.sym("batch"), TDim::Val(batch))]);
+    for (_, _, shape) in spec.all_inputs() {
+        for d in shape {
+            if let Dim::Named(n) = d {
+                if named(n) > 0 {
+                    subs.insert(typed.symbols.sym(n), TDim::Val(named(n) as i64));
+                }
+            }
+        }
+    }
+    let model = typed.set_symbols(&subs)?;
+    // as the backend plans it (its rewrites of the optimised graph included)
+    let plan = livegesture::backend::tract::optimise(model)?;
     let mut state = plan.spawn()?;
     let n_data = spec.inputs.len();
     let n_out = spec.outputs.len();
-    let mut inputs: TVec<TValue> = spec
-        .all_inputs()
-        .iter()
-        .map(|(_, dt, shape)| {
-            let s: Vec<usize> = livegesture::bundle::concrete_shape(shape, batch as usize);
-            let n: usize = s.iter().product();
-            match dt {
-                livegesture::backend::DType::F32 => tract_ndarray::ArrayD::from_shape_vec(
-                    s,
-                    (0..n)
-                        .map(|i| ((i * 7919 % 1000) as f32) / 500.0 - 1.0)
-                        .collect(),
-                )
-                .unwrap()
-                .into_tvalue(),
-                livegesture::backend::DType::I64 => tract_ndarray::ArrayD::from_shape_vec(
-                    s,
-                    (0..n).map(|i| (i * 37 % 200) as i64).collect(),
-                )
-                .unwrap()
-                .into_tvalue(),
-            }
-        })
-        .collect();
+    let mut inputs = data_inputs(&spec, batch as usize);
     let by_node = a.get(4).map(|s| s == "nodes").unwrap_or(false);
     let mut per_op: HashMap<String, (f64, usize)> = HashMap::new();
     let runs = 60;
@@ -103,4 +92,50 @@ fn main() -> TractResult<()> {
         );
     }
     Ok(())
+}
+
+/// A named dimension's size: `DIM_<name>` (e.g. `DIM_frames=88`, DiffSHEG's window), else 0.
+fn named(n: &str) -> usize {
+    std::env::var(format!("DIM_{n}"))
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0)
+}
+
+/// Deterministic inputs of `batch` rows: floats in [-1, 1), integers below `I64_BOUND` (default 200;
+/// 2 for DiffSHEG's speaker ids), named dimensions of the size [`named`] gives.
+fn data_inputs(spec: &GraphSpec, batch: usize) -> TVec<TValue> {
+    let i64_bound: usize = std::env::var("I64_BOUND")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(200);
+    spec.all_inputs()
+        .iter()
+        .map(|(_, dt, shape)| {
+            let s: Vec<usize> = shape
+                .iter()
+                .map(|d| match d {
+                    Dim::Named(n) => named(n),
+                    _ => concrete_shape(std::slice::from_ref(d), batch)[0],
+                })
+                .collect();
+            let n: usize = s.iter().product();
+            match dt {
+                livegesture::backend::DType::F32 => tract_ndarray::ArrayD::from_shape_vec(
+                    s,
+                    (0..n)
+                        .map(|i| ((i * 7919 % 1000) as f32) / 500.0 - 1.0)
+                        .collect(),
+                )
+                .unwrap()
+                .into_tvalue(),
+                livegesture::backend::DType::I64 => tract_ndarray::ArrayD::from_shape_vec(
+                    s,
+                    (0..n).map(|i| (i * 37 % i64_bound) as i64).collect(),
+                )
+                .unwrap()
+                .into_tvalue(),
+            }
+        })
+        .collect()
 }

@@ -25,6 +25,8 @@ use super::{
 };
 use crate::bundle::{Dim, GraphSpec};
 
+pub mod softmax;
+
 /// The tract backend.
 #[derive(Debug, Default, Clone)]
 pub struct TractBackend;
@@ -110,6 +112,16 @@ impl Plan {
             states: Pool::new(usize::MAX),
         }
     }
+}
+
+/// tract's optimisation of `model`, then the project's rewrites of the optimised graph
+/// ([`softmax::on_last_axis`]), into a runnable plan.
+pub fn optimise(model: TypedModel) -> TractResult<Arc<TypedSimplePlan>> {
+    let mut m = model.into_optimized()?;
+    if softmax::enabled() {
+        softmax::on_last_axis(&mut m)?;
+    }
+    m.into_runnable()
 }
 
 /// Locks a plan table (a table is consistent after any panic: one insert is its only change).
@@ -256,10 +268,7 @@ impl TractGraph {
                 .collect();
             self.typed.set_symbols(&subs).with_context(what)?
         };
-        let plan = model
-            .into_optimized()
-            .and_then(|m| m.into_runnable())
-            .with_context(what)?;
+        let plan = optimise(model).with_context(what)?;
         Ok(Plan::new(plan))
     }
 
@@ -387,12 +396,7 @@ impl GraphRunner for TractGraph {
                     self.spec.name, self.path
                 )
             };
-            let plan = self
-                .typed
-                .clone()
-                .into_optimized()
-                .and_then(|m| m.into_runnable())
-                .with_context(what)?;
+            let plan = optimise(self.typed.clone()).with_context(what)?;
             lock(&self.symbolic).get_or_insert_with(|| Arc::new(Plan::new(plan)));
         }
         Ok(())

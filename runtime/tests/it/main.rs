@@ -15,3 +15,4 @@ mod ring;
 mod run_into;
 mod step_many;
 mod tract_plans;
+mod tract_softmax;
