@@ -25,6 +25,7 @@ use super::{
 };
 use crate::bundle::{Dim, GraphSpec};
 
+pub mod rows;
 pub mod softmax;
 
 /// The tract backend.
@@ -115,11 +116,14 @@ impl Plan {
 }
 
 /// tract's optimisation of `model`, then the project's rewrites of the optimised graph
-/// ([`softmax::on_last_axis`]), into a runnable plan.
+/// ([`softmax::on_last_axis`], [`rows::row_broadcasts`]), into a runnable plan.
 pub fn optimise(model: TypedModel) -> TractResult<Arc<TypedSimplePlan>> {
     let mut m = model.into_optimized()?;
     if softmax::enabled() {
         softmax::on_last_axis(&mut m)?;
+    }
+    if rows::enabled() {
+        rows::row_broadcasts(&mut m)?;
     }
     m.into_runnable()
 }

@@ -15,4 +15,5 @@ mod ring;
 mod run_into;
 mod step_many;
 mod tract_plans;
+mod tract_rows;
 mod tract_softmax;
