@@ -5,7 +5,7 @@
 //! anything else goes through `ndarray`'s generic broadcasting at about 4 ns an element. DiffSHEG's
 //! denoiser is full of the other case: AdaIN's scale and shift `[rows, 1, C]` against `[rows, 88, C]`,
 //! and LayerNorm's weight and bias `[1, 1, 553]` (553 is no multiple of 16): 1.5 of its 5.6 ms per
-//! call on tract (BENCHMARKS.md, "DiffSHEG on tract").
+//! call on tract (BENCHMARKS.md, "Issue 42 in one sitting", "tract's broadcasting of a row").
 //!
 //! [`RowBroadcast`] computes the same elementwise function row by row: both operands share the last
 //! axis, the smaller one is read at the row its leading indices map to, and each row is one

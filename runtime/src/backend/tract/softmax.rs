@@ -5,7 +5,7 @@
 //! (libm `exp`, one collapsed view per row): DiffSHEG's linear attention normalises its keys over
 //! the window's frames (axis 1 of `[rows, frames, heads, dim]`), and those four softmaxes took 1.7 ms
 //! each of the denoiser's 12 ms on tract against 0.05 ms for the same softmax over the last axis
-//! (BENCHMARKS.md, "DiffSHEG on tract: the softmax over the frames").
+//! (BENCHMARKS.md, "Issue 42 in one sitting", "tract's softmax over the frames").
 //!
 //! Moving the axis last, taking the softmax there and moving it back computes the same function; the
 //! two moves are copies of the tensor. The rewrite is applied to the optimised model, so tract's own
