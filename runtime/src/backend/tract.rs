@@ -119,13 +119,21 @@ impl Plan {
 /// ([`softmax::on_last_axis`], [`rows::row_broadcasts`]), into a runnable plan.
 pub fn optimise(model: TypedModel) -> TractResult<Arc<TypedSimplePlan>> {
     let mut m = model.into_optimized()?;
-    if softmax::enabled() {
+    if rewrite_on(softmax::SWITCH) {
         softmax::on_last_axis(&mut m)?;
     }
-    if rows::enabled() {
+    if rewrite_on(rows::SWITCH) {
         rows::row_broadcasts(&mut m)?;
     }
     m.into_runnable()
+}
+
+/// Whether the rewrite with the environment switch `switch` is on: the default; `<switch>=generic`
+/// keeps tract's own (for A/B measurements).
+fn rewrite_on(switch: &str) -> bool {
+    std::env::var(switch)
+        .map(|v| v != "generic")
+        .unwrap_or(true)
 }
 
 /// Locks a plan table (a table is consistent after any panic: one insert is its only change).

@@ -25,6 +25,34 @@ fn files() -> BTreeMap<String, Vec<u8>> {
     files
 }
 
+/// The manifest and the files of `names` among `all`.
+fn only(all: &BTreeMap<String, Vec<u8>>, names: &[String]) -> BTreeMap<String, Vec<u8>> {
+    all.iter()
+        .filter(|(k, _)| *k == "manifest.json" || names.contains(k))
+        .map(|(k, v)| (k.clone(), v.clone()))
+        .collect()
+}
+
+/// Two seconds of a sine (`step` radians a sample) through a stream of each bundle on tract with
+/// `seed`: some frames, and the same from both.
+fn assert_same_frames(a: &Bundle, b: &Bundle, seed: u64, step: f32) {
+    let audio: Vec<f32> = (0..16000 * 2)
+        .map(|i| (i as f32 * step).sin() * 0.3)
+        .collect();
+    let opts = StreamOptions {
+        seed,
+        ..Default::default()
+    };
+    let mut out = Vec::new();
+    for bundle in [a, b] {
+        let m = model::load(bundle, &TractBackend::new()).unwrap();
+        let mut s = m.new_stream(&opts).unwrap();
+        out.push(s.push_audio(&audio).unwrap());
+    }
+    assert!(!out[0].is_empty());
+    assert_eq!(out[0], out[1]);
+}
+
 #[test]
 fn bytes_load_and_match_the_folder() {
     let b = Bundle::from_files("mem/default", files()).unwrap();
@@ -32,21 +60,7 @@ fn bytes_load_and_match_the_folder() {
     let d = Bundle::load(repo_default_bundle()).unwrap();
     assert_eq!(b.graphs().len(), d.graphs().len());
     // the same frames from graphs loaded from memory as from files
-    let audio: Vec<f32> = (0..16000 * 2)
-        .map(|i| (i as f32 * 0.013).sin() * 0.3)
-        .collect();
-    let opts = StreamOptions {
-        seed: 3,
-        ..Default::default()
-    };
-    let mut out = Vec::new();
-    for bundle in [&b, &d] {
-        let m = model::load(bundle, &TractBackend::new()).unwrap();
-        let mut s = m.new_stream(&opts).unwrap();
-        out.push(s.push_audio(&audio).unwrap());
-    }
-    assert!(!out[0].is_empty());
-    assert_eq!(out[0], out[1]);
+    assert_same_frames(&b, &d, 3, 0.013);
 }
 
 #[test]
@@ -100,28 +114,10 @@ fn a_page_may_load_only_the_graphs_tract_runs() {
         run_bytes * 2 < every_bytes,
         "{run_bytes} of {every_bytes} graph bytes: {run:?}"
     );
-    let some: BTreeMap<String, Vec<u8>> = all
-        .iter()
-        .filter(|(k, _)| *k == "manifest.json" || run.contains(k))
-        .map(|(k, v)| (k.clone(), v.clone()))
-        .collect();
+    let some = only(&all, &run);
     // the same frames as the folder with every file
     let b = Bundle::from_files_run_by("mem/default", some.clone(), "tract").unwrap();
-    let audio: Vec<f32> = (0..16000 * 2)
-        .map(|i| (i as f32 * 0.011).sin() * 0.3)
-        .collect();
-    let opts = StreamOptions {
-        seed: 5,
-        ..Default::default()
-    };
-    let mut out = Vec::new();
-    for bundle in [&b, &d] {
-        let m = model::load(bundle, &TractBackend::new()).unwrap();
-        let mut s = m.new_stream(&opts).unwrap();
-        out.push(s.push_audio(&audio).unwrap());
-    }
-    assert!(!out[0].is_empty());
-    assert_eq!(out[0], out[1]);
+    assert_same_frames(&b, &d, 5, 0.011);
     // asking for every graph, the same files are refused, naming one that is missing
     let e = Bundle::from_some_files("mem/default", some.clone(), false).unwrap_err();
     assert!(matches!(e, BundleError::MissingFile { .. }), "{e}");
@@ -145,12 +141,7 @@ fn a_page_may_load_only_the_graphs_tract_runs() {
     // loaded with only ONNX Runtime's graphs, tract's model names a graph it lacks
     let ort_run = d.manifest().graph_files_run_by("ort");
     assert_ne!(ort_run, run);
-    let f: BTreeMap<String, Vec<u8>> = all
-        .iter()
-        .filter(|(k, _)| *k == "manifest.json" || ort_run.contains(k))
-        .map(|(k, v)| (k.clone(), v.clone()))
-        .collect();
-    let b = Bundle::from_files_run_by("mem/default", f, "ort").unwrap();
+    let b = Bundle::from_files_run_by("mem/default", only(&all, &ort_run), "ort").unwrap();
     let e = model::load(&b, &TractBackend::new()).err().unwrap();
     let msg = format!("{e:#}");
     assert!(msg.contains(".onnx"), "{msg}");

@@ -42,6 +42,11 @@ fn run(plan: &Arc<TypedSimplePlan>, a: &[usize], b: Option<&[usize]>) -> Vec<f32
     if let Some(b) = b {
         inputs.push(tensor_of(b, 0.37).into_tvalue());
     }
+    first_output(plan, inputs)
+}
+
+/// The first output of `plan` run on `inputs`, as f32 values (also `tract_softmax`'s).
+pub(crate) fn first_output(plan: &Arc<TypedSimplePlan>, inputs: TVec<TValue>) -> Vec<f32> {
     let out = plan.run(inputs).unwrap();
     out[0]
         .to_plain_array_view::<f32>()

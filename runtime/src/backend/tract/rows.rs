@@ -21,13 +21,6 @@ use tract_onnx::tract_core::{as_op, op_as_typed_op, op_out_of_plan};
 /// Set to `generic` to keep tract's broadcasting (for A/B measurements).
 pub const SWITCH: &str = "LIVEGESTURE_TRACT_ROWS";
 
-/// Whether the rewrite is on (the default; `LIVEGESTURE_TRACT_ROWS=generic` turns it off).
-pub fn enabled() -> bool {
-    std::env::var(SWITCH)
-        .map(|v| v != "generic")
-        .unwrap_or(true)
-}
-
 /// The elementwise operation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Kind {

@@ -18,13 +18,6 @@ use tract_onnx::tract_core::ops::nn::Softmax;
 /// Set to `generic` to keep tract's softmax over inner axes (for A/B measurements).
 pub const SWITCH: &str = "LIVEGESTURE_TRACT_SOFTMAX";
 
-/// Whether the rewrite is on (the default; `LIVEGESTURE_TRACT_SOFTMAX=generic` turns it off).
-pub fn enabled() -> bool {
-    std::env::var(SWITCH)
-        .map(|v| v != "generic")
-        .unwrap_or(true)
-}
-
 /// Replaces every f32 softmax over one axis that is not the last by move, softmax over the last axis,
 /// move back. Returns how many were replaced.
 pub fn on_last_axis(model: &mut TypedModel) -> TractResult<usize> {
