@@ -20,7 +20,12 @@ speed. The error against the f32 model is the rounding of the weights alone. tra
 (``onnxruntime.quantization.quantize_dynamic``, int8 weights, symmetric, per output channel with
 ``--per-channel``): each such product becomes ``DynamicQuantizeLinear`` (the activation to uint8 with a scale
 and zero point computed from the activation itself, every step) + ``MatMulInteger`` (int8 weights, int32
-accumulation) + the scale multiply and the bias add in f32. Standard ONNX ops (opset 17), run by onnxruntime
+accumulation) + the scale multiply and the bias add in f32. The weights use 7 bits (``reduce_range``: integers
+in [-64, 64]): on x86-64 without VNNI (AVX2, AVX-512 without VNNI) onnxruntime multiplies uint8 by int8 with
+``vpmaddubsw``, which adds two products in int16 and saturates when they pass 32767 (255 x 127 x 2 does); with
+7-bit weights no pair can (255 x 64 x 2 = 32640), so every CPU computes the exact integer products that tract
+and VNNI compute. Full 8-bit weights measured 0.30-0.61 scaled error against torch on the tiny export on an
+AVX2-only AMD EPYC (saturation), 7-bit ones 0.012-0.034 (docs/bundle.md#reduced-precision). Standard ONNX ops (opset 17), run by onnxruntime
 and tract. The RoPE rotation matrices are ``Constant`` nodes, not initializers, and stay f32, as do the
 codebook embeddings (Gather), layer norms and attention arithmetic.
 
@@ -200,6 +205,25 @@ def weight_only_int8(m):
     return m
 
 
+# onnxruntime's uint8 x int8 products on x86-64 without VNNI (vpmaddubsw) add two products in int16, saturating
+# past 32767: with uint8 activations up to 255 the weights must stay within 64 (255 x 64 x 2 = 32640)
+SATURATION_FREE_WEIGHT = 32767 // (2 * 255)
+
+
+def saturating_weights(model) -> list[str]:
+    """The ``MatMulInteger`` weight initializers of ``model`` (an onnx ModelProto) with a value beyond
+    +-SATURATION_FREE_WEIGHT: products that saturate on a CPU without VNNI (the module docstring)."""
+    from onnx import numpy_helper
+    inits = {i.name: i for i in model.graph.initializer}
+    bad = []
+    for n in model.graph.node:
+        if n.op_type == "MatMulInteger" and len(n.input) > 1 and n.input[1] in inits:
+            w = numpy_helper.to_array(inits[n.input[1]])
+            if w.dtype == np.int8 and int(np.abs(w.astype(np.int16)).max()) > SATURATION_FREE_WEIGHT:
+                bad.append(n.input[1])
+    return bad
+
+
 def quantize_graph(src: Path, dst: Path, precision: str, per_channel: bool, activations: str = "dynamic") -> dict:
     """Writes the reduced graph; returns what was quantized."""
     import onnx
@@ -239,9 +263,13 @@ def quantize_graph(src: Path, dst: Path, precision: str, per_channel: bool, acti
         return {"quantized_products": n_weights, **stats}
     with tempfile.TemporaryDirectory() as td:
         quantize_dynamic(str(src), str(Path(td) / "q.onnx"), op_types_to_quantize=["MatMul", "Gemm"],
-                         weight_type=QuantType.QInt8, per_channel=per_channel,
+                         weight_type=QuantType.QInt8, per_channel=per_channel, reduce_range=True,
                          extra_options={"MatMulConstBOnly": True})
         q = onnx.load(str(Path(td) / "q.onnx"))
+    bad = saturating_weights(q)
+    if bad:
+        raise RuntimeError(f"{src.name}: int8 weights beyond +-{SATURATION_FREE_WEIGHT} ({', '.join(bad[:3])}): their "
+                           "products saturate on x86-64 without VNNI")
     save(q, precision)
     n_int = [n.op_type for n in q.graph.node].count("MatMulInteger")
     if n_int != n_weights:
