@@ -224,16 +224,45 @@ pub fn viseme_names() -> Vec<String> {
         .collect()
 }
 
-/// The files a page downloads to run the bundle whose `manifest.json` is `manifest` on tract
-/// ([`Model::load`] with `complete` false): the graphs tract runs with its default form, decoders
-/// and face channel (`Manifest::graph_files_run_by`), in manifest order.
+/// The files a page downloads to run the bundle whose `manifest.json` is `manifest` with `engine`
+/// (`wasm`, tract: the default; or `ort-web`, which runs the forms of `ort`) and the graph form
+/// `form` (undefined or `auto`: the engine's form; [`Model::load`] with `complete` false): the graphs
+/// of that form, the decoders run with it and the face channel (`Manifest::graph_files_run_by`), in
+/// manifest order.
 #[wasm_bindgen(js_name = filesToLoad)]
-pub fn files_to_load(manifest: &[u8]) -> Result<Vec<String>, JsError> {
+pub fn files_to_load(
+    manifest: &[u8],
+    engine: Option<String>,
+    form: Option<String>,
+) -> Result<Vec<String>, JsError> {
     let text = std::str::from_utf8(manifest)
         .map_err(|e| JsError::new(&format!("manifest.json: not UTF-8 text: {e}")))?;
     let m = livegesture::bundle::parse_manifest(text, std::path::Path::new("manifest.json"))
         .map_err(js_err)?;
-    Ok(m.graph_files_run_by("tract"))
+    let form = load_options(form.as_deref())?.form.to_string();
+    Ok(m.graph_files_run_by(forms_of(engine.as_deref())?, Some(&form)))
+}
+
+/// The backend whose forms `engine` runs (`Backend::forms_of`): `wasm` (tract) runs tract's,
+/// `ort-web` runs ort's.
+fn forms_of(engine: Option<&str>) -> Result<&'static str, JsError> {
+    match engine.unwrap_or("wasm") {
+        "wasm" | "tract" => Ok("tract"),
+        "ort-web" => Ok("ort"),
+        other => Err(JsError::new(&format!(
+            "engine '{other}': expected wasm or ort-web"
+        ))),
+    }
+}
+
+/// The load options of a page's `form` (undefined, `auto`, `canonical`, `fused`, `attention`,
+/// `fused_ring`, `attention_ring`: docs/bundle.md#forms-and-precision).
+pub(crate) fn load_options(form: Option<&str>) -> Result<model::LoadOptions, JsError> {
+    let form = form
+        .unwrap_or("auto")
+        .parse::<model::GraphForm>()
+        .map_err(|e| JsError::new(&format!("form: {e}")))?;
+    Ok(model::LoadOptions { form })
 }
 
 /// A verified bundle loaded on tract: makes streams.
@@ -249,15 +278,23 @@ impl Model {
     /// lists) and loads its graphs on tract. `name` stands for the bundle in messages (e.g. its
     /// URL). With `complete` false, only the graphs tract runs need be given ([`files_to_load`]: a
     /// page that only runs the model need not download the other forms or the reference vectors;
-    /// `parity` then fails naming what is missing); with `complete` true, every listed file.
-    pub fn load(name: String, files: BundleFiles, complete: bool) -> Result<Model, JsError> {
+    /// `parity` then fails naming what is missing); with `complete` true, every listed file. `form`
+    /// (undefined: `auto`, tract's form) picks the LiveGesture graph form.
+    pub fn load(
+        name: String,
+        files: BundleFiles,
+        complete: bool,
+        form: Option<String>,
+    ) -> Result<Model, JsError> {
+        let opts = load_options(form.as_deref())?;
         let bundle = if complete {
             Bundle::from_files(name, files.files)
         } else {
-            Bundle::from_files_run_by(name, files.files, "tract")
+            let form = opts.form.to_string();
+            Bundle::from_files_run_by(name, files.files, "tract", Some(&form))
         }
         .map_err(js_err)?;
-        let model = model::load(&bundle, &TractBackend::new()).map_err(anyhow_err)?;
+        let model = model::load_with(&bundle, &TractBackend::new(), &opts).map_err(anyhow_err)?;
         Ok(Model { bundle, model })
     }
 

@@ -58,6 +58,12 @@ impl Backend for OrtWebBackend {
         "ONNX Runtime Web (WebAssembly, CPU)".to_string()
     }
 
+    /// ONNX Runtime's CPU kernels compiled to WebAssembly: the forms the bundle names for `ort`
+    /// (`fused_ring` in the shipped bundles), not the per-region canonical graphs.
+    fn forms_of(&self) -> &str {
+        "ort"
+    }
+
     fn load(&self, spec: &GraphSpec, path: &Path) -> Result<Box<dyn GraphRunner>> {
         let _ = path;
         Ok(Box::new(OrtWebRunner { spec: spec.clone() }))
@@ -208,16 +214,35 @@ fn frames(f: &[livegesture::output::Frame], face: bool) -> Result<JsValue> {
     Ok(Frames::of(f, face).map_err(|e| anyhow!(e))?.into())
 }
 
-/// Loads a bundle (sha256 of every file checked) for ONNX Runtime Web; runs no graph. Returns
-/// `{family, fps, precision, graphs: [[name, file], ...]}` (the worker makes one session per file).
+/// Loads a bundle (sha256 of every file checked) for ONNX Runtime Web; runs no graph. With `complete`
+/// false only the graphs it runs need be given (`filesToLoad(manifest, "ort-web", form)`): those of
+/// ort's form, or of `form` where one is named. Returns `{family, fps, precision, graphs: [[name,
+/// file], ...]}`: the graphs to make a session for (the worker makes one per file), every graph of
+/// the bundle when `complete` (parity checks each), else the ones the model runs.
 #[wasm_bindgen]
-pub fn ortweb_load(name: String, files: BundleFiles, complete: bool) -> Result<JsValue, JsError> {
-    let bundle = Bundle::from_some_files(name, files.files, complete)
-        .map_err(|e| JsError::new(&e.to_string()))?;
-    let m = model::load(&bundle, &OrtWebBackend).map_err(|e| JsError::new(&format!("{e:#}")))?;
+pub fn ortweb_load(
+    name: String,
+    files: BundleFiles,
+    complete: bool,
+    form: Option<String>,
+) -> Result<JsValue, JsError> {
+    let opts = crate::load_options(form.as_deref())?;
+    let form = opts.form.to_string();
+    let bundle = if complete {
+        Bundle::from_files(name, files.files)
+    } else {
+        Bundle::from_files_run_by(name, files.files, OrtWebBackend.forms_of(), Some(&form))
+    }
+    .map_err(|e| JsError::new(&e.to_string()))?;
+    let m = model::load_with(&bundle, &OrtWebBackend, &opts)
+        .map_err(|e| JsError::new(&format!("{e:#}")))?;
+    let run = bundle
+        .manifest()
+        .graph_files_run_by(OrtWebBackend.forms_of(), Some(&form));
     let graphs: Array = bundle
         .graphs()
         .iter()
+        .filter(|g| complete || run.contains(&g.file))
         .map(|g| JsValue::from(Array::of2(&g.name.as_str().into(), &g.file.as_str().into())))
         .collect();
     let info = js_sys::Object::new();

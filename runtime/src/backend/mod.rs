@@ -203,6 +203,13 @@ pub trait Backend: Send + Sync {
         self.name().to_string()
     }
 
+    /// The backend whose graph forms this one runs by default (`--form auto`, the manifest's
+    /// `backend_forms`, [`crate::bundle::LiveGestureManifest::default_form`]): its own name, except
+    /// for a build of the same kernels elsewhere (ONNX Runtime Web runs the forms of `ort`).
+    fn forms_of(&self) -> &str {
+        self.name()
+    }
+
     /// Loads the graph `spec` from `path`.
     fn load(&self, spec: &GraphSpec, path: &Path) -> Result<Box<dyn GraphRunner>>;
 

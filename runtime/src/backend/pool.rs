@@ -67,6 +67,8 @@ impl<T> Pool<T> {
     }
 
     /// A pool holding `first` (made at load time), of at most `cap` objects.
+    // the ort backend's (not in the WebAssembly build)
+    #[cfg_attr(target_arch = "wasm32", allow(dead_code))]
     pub(crate) fn with_first(first: T, cap: usize) -> Self {
         let p = Self::new(cap);
         {
@@ -84,6 +86,7 @@ impl<T> Pool<T> {
     }
 
     /// How many objects exist (idle or running).
+    #[cfg_attr(target_arch = "wasm32", allow(dead_code))]
     pub(crate) fn live(&self) -> usize {
         self.lock().live
     }

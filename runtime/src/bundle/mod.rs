@@ -383,16 +383,17 @@ impl Bundle {
     }
 
     /// Like [`Bundle::from_some_files`], but the only graphs required are those `backend` runs with
-    /// its default choices ([`Manifest::graph_files_run_by`]): a page downloads the ~30 MB that tract
-    /// runs of the default bundle's 96 MB of forms. Every file given is still checked (size, sha256,
-    /// graph I/O); loading a model that needs a graph not given fails naming the file
-    /// ([`BundleError::MissingFile`]).
+    /// its default choices, or with the graph form `form` where one is named
+    /// ([`Manifest::graph_files_run_by`]): a page downloads the ~30 MB that tract runs of the default
+    /// bundle's 96 MB of forms. Every file given is still checked (size, sha256, graph I/O); loading
+    /// a model that needs a graph not given fails naming the file ([`BundleError::MissingFile`]).
     pub fn from_files_run_by(
         name: impl Into<PathBuf>,
         files: BTreeMap<String, Vec<u8>>,
         backend: &str,
+        form: Option<&str>,
     ) -> Result<Self, BundleError> {
-        Self::from_files_required(name, files, Required::RunBy(backend))
+        Self::from_files_required(name, files, Required::RunBy(backend, form))
     }
 
     fn from_files_required(
@@ -600,13 +601,13 @@ impl Bundle {
             .map(|g| g.file.as_str())
             .collect();
         let run: Vec<String> = match required {
-            Required::RunBy(backend) => self.manifest.graph_files_run_by(backend),
+            Required::RunBy(backend, form) => self.manifest.graph_files_run_by(backend, form),
             _ => Vec::new(),
         };
         let is_required = |rel: &str| match required {
             Required::All => true,
             Required::Graphs => graph_files.contains(&rel),
-            Required::RunBy(_) => run.iter().any(|f| f == rel),
+            Required::RunBy(..) => run.iter().any(|f| f == rel),
         };
         let absent = |rel: &str| self.memory.as_ref().is_some_and(|m| !m.contains_key(rel));
         for (rel, entry) in &self.manifest.files {
@@ -673,23 +674,31 @@ enum Required<'a> {
     All,
     /// Every graph (other files may be left out).
     Graphs,
-    /// The graphs this backend runs by default ([`Manifest::graph_files_run_by`]).
-    RunBy(&'a str),
+    /// The graphs this backend runs by default, or with the form named
+    /// ([`Manifest::graph_files_run_by`]).
+    RunBy(&'a str, Option<&'a str>),
 }
 
 impl Manifest {
-    /// The files of the graphs `backend` (`tract`, `ort`) runs with its default choices (`--form
-    /// auto`, the bundle's face channel): for LiveGesture the audio encoder, the fusion and eXperts
-    /// of the backend's form ([`LiveGestureManifest::default_form`]), the decoders it runs with it
-    /// ([`LiveGestureManifest::default_decoders`]) and the face graph; for DiffSHEG, or a form the
-    /// bundle does not carry (loading then names it), every graph. In manifest order.
-    pub fn graph_files_run_by(&self, backend: &str) -> Vec<String> {
+    /// The files of the graphs `backend` (`tract`, `ort`; a backend that runs another's forms, such
+    /// as ONNX Runtime Web, names that one: [`crate::backend::Backend::forms_of`]) runs with its
+    /// default choices (`--form auto`, the bundle's face channel): for LiveGesture the audio encoder,
+    /// the fusion and eXperts of the backend's form ([`LiveGestureManifest::default_form`]), the
+    /// decoders it runs with it ([`LiveGestureManifest::default_decoders`]) and the face graph. With
+    /// `form` named (`canonical`, `fused_ring`, ...), that form's graphs and its own decoders, as
+    /// `--form` loads them. For DiffSHEG (one form), or a form the bundle does not carry (loading
+    /// then names it), every graph. In manifest order.
+    pub fn graph_files_run_by(&self, backend: &str, form: Option<&str>) -> Vec<String> {
         let names: Option<Vec<String>> = self.livegesture.as_ref().and_then(|lg| {
             let forms = lg.form_graphs();
-            let form = forms.get(lg.default_form(backend))?;
-            let mut n = vec!["audio_encoder".to_string(), form.fusion.clone()];
-            n.extend(form.experts.iter().cloned());
-            n.extend(lg.default_decoders(backend));
+            let named = form.filter(|f| *f != "auto");
+            let graphs = forms.get(named.unwrap_or(lg.default_form(backend)))?;
+            let mut n = vec!["audio_encoder".to_string(), graphs.fusion.clone()];
+            n.extend(graphs.experts.iter().cloned());
+            match named {
+                Some(_) => n.extend(graphs.decoders.iter().cloned()),
+                None => n.extend(lg.default_decoders(backend)),
+            }
             n.extend(self.face.iter().map(|f| f.graph.clone()));
             Some(n)
         });

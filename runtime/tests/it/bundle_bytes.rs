@@ -5,9 +5,12 @@
 
 use std::collections::BTreeMap;
 
+use std::path::Path;
+
 use livegesture::backend::tract::TractBackend;
-use livegesture::bundle::{repo_default_bundle, Bundle, BundleError};
-use livegesture::model::{self, StreamOptions};
+use livegesture::backend::{Backend, GraphRunner};
+use livegesture::bundle::{repo_default_bundle, Bundle, BundleError, GraphSpec};
+use livegesture::model::{self, GraphForm, LoadOptions, StreamOptions};
 
 /// Every file of the default bundle that its manifest lists, plus the manifest.
 fn files() -> BTreeMap<String, Vec<u8>> {
@@ -36,6 +39,25 @@ fn only(all: &BTreeMap<String, Vec<u8>>, names: &[String]) -> BTreeMap<String, V
 /// Two seconds of a sine (`step` radians a sample) through a stream of each bundle on tract with
 /// `seed`: some frames, and the same from both.
 fn assert_same_frames(a: &Bundle, b: &Bundle, seed: u64, step: f32) {
+    assert_same_frames_with(
+        a,
+        b,
+        seed,
+        step,
+        &TractBackend::new(),
+        &LoadOptions::default(),
+    );
+}
+
+/// [`assert_same_frames`], each bundle loaded on `backend` with `load`.
+fn assert_same_frames_with(
+    a: &Bundle,
+    b: &Bundle,
+    seed: u64,
+    step: f32,
+    backend: &dyn Backend,
+    load: &LoadOptions,
+) {
     let audio: Vec<f32> = (0..16000 * 2)
         .map(|i| (i as f32 * step).sin() * 0.3)
         .collect();
@@ -45,12 +67,36 @@ fn assert_same_frames(a: &Bundle, b: &Bundle, seed: u64, step: f32) {
     };
     let mut out = Vec::new();
     for bundle in [a, b] {
-        let m = model::load(bundle, &TractBackend::new()).unwrap();
+        let m = model::load_with(bundle, backend, load).unwrap();
         let mut s = m.new_stream(&opts).unwrap();
         out.push(s.push_audio(&audio).unwrap());
     }
     assert!(!out[0].is_empty());
     assert_eq!(out[0], out[1]);
+}
+
+/// tract under another name that runs the forms of the backend `forms_of` names, as ONNX Runtime Web
+/// runs ort's.
+struct FormsOf(TractBackend, &'static str);
+
+impl Backend for FormsOf {
+    fn name(&self) -> &str {
+        "tract-under-another-name"
+    }
+    fn forms_of(&self) -> &str {
+        self.1
+    }
+    fn load(&self, spec: &GraphSpec, path: &Path) -> anyhow::Result<Box<dyn GraphRunner>> {
+        self.0.load(spec, path)
+    }
+    fn load_bytes(
+        &self,
+        spec: &GraphSpec,
+        path: &Path,
+        bytes: &[u8],
+    ) -> anyhow::Result<Box<dyn GraphRunner>> {
+        self.0.load_bytes(spec, path, bytes)
+    }
 }
 
 #[test]
@@ -101,7 +147,7 @@ fn missing_files_are_refused_unless_optional() {
 fn a_page_may_load_only_the_graphs_tract_runs() {
     let all = files();
     let d = Bundle::load(repo_default_bundle()).unwrap();
-    let run = d.manifest().graph_files_run_by("tract");
+    let run = d.manifest().graph_files_run_by("tract", None);
     let graph_bytes = |names: &mut dyn Iterator<Item = &String>| -> usize {
         names.map(|f| all[f.as_str()].len()).sum()
     };
@@ -116,7 +162,7 @@ fn a_page_may_load_only_the_graphs_tract_runs() {
     );
     let some = only(&all, &run);
     // the same frames as the folder with every file
-    let b = Bundle::from_files_run_by("mem/default", some.clone(), "tract").unwrap();
+    let b = Bundle::from_files_run_by("mem/default", some.clone(), "tract", None).unwrap();
     assert_same_frames(&b, &d, 5, 0.011);
     // asking for every graph, the same files are refused, naming one that is missing
     let e = Bundle::from_some_files("mem/default", some.clone(), false).unwrap_err();
@@ -126,7 +172,7 @@ fn a_page_may_load_only_the_graphs_tract_runs() {
         assert!(run.contains(&gone.to_string()), "{run:?}");
         let mut f = some.clone();
         f.remove(gone);
-        let e = Bundle::from_files_run_by("mem/default", f, "tract").unwrap_err();
+        let e = Bundle::from_files_run_by("mem/default", f, "tract", None).unwrap_err();
         assert!(matches!(e, BundleError::MissingFile { .. }), "{e}");
         assert!(e.to_string().contains(gone), "{e}");
     }
@@ -136,13 +182,62 @@ fn a_page_may_load_only_the_graphs_tract_runs() {
     let n = bad.len();
     bad[n / 2] ^= 1;
     f.insert("experts_fused_ring.onnx".into(), bad);
-    let e = Bundle::from_files_run_by("mem/default", f, "tract").unwrap_err();
+    let e = Bundle::from_files_run_by("mem/default", f, "tract", None).unwrap_err();
     assert!(matches!(e, BundleError::HashMismatch { .. }), "{e}");
     // loaded with only ONNX Runtime's graphs, tract's model names a graph it lacks
-    let ort_run = d.manifest().graph_files_run_by("ort");
+    let ort_run = d.manifest().graph_files_run_by("ort", None);
     assert_ne!(ort_run, run);
-    let b = Bundle::from_files_run_by("mem/default", only(&all, &ort_run), "ort").unwrap();
+    let b = Bundle::from_files_run_by("mem/default", only(&all, &ort_run), "ort", None).unwrap();
     let e = model::load(&b, &TractBackend::new()).err().unwrap();
     let msg = format!("{e:#}");
     assert!(msg.contains(".onnx"), "{msg}");
+}
+
+#[test]
+fn a_backend_runs_the_forms_it_names_and_a_page_loads_only_their_graphs() {
+    let all = files();
+    let d = Bundle::load(repo_default_bundle()).unwrap();
+    let m = d.manifest();
+    let has = |files: &[String], f: &str| files.iter().any(|x| x == f);
+    // ONNX Runtime Web runs ort's form (`Backend::forms_of`): its graphs, not the canonical ones
+    let ort_run = m.graph_files_run_by("ort", None);
+    for f in ["experts_fused_ring.onnx", "fusion_ring.onnx", "face.onnx"] {
+        assert!(has(&ort_run, f), "{f} not in {ort_run:?}");
+    }
+    assert!(!has(&ort_run, "expert_upper.onnx"), "{ort_run:?}");
+    let b = Bundle::from_files_run_by("mem/default", only(&all, &ort_run), "ort", None).unwrap();
+    // a backend that runs ort's forms loads from those files alone, the same frames as from the folder
+    let as_ort = FormsOf(TractBackend::new(), "ort");
+    assert_same_frames_with(&b, &d, 5, 0.011, &as_ort, &LoadOptions::default());
+    // under its own name (no form in the manifest) it would run the canonical graphs, not given here
+    let own = FormsOf(TractBackend::new(), "tract-under-another-name");
+    let e = model::load(&b, &own).err().unwrap();
+    assert!(format!("{e:#}").contains(".onnx"), "{e:#}");
+    // a named form: its graphs and its own decoders; `auto` is the backend's own
+    let canonical = m.graph_files_run_by("tract", Some("canonical"));
+    for f in [
+        "audio_encoder.onnx",
+        "fusion.onnx",
+        "expert_upper.onnx",
+        "decoder_face.onnx",
+        "face.onnx",
+    ] {
+        assert!(has(&canonical, f), "{f} not in {canonical:?}");
+    }
+    assert!(!has(&canonical, "decoders_fused.onnx"), "{canonical:?}");
+    assert_eq!(
+        m.graph_files_run_by("tract", Some("auto")),
+        m.graph_files_run_by("tract", None)
+    );
+    let b = Bundle::from_files_run_by(
+        "mem/default",
+        only(&all, &canonical),
+        "tract",
+        Some("canonical"),
+    )
+    .unwrap();
+    let opts = LoadOptions {
+        form: GraphForm::Canonical,
+    };
+    assert_same_frames_with(&b, &d, 5, 0.011, &TractBackend::new(), &opts);
 }

@@ -11,7 +11,7 @@
 // request runs at a time (a suspended call must not be entered again).
 import * as ort from './ort/ort.wasm.min.mjs';
 import {
-  initSync, BundleFiles, lastPanic, simd, ortweb_load, ortweb_stage_pcm, ortweb_stage_wav, ortweb_take,
+  initSync, BundleFiles, filesToLoad, lastPanic, simd, ortweb_load, ortweb_stage_pcm, ortweb_stage_wav, ortweb_take,
   ortweb_reset, ortweb_close,
 } from './wasm/livegesture_wasm.js';
 
@@ -68,7 +68,7 @@ async function fetchBytes(url) {
   return new Uint8Array(await r.arrayBuffer());
 }
 
-async function load({ bundleUrl, files, complete, threads = 1 }) {
+async function load({ bundleUrl, files, complete, threads = 1, form }) {
   const t0 = performance.now();
   if (!Number.isInteger(threads) || threads < 1) throw new Error(`threads is ${threads}; expected an integer >= 1`);
   if (threads > 1 && !self.crossOriginIsolated) throw new Error(`threads ${threads}: onnxruntime-web needs a cross-origin isolated page (COOP/COEP headers) for more than 1 thread`);
@@ -80,8 +80,9 @@ async function load({ bundleUrl, files, complete, threads = 1 }) {
   const given = files || {};
   const manifestBytes = given['manifest.json'] ? new Uint8Array(given['manifest.json']) : await fetchBytes(new URL('manifest.json', base));
   const manifest = JSON.parse(new TextDecoder().decode(manifestBytes));
-  const graphs = new Set((manifest.graphs || []).map((g) => g.file));
-  const want = Object.keys(manifest.files || {}).filter((rel) => complete || graphs.has(rel));
+  // complete: every listed file (parity checks every graph against its reference vectors); else only
+  // the graphs of the form onnxruntime-web runs (ort's, or `form`), its decoders and the face graph
+  const want = complete ? Object.keys(manifest.files || {}) : filesToLoad(manifestBytes, 'ort-web', form);
   const got = {};
   const queue = [...want];
   await Promise.all(Array.from({ length: 4 }, async () => {
@@ -95,13 +96,14 @@ async function load({ bundleUrl, files, complete, threads = 1 }) {
   let bytes = manifestBytes.length;
   for (const rel of want) { bf.add(rel, got[rel]); bytes += got[rel].length; }
   // the runtime checks every file's sha256 and the graphs' names before any session is made
-  const m = ortweb_load(base.href.replace(/\/$/, ''), bf, !!complete);
+  const m = ortweb_load(base.href.replace(/\/$/, ''), bf, !!complete, form);
   for (const [name, file] of m.graphs) {
     sessions.set(name, await ort.InferenceSession.create(got[file], {
       executionProviders: ['wasm'], graphOptimizationLevel: 'all', intraOpNumThreads: threads,
     }));
   }
   info = { family: m.family, fps: m.fps, precision: m.precision, simd: simd(), bytes, files: want.length + 1,
+    form: form || 'auto', sessions: sessions.size,
     loadMs: performance.now() - t0, engine: 'ort-web', threads, ortVersion: ort.env.versions.web };
   return info;
 }

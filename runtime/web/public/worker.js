@@ -38,15 +38,15 @@ async function fetchBytes(url) {
   return new Uint8Array(await r.arrayBuffer());
 }
 
-async function load({ bundleUrl, files, complete }) {
+async function load({ bundleUrl, files, complete, form }) {
   const t0 = performance.now();
   const base = new URL(bundleUrl.endsWith('/') ? bundleUrl : `${bundleUrl}/`, self.location.href);
   const given = files || {};
   const manifestBytes = given['manifest.json'] ? new Uint8Array(given['manifest.json']) : await fetchBytes(new URL('manifest.json', base));
   const manifest = JSON.parse(new TextDecoder().decode(manifestBytes));
   // complete: every listed file (parity needs the reference vectors); else only the graphs tract
-  // runs (its form, decoders and face graph: about a third of a bundle that carries every form)
-  const want = complete ? Object.keys(manifest.files || {}) : filesToLoad(manifestBytes);
+  // runs (its form or `form`, decoders and face graph: about a third of a bundle with every form)
+  const want = complete ? Object.keys(manifest.files || {}) : filesToLoad(manifestBytes, 'wasm', form);
   const bf = new BundleFiles();
   bf.add('manifest.json', manifestBytes);
   let bytes = manifestBytes.length;
@@ -63,8 +63,8 @@ async function load({ bundleUrl, files, complete }) {
   for (const s of streams.values()) s.free();
   streams.clear();
   if (model) model.free();
-  model = Model.load(base.href.replace(/\/$/, ''), bf, !!complete);
-  return { family: model.family, fps: model.fps, precision: model.precision, simd: simd(), bytes, files: want.length + 1, loadMs: performance.now() - t0 };
+  model = Model.load(base.href.replace(/\/$/, ''), bf, !!complete, form);
+  return { family: model.family, fps: model.fps, precision: model.precision, simd: simd(), bytes, files: want.length + 1, form: form || 'auto', loadMs: performance.now() - t0 };
 }
 
 function stream(id) {

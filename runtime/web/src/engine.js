@@ -96,10 +96,11 @@ export class WasmModel {
  * ({path: ArrayBuffer}, which may hold all of it). `complete`: also load the files that only parity
  * needs (reference vectors); graphs and manifest are always verified against their sha256.
  * `engine`: 'wasm' (tract, worker.js) or 'ort-web' (onnxruntime-web, ort-worker.js, with `threads`).
+ * `form`: the LiveGesture graph form (undefined: the engine's own; only its graphs are downloaded).
  */
-export async function loadModel({ bundleUrl = 'bundle/', files, complete = false, workerUrl, engine = 'wasm', threads = 1 } = {}) {
+export async function loadModel({ bundleUrl = 'bundle/', files, complete = false, workerUrl, engine = 'wasm', threads = 1, form } = {}) {
   const worker = engine === 'ort-web' ? 'ort-worker.js' : 'worker.js';
   const rpc = new Rpc(workerUrl || new URL(worker, document.baseURI));
-  const info = await rpc.call('load', { bundleUrl: new URL(bundleUrl, document.baseURI).href, files, complete, ...(engine === 'ort-web' ? { threads } : {}) });
+  const info = await rpc.call('load', { bundleUrl: new URL(bundleUrl, document.baseURI).href, files, complete, form, ...(engine === 'ort-web' ? { threads } : {}) });
   return new WasmModel(rpc, info);
 }

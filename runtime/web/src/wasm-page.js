@@ -6,16 +6,20 @@ import { bundleFromUrl, engineFromUrl, loadModel } from './engine.js';
 const params = () => new URL(location.href).searchParams;
 
 /** The in-browser engine's options: `?engine=ort-web` runs the graphs on onnxruntime-web with
- * `?threads=N` intra-op threads (default 1), else tract in WebAssembly. */
+ * `?threads=N` intra-op threads (default 1), else tract in WebAssembly; `?form=NAME` (canonical,
+ * fused, attention, fused_ring, attention_ring; default the engine's own: tract's for wasm, ort's for
+ * ort-web) picks the LiveGesture graph form (docs/bundle.md#forms-and-precision). */
 function engineOptions() {
   const engine = engineFromUrl() === 'ort-web' ? 'ort-web' : 'wasm';
-  return engine === 'ort-web' ? { engine, threads: Number(params().get('threads') || 1) } : { engine };
+  const form = params().get('form') || undefined;
+  return engine === 'ort-web' ? { engine, form, threads: Number(params().get('threads') || 1) } : { engine, form };
 }
 
 /** The engine's name on the page. */
 export function engineLabel() {
   const o = engineOptions();
-  return o.engine === 'ort-web' ? `onnxruntime-web, ${o.threads} thread${o.threads > 1 ? 's' : ''}` : 'wasm tract';
+  const form = o.form ? `, form ${o.form}` : '';
+  return o.engine === 'ort-web' ? `onnxruntime-web, ${o.threads} thread${o.threads > 1 ? 's' : ''}${form}` : `wasm tract${form}`;
 }
 
 let modelPromise = null;
@@ -141,7 +145,8 @@ export function installTestHook() {
       const model = await wasmModel();
       return { family: model.family, precision: model.precision, simd: model.simd, bytes: model.bytes, files: model.files,
         loadMs: model.loadMs, warmupMs: model.warmupMs, memoryBytes: await model.memoryBytes(),
-        engine: model.engine || 'wasm', threads: model.threads || 1, ortVersion: model.ortVersion };
+        engine: model.engine || 'wasm', threads: model.threads || 1, ortVersion: model.ortVersion, form: model.form,
+        sessions: model.sessions };
     },
   };
 }

@@ -3,7 +3,7 @@
 //
 //   node runtime/web/tests/ortweb.mjs --site target/web-static --out target/browser-ortweb \
 //     --parity bundle/ --parity bundles/diffsheg/ --broken bundles/broken/:expert_hands \
-//     [--bench models/default/reference/clip.wav --rounds 3 --threads 1,2]
+//     [--bench models/default/reference/clip.wav --rounds 3 --threads 1,2 --forms canonical]
 //     [--native target/release/livegesture --native-bundle models/default]
 //     [--engine ort-web|wasm] [--json FILE --target NAME --bundle-name DIR]   (scripts/targets_providers.sh)
 //
@@ -12,13 +12,17 @@
 //     torch reference vectors at ONNX Runtime's CPU bound, 1e-5 scaled; the whole seeded reference
 //     rollout with identical tokens and frames within 1e-4): no FAIL line, some PASS lines;
 //  2. each --broken bundle (one weight perturbed, sha256 fixed up) fails on ort-web, naming the graph;
+//  3. with --parity bundle/ (the page's default bundle, which carries every form): the page (not `complete`)
+//     downloads only the graphs of the form ort-web runs (the manifest's form for ort, docs/wasm.md) and makes
+//     a session for each of them alone;
 // and with --bench WAV, per-token time of the two engines interleaved in one run (the method of
 // wasm-bench.mjs: a whole WAV and its first second through one stream, per token = the difference
 // over the difference in tokens): tract-wasm (one thread: wasm32 has none), ort-web with each count of
 // --threads (the page is served cross-origin isolated so that onnxruntime-web can start threads).
 // With --native BIN, native tract joins every round, measured the same way (`BIN generate --backend
 // tract` on --native-bundle, default the page's bundle folder, one thread), so one run gives native
-// tract, tract-wasm and ort-web side by side (scripts/bench_browser.sh).
+// tract, tract-wasm and ort-web side by side (scripts/bench_browser.sh). --forms F1,F2 adds each engine on
+// each named LiveGesture form (`?form=`, e.g. canonical: both engines on the same graphs) beside its own form.
 import { spawnSync } from 'node:child_process';
 import { mkdirSync, readFileSync, writeFileSync } from 'node:fs';
 import { join } from 'node:path';
@@ -80,7 +84,27 @@ try {
     await page.close();
   }
 
-  // 3. speed, interleaved
+  // 3. the page downloads the graphs of ort's form only, and makes a session for each of them alone
+  if (engine === 'ort-web' && args.parity.includes('bundle/')) {
+    const manifest = JSON.parse(readFileSync(join(args.site, 'bundle', 'manifest.json'), 'utf8'));
+    const form = (manifest.backend_forms || {}).ort;
+    const files = new Set((manifest.graphs || []).map((g) => g.file));
+    const allGraphs = Object.entries(manifest.files || {}).filter(([f]) => files.has(f)).reduce((n, [, e]) => n + (e.bytes || 0), 0);
+    const { page, lines } = await openPage('?engine=ort-web');
+    await page.waitForFunction(() => window.lgState.status === 'idle' || window.lgState.error, null, { timeout: 300000 });
+    const err = await page.evaluate(() => window.lgState.error);
+    if (err) fail(`ort-web page: ${err}\n${lines.join('\n')}`);
+    else {
+      const info = await page.evaluate(() => window.livegestureTest.info());
+      note(`ort-web page: downloaded ${(info.bytes / 1e6).toFixed(1)} MB in ${info.files} files (form ${info.form}, ${info.sessions} sessions); the bundle's graphs are ${(allGraphs / 1e6).toFixed(1)} MB in ${files.size} files; ort's form is ${form}`);
+      if (!form) fail('bundle/manifest.json names no form for ort (backend_forms.ort)');
+      if (!(info.bytes < allGraphs / 2)) fail(`the ort-web page downloaded ${info.bytes} bytes of the ${allGraphs} of every graph: expected only those of ${form}`);
+      if (!(info.sessions >= 2 && info.sessions === info.files - 1)) fail(`the ort-web page made ${info.sessions} sessions for ${info.files - 1} graph files`);
+    }
+    await page.close();
+  }
+
+  // 4. speed, interleaved
   if (args.bench) {
     const rounds = Number(args.rounds || 3);
     const threads = String(args.threads || '1').split(',').map(Number);
@@ -96,6 +120,11 @@ try {
     const dTok = tokens(info.samples) - tokens(shortSamples);
     const engines = [{ name: 'tract-wasm, 1 thread', query: '?engine=wasm' },
       ...threads.map((t) => ({ name: `ort-web, ${t} thread${t > 1 ? 's' : ''}`, query: `?engine=ort-web&threads=${t}` }))];
+    // each engine again on each named form (?form=): the same graphs on both
+    for (const f of String(args.forms || '').split(',').filter(Boolean)) {
+      engines.push({ name: `tract-wasm, 1 thread, form ${f}`, query: `?engine=wasm&form=${f}` },
+        { name: `ort-web, 1 thread, form ${f}`, query: `?engine=ort-web&threads=1&form=${f}` });
+    }
     if (args.native) {
       // native tract through the CLI: the same WAV files, the same seed, one thread
       const bundleDir = args['native-bundle'] || join(args.site, 'bundle');

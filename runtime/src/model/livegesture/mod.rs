@@ -148,7 +148,7 @@ impl LiveGestureGraphs {
         // the form's name in the manifest is its `Display` (`auto`: the bundle's form for the backend)
         let auto = form == GraphForm::Auto;
         let form = match form {
-            GraphForm::Auto => lg.default_form(backend.name()).to_string(),
+            GraphForm::Auto => lg.default_form(backend.forms_of()).to_string(),
             named => named.to_string(),
         };
         // a form the bundle does not carry is bad input (exit code 2), named in the manifest's terms
@@ -174,7 +174,7 @@ impl LiveGestureGraphs {
         // `auto`: the decoders the backend runs with its form (tract: the fused decoders when the
         // bundle has them, `LiveGestureManifest::default_decoders`); a named form: its own
         let decoder_graphs = if auto {
-            lg.default_decoders(backend.name())
+            lg.default_decoders(backend.forms_of())
         } else {
             graphs.decoders.clone()
         };
