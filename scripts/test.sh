@@ -285,7 +285,8 @@ timeout 900 node runtime/web/tests/ortweb.mjs --site target/web-static --out tar
 
 stage "x86-64 levels: the native binary under qemu-x86_64 -cpu Haswell (AVX2+FMA) and Nehalem (SSE4.2), ort and tract"
 # every x86 kernel path tract and ONNX Runtime dispatch to, on the tiny bundles (docs/targets.md); no build: the
-# release binary above, CPUID changed by qemu. x86-64-v4 (native, AVX-512) is the parity stages above.
+# release binary above, CPUID changed by qemu. The native level (x86-64-v4 on an AVX-512 host, v3 on an AVX2-only
+# one; the parity reports' `target.cpu`) is the parity stages above.
 for b in tiny diffsheg-tiny; do
   scripts/targets.sh --bundle "target/test-bundles/$b" --out "target/targets/$b" x86-64-v3 x86-64-v2
 done
@@ -302,7 +303,7 @@ grep -q "^FAIL graph expert_hands" target/targets/broken-x86/x86-64-v2.txt || {
 stage "targets: the parity matrix (docs/targets.md) and the aarch64 release archive proven from the archive alone"
 wait "$cross_pid" || { tail -n 40 target/cross/build.log; echo "the cross build failed (target/cross/build.log)" >&2; exit 1; }
 grep "built in" target/cross/build.log
-# tiny bundles on aarch64 (qemu-aarch64). The x86-64 targets (x86-64-v4 native, v3/v2 under qemu-x86_64 -cpu) are
+# tiny bundles on aarch64 (qemu-aarch64). The x86-64 targets (the native level, v3/v2 under qemu-x86_64 -cpu) are
 # not in this stage yet: not yet run with --target-name (docs/targets.md)
 for b in tiny diffsheg-tiny; do
   scripts/targets.sh --bundle "target/test-bundles/$b" --out "target/targets/$b" aarch64-musl
