@@ -66,7 +66,7 @@ RING_PHASE0 = 7   # the phase of the reference vectors' first step (any: a ring 
 # The form each backend runs (docs/bundle.md#forms-and-precision). ort runs the fused eXperts: bit-identical to the canonical graphs on
 # ort and faster. tract runs the canonical eXperts: its kernels round differently for another head count (like
 # for another batch size), so the fused form's logits differ from the canonical form's by ~1e-7 on tract, which
-# flips numerical near-ties of the sampler (the tiny test bundle's rollout has one at step 1044); see
+# flips numerical near-ties of the sampler (the rollout of the tiny config's seed-0 weights has one at step 1044); see
 # BENCHMARKS.md "Fused region forms". tract runs them in the attention form, with the fusion whose attention
 # cores are the opset-23 Attention op (tract's fused kernel; slower on ort): BENCHMARKS.md "A tract form of the
 # fusion".

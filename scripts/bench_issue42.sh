@@ -7,7 +7,8 @@
 #      the whole chain per token (`bench`, one thread, pinned), and 20 minutes of speech through `generate`
 #      (scripts/bench_rtf.sh), ort and tract;
 #   2. sessions per core: scripts/serve_ab.sh, ramp and burst (ort 64,80,96 / burst 96; tract 32,40,48 / 48);
-#   3. the browser: scripts/bench_browser.sh (native tract, tract in WebAssembly, onnxruntime-web; this build);
+#   3. the browser: scripts/bench_browser.sh (native tract, tract in WebAssembly, onnxruntime-web, each on its own
+#      form and both on the canonical graphs; this build);
 #   4. DiffSHEG: window and denoiser call (`bench`), the real-time factor through `generate` (20 minutes on
 #      ort; SECONDS_TRACT of speech on tract), sessions per core on ort (ramp 1,2,3, p99 1000 ms).
 #
@@ -97,7 +98,9 @@ fi
 
 if has 3; then
   say "== item 3: the browser (scripts/bench_browser.sh, this build only)"
-  SKIP_BUILD=1 ROUNDS="${BROWSER_ROUNDS:-3}" OUT="$OUT/browser" scripts/bench_browser.sh > "$OUT/browser.txt" 2>&1 || true
+  # each engine on its own form, and both on the canonical graphs (the same graphs on both)
+  SKIP_BUILD=1 ROUNDS="${BROWSER_ROUNDS:-3}" FORMS="${BROWSER_FORMS-canonical}" OUT="$OUT/browser" \
+    scripts/bench_browser.sh > "$OUT/browser.txt" 2>&1 || true
   if [ -f "$OUT/browser/report.txt" ]; then tee -a "$S" < "$OUT/browser/report.txt"; else tail -20 "$OUT/browser.txt" | tee -a "$S"; fi
 fi
 

@@ -38,8 +38,12 @@ use livegesture_parity::{self as parity, Check, ParityOptions, ReferenceRollout,
 /// Environment variable naming the tiny test bundle exported by the test command.
 pub const TEST_BUNDLE_ENV: &str = "LIVEGESTURE_TEST_BUNDLE";
 
-/// `export/export.py` arguments of the tiny test bundle (as `scripts/test.sh` exports it).
-pub const EXPORT_ARGS: &[&str] = &["--config", "tiny", "--random-seed", "0"];
+/// `export/export.py` arguments of the tiny test bundle (as `scripts/test.sh` exports it). Seed 3: the
+/// seeded rollout of seed 0's weights has a near-tie at step 1044 that torch's attention form draws
+/// otherwise than its canonical form on an AVX2-only CPU (the export refuses it); seed 3's closest draw
+/// is 1.1e-5 from a tie (probability) and its closest logits 7.5e-6 apart, ~100x the forms' and
+/// runtimes' differences (docs/parity.md, "The tiny test bundle").
+pub const EXPORT_ARGS: &[&str] = &["--config", "tiny", "--random-seed", "3"];
 
 /// Environment variable naming the tiny test bundle with the ring forms exported by the test command.
 pub const RING_TEST_BUNDLE_ENV: &str = "LIVEGESTURE_RING_TEST_BUNDLE";
@@ -50,7 +54,7 @@ pub const RING_EXPORT_ARGS: &[&str] = &[
     "--config",
     "tiny",
     "--random-seed",
-    "0",
+    "3",
     "--forms",
     "canonical,fused,attention,ring",
     "--backend-forms",

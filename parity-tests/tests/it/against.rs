@@ -43,7 +43,7 @@ fn a_reexport_of_the_same_weights_passes_and_other_weights_fail_naming_what_move
     let old = tiny_bundle();
     let same = export(
         &tmp.path().join("same"),
-        &["--config", "tiny", "--random-seed", "0"],
+        livegesture_parity_tests::EXPORT_ARGS,
     );
     let report = against(&same, &old);
     assert!(report.passed(), "a re-export moved: {}", report.summary());
