@@ -248,7 +248,7 @@ pub fn files_to_load(
 fn forms_of(engine: Option<&str>) -> Result<&'static str, JsError> {
     match engine.unwrap_or("wasm") {
         "wasm" | "tract" => Ok("tract"),
-        "ort-web" => Ok("ort"),
+        "ort-web" => Ok(ortweb::FORMS_OF),
         other => Err(JsError::new(&format!(
             "engine '{other}': expected wasm or ort-web"
         ))),

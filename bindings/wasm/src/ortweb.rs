@@ -46,6 +46,11 @@ extern "C" {
     fn lg_ort_run(graph: &str, inputs: Array) -> JsValue;
 }
 
+/// The backend whose graph forms ONNX Runtime Web runs ([`Backend::forms_of`]): ONNX Runtime's CPU
+/// kernels compiled to WebAssembly run the forms the bundle names for `ort` (`fused_ring` in the
+/// shipped bundles), not the per-region canonical graphs.
+pub(crate) const FORMS_OF: &str = "ort";
+
 /// The graphs through `lgOrtRun` (the sessions live in the worker, one per graph file).
 struct OrtWebBackend;
 
@@ -58,10 +63,9 @@ impl Backend for OrtWebBackend {
         "ONNX Runtime Web (WebAssembly, CPU)".to_string()
     }
 
-    /// ONNX Runtime's CPU kernels compiled to WebAssembly: the forms the bundle names for `ort`
-    /// (`fused_ring` in the shipped bundles), not the per-region canonical graphs.
+    /// [`FORMS_OF`].
     fn forms_of(&self) -> &str {
-        "ort"
+        FORMS_OF
     }
 
     fn load(&self, spec: &GraphSpec, path: &Path) -> Result<Box<dyn GraphRunner>> {
@@ -231,14 +235,12 @@ pub fn ortweb_load(
     let bundle = if complete {
         Bundle::from_files(name, files.files)
     } else {
-        Bundle::from_files_run_by(name, files.files, OrtWebBackend.forms_of(), Some(&form))
+        Bundle::from_files_run_by(name, files.files, FORMS_OF, Some(&form))
     }
     .map_err(|e| JsError::new(&e.to_string()))?;
     let m = model::load_with(&bundle, &OrtWebBackend, &opts)
         .map_err(|e| JsError::new(&format!("{e:#}")))?;
-    let run = bundle
-        .manifest()
-        .graph_files_run_by(OrtWebBackend.forms_of(), Some(&form));
+    let run = bundle.manifest().graph_files_run_by(FORMS_OF, Some(&form));
     let graphs: Array = bundle
         .graphs()
         .iter()
