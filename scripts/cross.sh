@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Cross-builds the `livegesture` CLI for one target (docs/targets.md, docs/install.md):
 #
-#   scripts/cross.sh TARGET            builds it (once: cargo skips an up-to-date build) and prints its path
+#   scripts/cross.sh TARGET            builds it (once: cargo skips an up-to-date build) and prints its path;
+#                                      with CROSS_NO_BUILD=1 only prints the path of the binary already built
+#                                      (no cargo: it would wait on the lock another target's build holds)
 #   scripts/cross.sh --path TARGET     prints the path it is (or would be) built at, builds nothing
 #   scripts/cross.sh --features TARGET prints the cargo features the CLI is built with for TARGET
 #   scripts/cross.sh --runner TARGET   prints the command prefix that runs it on this x86-64 machine
@@ -133,7 +135,7 @@ ort_lib() {
 mode=build
 case "${1:-}" in
   --path|--runner|--ort-lib|--features|--c-lib) mode="${1#--}"; shift ;;
-  -h|--help|"") sed -n '2,18p' "$0"; [ -n "${1:-}" ]; exit $? ;;
+  -h|--help|"") sed -n '2,20p' "$0"; [ -n "${1:-}" ]; exit $? ;;
 esac
 [ $# -eq 1 ] || { echo "cross.sh: expected one TARGET, got $#" >&2; exit 2; }
 resolve "$1"
@@ -145,6 +147,10 @@ case $mode in
     echo "$(dirname "$OUT")"; exit 0 ;;
   ort-lib) install_deps; ort_lib; exit 0 ;;
 esac
+if [ "${CROSS_NO_BUILD:-0}" = 1 ]; then
+  [ -x "$OUT" ] || { echo "cross.sh: CROSS_NO_BUILD=1 and $OUT is missing (build it: scripts/cross.sh $1)" >&2; exit 1; }
+  echo "$OUT"; exit 0
+fi
 install_deps
 t=$SECONDS
 echo "cross.sh: building $EXE for $TRIPLE (profile dist, features $FEATURES)" >&2

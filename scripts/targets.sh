@@ -52,16 +52,10 @@ host_bin() {
   BIN="$PWD/target/release/livegesture"
   [ -x "$BIN" ] || { echo "targets.sh: $BIN is missing (cargo build --release -p livegesture)" >&2; exit 2; }
 }
-# the cross build of a triple: built (once) by scripts/cross.sh, or with TARGETS_NO_BUILD=1 the binary already
-# there (cross.sh --path), so that a run does not wait on cargo's lock while another cross build holds it
+# the cross build of a triple: built (once) by scripts/cross.sh, or with TARGETS_NO_BUILD=1 (or CROSS_NO_BUILD=1) the
+# binary already there, so that a run does not wait on cargo's lock while another cross build holds it
 cross_bin() {
-  if [ "${TARGETS_NO_BUILD:-0}" = 1 ]; then
-    local p; p="$(scripts/cross.sh --path "$1")"
-    [ -x "$p" ] || { echo "targets.sh: TARGETS_NO_BUILD=1 and $p is missing (scripts/cross.sh $1)" >&2; return 1; }
-    echo "$p"
-  else
-    scripts/cross.sh "$1"
-  fi
+  CROSS_NO_BUILD="${CROSS_NO_BUILD:-${TARGETS_NO_BUILD:-0}}" scripts/cross.sh "$1"
 }
 need_qemu() {
   command -v "$1" >/dev/null 2>&1 || DEBIAN_FRONTEND=noninteractive apt-get install -y -qq qemu-user >/dev/null

@@ -42,6 +42,22 @@ stage "layout: no module cycle in a Rust crate, no long function or file without
 # (scripts/check_structure.py, about a second; its must-fail cases: python/tests/test_check_structure.py)
 "$LIVEGESTURE_PY" scripts/check_structure.py
 
+stage "rust formatting (cargo fmt --check)"
+cargo fmt --all -- --check
+
+# The Python module (bindings/python, a workspace member) is compiled by the workspace build below and packed by
+# maturin in the stage "bindings": both read this PyO3 configuration (abi3, CPython >= 3.10; what maturin writes
+# itself on Linux), so maturin finds pyo3 and the module already built instead of compiling them again
+export PYO3_CONFIG_FILE="$PWD/bindings/python/pyo3-config.txt"
+
+# The release build of the workspace starts now, in the background and niced, and is waited for at the stage
+# "rust build": the Python tests and the exports below run torch on one thread most of the time (the exporter sets
+# one), so the build takes the other core instead of waiting ~5 minutes for them
+mkdir -p target
+rm -f target/build.log
+nice -n 10 cargo build --release --workspace --all-targets > target/build.log 2>&1 &
+build_pid=$!
+
 stage "python tests"
 "$LIVEGESTURE_PY" -m pytest -q python/tests
 
@@ -62,36 +78,44 @@ stage "export the DiffSHEG tiny config (random weights) -> target/test-bundles/d
 "$LIVEGESTURE_PY" export/export.py --family diffsheg --config tiny --random-seed 0 --out target/test-bundles/diffsheg-tiny
 export LIVEGESTURE_DIFFSHEG_TINY_BUNDLE="$PWD/target/test-bundles/diffsheg-tiny"
 
-# The Python module (bindings/python, a workspace member) is compiled by the workspace build below and packed by
-# maturin in the stage "bindings": both read this PyO3 configuration (abi3, CPython >= 3.10; what maturin writes
-# itself on Linux), so maturin finds pyo3 and the module already built instead of compiling them again
-export PYO3_CONFIG_FILE="$PWD/bindings/python/pyo3-config.txt"
+stage "rust build (release; started in the background before the Python tests)"
+if ! wait "$build_pid"; then
+  tail -n 60 target/build.log; echo "the release build failed (target/build.log)" >&2; exit 1
+fi
+grep -E '^ *(Finished|warning)' target/build.log || true
 
-stage "rust formatting (cargo fmt --check)"
-cargo fmt --all -- --check
-
-stage "rust build (release)"
-cargo build --release --workspace --all-targets
-
-# The cross build of the targets stage below (scripts/cross.sh aarch64-unknown-linux-musl: static, tract; compiled
-# once, profile dist, for the matrix and the release archive) starts now in the background, niced, and is waited
-# for at that stage
+# The other builds, one after another in the background (niced; not beside each other: two cargo builds would only
+# share the two cores), each compiled once and waited for at the stage that needs it (wait_build):
+#   wasm      scripts/build_wasm.sh, the runtime in WebAssembly (stage "wasm")
+#   aarch64   scripts/cross.sh aarch64-unknown-linux-musl: static, tract, profile dist (the matrix and the archive)
+#   x86-musl  scripts/cross.sh x86_64-unknown-linux-musl: static, tract (stage "release")
+#   windows   scripts/cross.sh x86_64-pc-windows-gnu: mingw-w64, tract (stage "release")
+# Each writes target/cross/NAME.log and, when it ends, its exit status to target/cross/NAME.rc.
 mkdir -p target/cross
-CROSS_NICE=10 scripts/cross.sh aarch64-unknown-linux-musl > target/cross/build.log 2>&1 &
-cross_pid=$!
-# then, once that one is done (not beside it: two cargo builds would only share the two cores and cargo's lock on
-# target/dist), the x86-64 musl release build (static, tract, profile dist), waited for at the stage "release"
-# below; then, after that one, the Windows build (x86_64-pc-windows-gnu: mingw-w64, tract), also waited for there
-( # done: gone, or a zombie not yet reaped
-  while [ -r "/proc/$cross_pid/stat" ] && [ "$(cut -d' ' -f3 "/proc/$cross_pid/stat" 2>/dev/null)" != Z ]; do sleep 5; done
-  CROSS_NICE=10 scripts/cross.sh x86_64-unknown-linux-musl
-) > target/cross/build-x86.log 2>&1 &
-cross_x86_pid=$!
+rm -f target/cross/*.rc target/cross/*.log
+bg_build() {
+  local name=$1 rc=0; shift
+  "$@" > "target/cross/$name.log" 2>&1 || rc=$?
+  echo "$rc" > "target/cross/$name.rc"
+}
 (
-  while [ -r "/proc/$cross_x86_pid/stat" ] && [ "$(cut -d' ' -f3 "/proc/$cross_x86_pid/stat" 2>/dev/null)" != Z ]; do sleep 5; done
-  CROSS_NICE=10 scripts/cross.sh x86_64-pc-windows-gnu
-) > target/cross/build-windows.log 2>&1 &
-cross_win_pid=$!
+  bg_build wasm env NICE=10 scripts/build_wasm.sh
+  bg_build aarch64 env CROSS_NICE=10 scripts/cross.sh aarch64-unknown-linux-musl
+  bg_build x86-musl env CROSS_NICE=10 scripts/cross.sh x86_64-unknown-linux-musl
+  bg_build windows env CROSS_NICE=10 scripts/cross.sh x86_64-pc-windows-gnu
+) &
+chain_pid=$!
+wait_build() {
+  local name=$1
+  while [ ! -f "target/cross/$name.rc" ]; do
+    kill -0 "$chain_pid" 2>/dev/null || { echo "the background builds ended before $name ran" >&2; exit 1; }
+    sleep 5
+  done
+  if [ "$(cat "target/cross/$name.rc")" != 0 ]; then
+    tail -n 40 "target/cross/$name.log"; echo "the $name build failed (target/cross/$name.log)" >&2; exit 1
+  fi
+  grep -E "built in|Finished" "target/cross/$name.log" || true
+}
 
 # every parity run also writes its JUnit report (target/parity/*.xml) for CI systems to read; an earlier
 # run's reports are removed first, so none can be read as this run's
@@ -261,8 +285,10 @@ timeout 300 node runtime/web/tests/tls.mjs target/release/livegesture models/def
   models/default/reference/clip.wav target/browser-tls
 
 stage "wasm: the runtime in WebAssembly as a static page, parity and the microphone in chromium (docs/wasm.md)"
-# installs the wasm32 target and the wasm-bindgen CLI if missing; builds target/wasm-pkg and target/web-static
-scripts/build_web_static.sh models/default
+# target/wasm-pkg: built in the background (scripts/build_wasm.sh installs the wasm32 target and the wasm-bindgen
+# CLI if missing); target/web-static from it, after wasm_fresh.sh checks it is not older than its sources
+wait_build wasm
+SKIP_WASM_BUILD=1 scripts/build_web_static.sh models/default
 # the staleness check build_web_static.sh applies under SKIP_WASM_BUILD, shown to fail a stale module
 scripts/test_wasm_fresh.sh
 mkdir -p target/web-static/bundles target/browser-wasm
@@ -287,8 +313,15 @@ stage "x86-64 levels: the native binary under qemu-x86_64 -cpu Haswell (AVX2+FMA
 # every x86 kernel path tract and ONNX Runtime dispatch to, on the tiny bundles (docs/targets.md); no build: the
 # release binary above, CPUID changed by qemu. The native level (x86-64-v4 on an AVX-512 host, v3 on an AVX2-only
 # one; the parity reports' `target.cpu`) is the parity stages above.
+# The level this host runs natively is the parity stages above (on real hardware, every check): qemu runs the others
+native_level=x86-64-v2
+grep -qw avx2 /proc/cpuinfo && grep -qw fma /proc/cpuinfo && native_level=x86-64-v3
+grep -qw avx512f /proc/cpuinfo && native_level=x86-64-v4
+levels=()
+for l in x86-64-v3 x86-64-v2; do [ "$l" = "$native_level" ] || levels+=("$l"); done
+echo "this host's level: $native_level (the parity stages above); under qemu: ${levels[*]}"
 for b in tiny diffsheg-tiny; do
-  scripts/targets.sh --bundle "target/test-bundles/$b" --out "target/targets/$b" x86-64-v3 x86-64-v2
+  scripts/targets.sh --bundle "target/test-bundles/$b" --out "target/targets/$b" "${levels[@]}"
 done
 # must fail on the SSE-only path too: one expert_hands weight x 1.02, named
 "$LIVEGESTURE_PY" parity-tests/tools/break_bundle.py target/test-bundles/tiny target/targets/broken-tiny-x86 \
@@ -301,8 +334,9 @@ grep -q "^FAIL graph expert_hands" target/targets/broken-x86/x86-64-v2.txt || {
   cat target/targets/broken-x86.txt; echo "targets.sh on x86-64-v2 did not name expert_hands" >&2; exit 1; }
 
 stage "targets: the parity matrix (docs/targets.md) and the aarch64 release archive proven from the archive alone"
-wait "$cross_pid" || { tail -n 40 target/cross/build.log; echo "the cross build failed (target/cross/build.log)" >&2; exit 1; }
-grep "built in" target/cross/build.log
+wait_build aarch64
+# the binaries the background builds made: no cargo here (it would wait for the lock the Windows build holds)
+export CROSS_NO_BUILD=1
 # tiny bundles on aarch64 (qemu-aarch64). The x86-64 targets (the native level, v3/v2 under qemu-x86_64 -cpu) are
 # not in this stage yet: not yet run with --target-name (docs/targets.md)
 for b in tiny diffsheg-tiny; do
@@ -336,14 +370,12 @@ PY
 scripts/release.sh --prove aarch64-unknown-linux-musl
 
 stage "release: the x86-64 musl (static) archive, proven from the archive alone (docs/install.md)"
-wait "$cross_x86_pid" || { tail -n 40 target/cross/build-x86.log; echo "the x86-64 musl build failed (target/cross/build-x86.log)" >&2; exit 1; }
-grep "built in" target/cross/build-x86.log
+wait_build x86-musl
 # static (file, ldd); its generate output, with no --bundle, the same bytes as the native gnu build's tract output
 scripts/release.sh --prove x86_64-unknown-linux-musl
 
 stage "release: the Windows archive (.zip), proven from the archive alone under wine (docs/install.md)"
-wait "$cross_win_pid" || { tail -n 40 target/cross/build-windows.log; echo "the Windows build failed (target/cross/build-windows.log)" >&2; exit 1; }
-grep "built in" target/cross/build-windows.log
+wait_build windows
 # livegesture.exe under Debian's wine, no --bundle: ceil(duration x 30) frames, the native build's tokens
 scripts/release.sh --prove x86_64-pc-windows-gnu
 

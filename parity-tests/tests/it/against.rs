@@ -41,10 +41,20 @@ fn against(new: &Path, old: &Path) -> Report {
 fn a_reexport_of_the_same_weights_passes_and_other_weights_fail_naming_what_moved() {
     let tmp = tempfile::tempdir().unwrap();
     let old = tiny_bundle();
-    let same = export(
-        &tmp.path().join("same"),
-        livegesture_parity_tests::EXPORT_ARGS,
-    );
+    // the two exports (one thread of torch each) side by side: this test is the suite's longest
+    let (same, other) = std::thread::scope(|s| {
+        let other = s.spawn(|| {
+            export(
+                &tmp.path().join("seed1"),
+                &["--config", "tiny", "--random-seed", "1"],
+            )
+        });
+        let same = export(
+            &tmp.path().join("same"),
+            livegesture_parity_tests::EXPORT_ARGS,
+        );
+        (same, other.join().expect("the seed-1 export panicked"))
+    });
     let report = against(&same, &old);
     assert!(report.passed(), "a re-export moved: {}", report.summary());
     let graphs = livegesture::bundle::Bundle::load(&old)
@@ -65,10 +75,6 @@ fn a_reexport_of_the_same_weights_passes_and_other_weights_fail_naming_what_move
         .expect("a rollout token row");
     assert!(tokens.compared >= 1000 && tokens.error == 0.0);
 
-    let other = export(
-        &tmp.path().join("seed1"),
-        &["--config", "tiny", "--random-seed", "1"],
-    );
     let report = against(&other, &old);
     assert!(!report.passed());
     let failed: std::collections::BTreeSet<&str> = report
