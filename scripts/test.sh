@@ -50,14 +50,6 @@ cargo fmt --all -- --check
 # itself on Linux), so maturin finds pyo3 and the module already built instead of compiling them again
 export PYO3_CONFIG_FILE="$PWD/bindings/python/pyo3-config.txt"
 
-# The release build of the workspace starts now, in the background and niced, and is waited for at the stage
-# "rust build": the Python tests and the exports below run torch on one thread most of the time (the exporter sets
-# one), so the build takes the other core instead of waiting ~5 minutes for them
-mkdir -p target
-rm -f target/build.log
-nice -n 10 cargo build --release --workspace --all-targets > target/build.log 2>&1 &
-build_pid=$!
-
 stage "python tests"
 "$LIVEGESTURE_PY" -m pytest -q python/tests
 
@@ -78,19 +70,17 @@ stage "export the DiffSHEG tiny config (random weights) -> target/test-bundles/d
 "$LIVEGESTURE_PY" export/export.py --family diffsheg --config tiny --random-seed 0 --out target/test-bundles/diffsheg-tiny
 export LIVEGESTURE_DIFFSHEG_TINY_BUNDLE="$PWD/target/test-bundles/diffsheg-tiny"
 
-stage "rust build (release; started in the background before the Python tests)"
-if ! wait "$build_pid"; then
-  tail -n 60 target/build.log; echo "the release build failed (target/build.log)" >&2; exit 1
-fi
-grep -E '^ *(Finished|warning)' target/build.log || true
+stage "rust build (release)"
+cargo build --release --workspace --all-targets
 
-# The other builds, one after another in the background (niced; not beside each other: two cargo builds would only
-# share the two cores), each compiled once and waited for at the stage that needs it (wait_build):
-#   wasm      scripts/build_wasm.sh, the runtime in WebAssembly (stage "wasm")
-#   aarch64   scripts/cross.sh aarch64-unknown-linux-musl: static, tract, profile dist (the matrix and the archive)
+# The cross builds, one after another in the background (niced; not beside each other: two cargo builds would only
+# share the two cores), each compiled once (profile dist) and waited for at the stage that needs it (wait_build):
+#   aarch64   scripts/cross.sh aarch64-unknown-linux-musl: static, tract (the targets matrix and its archive)
 #   x86-musl  scripts/cross.sh x86_64-unknown-linux-musl: static, tract (stage "release")
 #   windows   scripts/cross.sh x86_64-pc-windows-gnu: mingw-w64, tract (stage "release")
-# Each writes target/cross/NAME.log and, when it ends, its exit status to target/cross/NAME.rc.
+# Each writes target/cross/NAME.log and, when it ends, its exit status to target/cross/NAME.rc. (The WebAssembly
+# build is the wasm stage's own, in the foreground: measured 2026-12-07 on the 2-core EPYC, a fifth build in this
+# chain made the whole command ~4 minutes slower, the machine being busy throughout either way.)
 mkdir -p target/cross
 rm -f target/cross/*.rc target/cross/*.log
 bg_build() {
@@ -99,7 +89,6 @@ bg_build() {
   echo "$rc" > "target/cross/$name.rc"
 }
 (
-  bg_build wasm env NICE=10 scripts/build_wasm.sh
   bg_build aarch64 env CROSS_NICE=10 scripts/cross.sh aarch64-unknown-linux-musl
   bg_build x86-musl env CROSS_NICE=10 scripts/cross.sh x86_64-unknown-linux-musl
   bg_build windows env CROSS_NICE=10 scripts/cross.sh x86_64-pc-windows-gnu
@@ -143,11 +132,12 @@ if [ ! -f "$ORT_NEWEST_DIR/.complete" ]; then
   touch "$ORT_NEWEST_DIR/.complete"
 fi
 ORT_NEWEST_LIB="$(ls "$ORT_NEWEST_DIR"/onnxruntime/capi/libonnxruntime.so.1* | head -n1)"
-for ort in "$ORT_OLDEST:$ORT_DYLIB_PATH" "$ORT_NEWEST:$ORT_NEWEST_LIB"; do
-  version="${ort%%:*}"; lib="${ort#*:}"
+# tract's rows do not depend on ONNX Runtime's version: the newest runs ort alone (against torch, and its rollout)
+for ort in "$ORT_OLDEST:$ORT_DYLIB_PATH:ort,tract" "$ORT_NEWEST:$ORT_NEWEST_LIB:ort"; do
+  version="${ort%%:*}"; rest="${ort#*:}"; lib="${rest%:*}"; backends="${rest##*:}"
   for bundle in default diffsheg; do
-    stage "parity: models/$bundle, both backends, ONNX Runtime $version"
-    ORT_DYLIB_PATH="$lib" ./target/release/livegesture parity --bundle "models/$bundle" --backends ort,tract \
+    stage "parity: models/$bundle, backends $backends, ONNX Runtime $version"
+    ORT_DYLIB_PATH="$lib" ./target/release/livegesture parity --bundle "models/$bundle" --backends "$backends" \
       --junit "target/parity/$bundle-ort-$version.xml" | tee target/parity/last.txt
     grep -q "^runtimes: .*ONNX Runtime $version " target/parity/last.txt || {
       echo "parity did not run ONNX Runtime $version ($lib)" >&2; exit 1; }
@@ -285,10 +275,8 @@ timeout 300 node runtime/web/tests/tls.mjs target/release/livegesture models/def
   models/default/reference/clip.wav target/browser-tls
 
 stage "wasm: the runtime in WebAssembly as a static page, parity and the microphone in chromium (docs/wasm.md)"
-# target/wasm-pkg: built in the background (scripts/build_wasm.sh installs the wasm32 target and the wasm-bindgen
-# CLI if missing); target/web-static from it, after wasm_fresh.sh checks it is not older than its sources
-wait_build wasm
-SKIP_WASM_BUILD=1 scripts/build_web_static.sh models/default
+# installs the wasm32 target and the wasm-bindgen CLI if missing; builds target/wasm-pkg and target/web-static
+scripts/build_web_static.sh models/default
 # the staleness check build_web_static.sh applies under SKIP_WASM_BUILD, shown to fail a stale module
 scripts/test_wasm_fresh.sh
 mkdir -p target/web-static/bundles target/browser-wasm

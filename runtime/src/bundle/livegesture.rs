@@ -316,6 +316,20 @@ impl LiveGestureManifest {
         own
     }
 
+    /// The form `backend` runs when asked for `form` and that form's graphs: `None` or `"auto"`, its
+    /// default form ([`Self::default_form`]) with the decoders it runs by default
+    /// ([`Self::default_decoders`]); a named form, that form's own graphs. `None` when the bundle
+    /// does not carry the form. The one rule for the runtime's chain and for what a page downloads.
+    pub fn graphs_run_by(&self, backend: &str, form: Option<&str>) -> Option<(String, FormGraphs)> {
+        let named = form.filter(|f| *f != "auto");
+        let name = named.unwrap_or(self.default_form(backend)).to_string();
+        let mut graphs = self.form_graphs().remove(&name)?;
+        if named.is_none() {
+            graphs.decoders = self.default_decoders(backend);
+        }
+        Some((name, graphs))
+    }
+
     /// Checks the sections against themselves and the common part; the error says what is wrong.
     pub(super) fn check(&self, m: &Manifest) -> Result<(), String> {
         if self.regions.is_empty() {

@@ -690,15 +690,10 @@ impl Manifest {
     /// then names it), every graph. In manifest order.
     pub fn graph_files_run_by(&self, backend: &str, form: Option<&str>) -> Vec<String> {
         let names: Option<Vec<String>> = self.livegesture.as_ref().and_then(|lg| {
-            let forms = lg.form_graphs();
-            let named = form.filter(|f| *f != "auto");
-            let graphs = forms.get(named.unwrap_or(lg.default_form(backend)))?;
-            let mut n = vec!["audio_encoder".to_string(), graphs.fusion.clone()];
-            n.extend(graphs.experts.iter().cloned());
-            match named {
-                Some(_) => n.extend(graphs.decoders.iter().cloned()),
-                None => n.extend(lg.default_decoders(backend)),
-            }
+            let (_, graphs) = lg.graphs_run_by(backend, form)?;
+            let mut n = vec!["audio_encoder".to_string(), graphs.fusion];
+            n.extend(graphs.experts);
+            n.extend(graphs.decoders);
             n.extend(self.face.iter().map(|f| f.graph.clone()));
             Some(n)
         });

@@ -144,21 +144,18 @@ impl LiveGestureGraphs {
         let lg = bundle.livegesture()?;
         let names: Vec<String> = lg.region_names().iter().map(|s| s.to_string()).collect();
         let regions = resolve_layouts(&lg.regions)?;
-        let forms = lg.form_graphs();
-        // the form's name in the manifest is its `Display` (`auto`: the bundle's form for the backend)
-        let auto = form == GraphForm::Auto;
-        let form = match form {
-            GraphForm::Auto => lg.default_form(backend.forms_of()).to_string(),
-            named => named.to_string(),
-        };
+        // the form's name in the manifest is its `Display` (`auto`: the bundle's form for the backend,
+        // with the decoders the backend runs with it: `LiveGestureManifest::graphs_run_by`)
+        let asked = (form != GraphForm::Auto).then(|| form.to_string());
         // a form the bundle does not carry is bad input (exit code 2), named in the manifest's terms
-        let graphs = forms
-            .get(&form)
+        let (form, graphs) = lg
+            .graphs_run_by(backend.forms_of(), asked.as_deref())
             .ok_or_else(|| crate::bundle::BundleError::Manifest {
                 path: bundle.dir().join("manifest.json"),
                 detail: format!(
-                    "forms: no '{form}' form of the region eXperts, fusion and decoders was exported (the bundle has {:?})",
-                    forms.keys().collect::<Vec<_>>()
+                    "forms: no '{}' form of the region eXperts, fusion and decoders was exported (the bundle has {:?})",
+                    asked.as_deref().unwrap_or(lg.default_form(backend.forms_of())),
+                    lg.form_graphs().keys().collect::<Vec<_>>()
                 ),
             })?;
         let audio_encoder = Stage::new(bundle, backend, "audio_encoder", &names)?;
@@ -171,14 +168,8 @@ impl LiveGestureGraphs {
         if experts.len() == 1 && names.len() > 1 {
             chain::check_fused_experts(&experts[0], names.len())?;
         }
-        // `auto`: the decoders the backend runs with its form (tract: the fused decoders when the
-        // bundle has them, `LiveGestureManifest::default_decoders`); a named form: its own
-        let decoder_graphs = if auto {
-            lg.default_decoders(backend.forms_of())
-        } else {
-            graphs.decoders.clone()
-        };
-        let decoders = decoder_graphs
+        let decoders = graphs
+            .decoders
             .iter()
             .map(|g| Stage::new(bundle, backend, g, &names))
             .collect::<Result<Vec<_>>>()?;
