@@ -20,8 +20,8 @@
 #  10. the page's second browser engine, onnxruntime-web, in chromium (parity of both shipped bundles, a
 #      perturbed weight; report in target/browser-ortweb/);
 #  11. the x86-64 levels (the release binary under qemu-x86_64 -cpu Haswell / Nehalem: AVX2+FMA and SSE-only
-#      kernels of tract and ONNX Runtime; the host's own level is the parity stages of 3.) and the targets matrix (docs/targets.md); the aarch64 musl and x86-64
-#      musl release archives and the Windows one proven from the archive alone (under qemu-aarch64, natively,
+#      kernels of tract and ONNX Runtime; the host's own level is the parity stages of 3.) and the targets matrix
+#      (docs/targets.md); the aarch64 musl and x86-64 musl release archives and the Windows one proven from the archive alone (under qemu-aarch64, natively,
 #      under wine: docs/install.md), and the x86-64 glibc archive (ort in lib/) and C SDK from the workspace build;
 # and first, the docs check (scripts/check_docs.py: relative links in the Markdown resolve).
 set -euo pipefail
@@ -300,8 +300,8 @@ timeout 900 node runtime/web/tests/ortweb.mjs --site target/web-static --out tar
 stage "x86-64 levels: the native binary under qemu-x86_64 -cpu Haswell (AVX2+FMA) and Nehalem (SSE4.2), ort and tract"
 # every x86 kernel path tract and ONNX Runtime dispatch to, on the tiny bundles (docs/targets.md); no build: the
 # release binary above, CPUID changed by qemu. The native level (x86-64-v4 on an AVX-512 host, v3 on an AVX2-only
-# one; the parity reports' `target.cpu`) is the parity stages above.
-# The level this host runs natively is the parity stages above (on real hardware, every check): qemu runs the others
+# one; the parity reports' `target.cpu`) is the parity stages above, on real hardware and with every check: qemu runs
+# only the other levels
 native_level=x86-64-v2
 grep -qw avx2 /proc/cpuinfo && grep -qw fma /proc/cpuinfo && native_level=x86-64-v3
 grep -qw avx512f /proc/cpuinfo && native_level=x86-64-v4
