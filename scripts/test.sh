@@ -21,8 +21,9 @@
 #      perturbed weight; report in target/browser-ortweb/);
 #  11. the x86-64 levels (the release binary under qemu-x86_64 -cpu Haswell / Nehalem: AVX2+FMA and SSE-only
 #      kernels of tract and ONNX Runtime; the host's own level is the parity stages of 3.) and the targets matrix
-#      (docs/targets.md); the aarch64 musl and x86-64 musl release archives and the Windows one proven from the archive alone (under qemu-aarch64, natively,
-#      under wine: docs/install.md), and the x86-64 glibc archive (ort in lib/) and C SDK from the workspace build;
+#      (docs/targets.md); the aarch64 musl and x86-64 musl release archives and the Windows one proven from the
+#      archive alone (under qemu-aarch64, natively, under wine: docs/install.md), and the x86-64 glibc archive (ort
+#      in lib/) and C SDK from the workspace build;
 # and first, the docs check (scripts/check_docs.py: relative links in the Markdown resolve).
 set -euo pipefail
 cd "$(dirname "$0")/.."
