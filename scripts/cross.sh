@@ -9,6 +9,9 @@
 #   scripts/cross.sh --runner TARGET   prints the command prefix that runs it on this x86-64 machine
 #                                      (empty: native; qemu-aarch64 ...; wine)
 #   scripts/cross.sh --c-lib TARGET    (aarch64 gnu) prints the folder of the C library built with the CLI
+#   scripts/cross.sh --install TARGET  installs what TARGET needs (below) and builds nothing: scripts/test.sh does
+#                                      this for its targets before it starts their builds in the background, so
+#                                      no apt-get or rustup runs beside the other stages' own
 #   scripts/cross.sh --ort-lib TARGET  (aarch64 gnu) fetches ONNX Runtime's library for TARGET from PyPI's
 #                                      wheel of the venv's onnxruntime version (cached) and prints its path
 #
@@ -134,7 +137,7 @@ ort_lib() {
 
 mode=build
 case "${1:-}" in
-  --path|--runner|--ort-lib|--features|--c-lib) mode="${1#--}"; shift ;;
+  --path|--runner|--install|--ort-lib|--features|--c-lib) mode="${1#--}"; shift ;;
   -h|--help|"") sed -n '2,20p' "$0"; [ -n "${1:-}" ]; exit $? ;;
 esac
 [ $# -eq 1 ] || { echo "cross.sh: expected one TARGET, got $#" >&2; exit 2; }
@@ -145,6 +148,7 @@ case $mode in
   features) echo "$FEATURES"; exit 0 ;;
   c-lib) [ "$WITH_C" = 1 ] || { echo "cross.sh: --c-lib: the C library is built only for aarch64-unknown-linux-gnu" >&2; exit 2; }
     echo "$(dirname "$OUT")"; exit 0 ;;
+  install) install_deps; exit 0 ;;
   ort-lib) install_deps; ort_lib; exit 0 ;;
 esac
 if [ "${CROSS_NO_BUILD:-0}" = 1 ]; then

@@ -43,6 +43,41 @@ stage "layout: no module cycle in a Rust crate, no long function or file without
 # (scripts/check_structure.py, about a second; its must-fail cases: python/tests/test_check_structure.py)
 "$LIVEGESTURE_PY" scripts/check_structure.py
 
+stage "cross builds: the release targets started in the background (target/cross/*.log)"
+# The cross builds, one after another in the background (niced; not beside each other: two cargo builds would only
+# share the two cores), each compiled once (profile dist) and waited for at the stage that needs it (wait_build).
+# They start here, before the Python tests and the exports: those run on one core (torch on one thread), so on a
+# 2-core machine the niced builds take the other core, and give way to the workspace build after them (nice 10
+# against 0). The two cargo calls do not share a lock: the workspace builds into target/release, these into
+# target/dist and target/TRIPLE/dist. What the targets need (Debian packages, rustup targets) is installed first,
+# in the foreground, so that no apt-get or rustup of theirs runs beside another stage's.
+#   aarch64   scripts/cross.sh aarch64-unknown-linux-musl: static, tract (the targets matrix and its archive)
+#   x86-musl  scripts/cross.sh x86_64-unknown-linux-musl: static, tract (stage "release")
+#   windows   scripts/cross.sh x86_64-pc-windows-gnu: mingw-w64, tract (stage "release")
+# Each writes target/cross/NAME.log and, when it ends, its exit status to target/cross/NAME.rc. (The WebAssembly
+# build is the wasm stage's own, in the foreground: measured 2026-12-07 on the 2-core EPYC, a fifth build in this
+# chain made the whole command ~4 minutes slower, the machine being busy throughout either way.)
+mkdir -p target/cross
+rm -f target/cross/*.rc target/cross/*.log
+for triple in aarch64-unknown-linux-musl x86_64-unknown-linux-musl x86_64-pc-windows-gnu; do
+  scripts/cross.sh --install "$triple"
+done
+bg_build() {
+  local name=$1 rc=0; shift
+  "$@" > "target/cross/$name.log" 2>&1 || rc=$?
+  echo "$rc" > "target/cross/$name.rc"
+}
+(
+  bg_build aarch64 env CROSS_NICE=10 scripts/cross.sh aarch64-unknown-linux-musl
+  bg_build x86-musl env CROSS_NICE=10 scripts/cross.sh x86_64-unknown-linux-musl
+  bg_build windows env CROSS_NICE=10 scripts/cross.sh x86_64-pc-windows-gnu
+) &
+chain_pid=$!
+# a stage that fails ends the command: the builds still running in the background end with it
+kill_tree() { local c; for c in $(pgrep -P "$1"); do kill_tree "$c"; done; kill "$1" 2>/dev/null || true; }
+end_chain() { local rc=$?; if kill -0 "$chain_pid" 2>/dev/null; then kill_tree "$chain_pid"; fi; exit "$rc"; }
+trap end_chain EXIT
+
 stage "rust formatting (cargo fmt --check)"
 cargo fmt --all -- --check
 
@@ -74,27 +109,6 @@ export LIVEGESTURE_DIFFSHEG_TINY_BUNDLE="$PWD/target/test-bundles/diffsheg-tiny"
 stage "rust build (release)"
 cargo build --release --workspace --all-targets
 
-# The cross builds, one after another in the background (niced; not beside each other: two cargo builds would only
-# share the two cores), each compiled once (profile dist) and waited for at the stage that needs it (wait_build):
-#   aarch64   scripts/cross.sh aarch64-unknown-linux-musl: static, tract (the targets matrix and its archive)
-#   x86-musl  scripts/cross.sh x86_64-unknown-linux-musl: static, tract (stage "release")
-#   windows   scripts/cross.sh x86_64-pc-windows-gnu: mingw-w64, tract (stage "release")
-# Each writes target/cross/NAME.log and, when it ends, its exit status to target/cross/NAME.rc. (The WebAssembly
-# build is the wasm stage's own, in the foreground: measured 2026-12-07 on the 2-core EPYC, a fifth build in this
-# chain made the whole command ~4 minutes slower, the machine being busy throughout either way.)
-mkdir -p target/cross
-rm -f target/cross/*.rc target/cross/*.log
-bg_build() {
-  local name=$1 rc=0; shift
-  "$@" > "target/cross/$name.log" 2>&1 || rc=$?
-  echo "$rc" > "target/cross/$name.rc"
-}
-(
-  bg_build aarch64 env CROSS_NICE=10 scripts/cross.sh aarch64-unknown-linux-musl
-  bg_build x86-musl env CROSS_NICE=10 scripts/cross.sh x86_64-unknown-linux-musl
-  bg_build windows env CROSS_NICE=10 scripts/cross.sh x86_64-pc-windows-gnu
-) &
-chain_pid=$!
 wait_build() {
   local name=$1
   while [ ! -f "target/cross/$name.rc" ]; do
