@@ -43,41 +43,6 @@ stage "layout: no module cycle in a Rust crate, no long function or file without
 # (scripts/check_structure.py, about a second; its must-fail cases: python/tests/test_check_structure.py)
 "$LIVEGESTURE_PY" scripts/check_structure.py
 
-stage "cross builds: the release targets started in the background (target/cross/*.log)"
-# The cross builds, one after another in the background (niced; not beside each other: two cargo builds would only
-# share the two cores), each compiled once (profile dist) and waited for at the stage that needs it (wait_build).
-# They start here, before the Python tests and the exports: those run on one core (torch on one thread), so on a
-# 2-core machine the niced builds take the other core, and give way to the workspace build after them (nice 10
-# against 0). The two cargo calls do not share a lock: the workspace builds into target/release, these into
-# target/dist and target/TRIPLE/dist. What the targets need (Debian packages, rustup targets) is installed first,
-# in the foreground, so that no apt-get or rustup of theirs runs beside another stage's.
-#   aarch64   scripts/cross.sh aarch64-unknown-linux-musl: static, tract (the targets matrix and its archive)
-#   x86-musl  scripts/cross.sh x86_64-unknown-linux-musl: static, tract (stage "release")
-#   windows   scripts/cross.sh x86_64-pc-windows-gnu: mingw-w64, tract (stage "release")
-# Each writes target/cross/NAME.log and, when it ends, its exit status to target/cross/NAME.rc. (The WebAssembly
-# build is the wasm stage's own, in the foreground: measured 2026-12-07 on the 2-core EPYC, a fifth build in this
-# chain made the whole command ~4 minutes slower, the machine being busy throughout either way.)
-mkdir -p target/cross
-rm -f target/cross/*.rc target/cross/*.log
-for triple in aarch64-unknown-linux-musl x86_64-unknown-linux-musl x86_64-pc-windows-gnu; do
-  scripts/cross.sh --install "$triple"
-done
-bg_build() {
-  local name=$1 rc=0; shift
-  "$@" > "target/cross/$name.log" 2>&1 || rc=$?
-  echo "$rc" > "target/cross/$name.rc"
-}
-(
-  bg_build aarch64 env CROSS_NICE=10 scripts/cross.sh aarch64-unknown-linux-musl
-  bg_build x86-musl env CROSS_NICE=10 scripts/cross.sh x86_64-unknown-linux-musl
-  bg_build windows env CROSS_NICE=10 scripts/cross.sh x86_64-pc-windows-gnu
-) &
-chain_pid=$!
-# a stage that fails ends the command: the builds still running in the background end with it
-kill_tree() { local c; for c in $(pgrep -P "$1"); do kill_tree "$c"; done; kill "$1" 2>/dev/null || true; }
-end_chain() { local rc=$?; if kill -0 "$chain_pid" 2>/dev/null; then kill_tree "$chain_pid"; fi; exit "$rc"; }
-trap end_chain EXIT
-
 stage "rust formatting (cargo fmt --check)"
 cargo fmt --all -- --check
 
@@ -109,6 +74,39 @@ export LIVEGESTURE_DIFFSHEG_TINY_BUNDLE="$PWD/target/test-bundles/diffsheg-tiny"
 stage "rust build (release)"
 cargo build --release --workspace --all-targets
 
+# The cross builds, one after another in the background (niced; not beside each other: two cargo builds would only
+# share the two cores), each compiled once (profile dist) and waited for at the stage that needs it (wait_build).
+# What the targets need (Debian packages, rustup targets) is installed first, in the foreground, so that no apt-get
+# or rustup of theirs runs beside another stage's. (Started before the Python tests instead, which run on one core,
+# the whole command was no shorter on the 2-core EPYC: 3961 s against 3922 s, the Python tests 302 s instead of
+# 206 s and the workspace build 773 s instead of 648 s beside them; docs/experiments.md.)
+#   aarch64   scripts/cross.sh aarch64-unknown-linux-musl: static, tract (the targets matrix and its archive)
+#   x86-musl  scripts/cross.sh x86_64-unknown-linux-musl: static, tract (stage "release")
+#   windows   scripts/cross.sh x86_64-pc-windows-gnu: mingw-w64, tract (stage "release")
+# Each writes target/cross/NAME.log and, when it ends, its exit status to target/cross/NAME.rc. (The WebAssembly
+# build is the wasm stage's own, in the foreground: measured 2026-12-07 on the 2-core EPYC, a fifth build in this
+# chain made the whole command ~4 minutes slower, the machine being busy throughout either way.)
+mkdir -p target/cross
+rm -f target/cross/*.rc target/cross/*.log
+for triple in aarch64-unknown-linux-musl x86_64-unknown-linux-musl x86_64-pc-windows-gnu; do
+  scripts/cross.sh --install "$triple"
+done
+bg_build() {
+  local name=$1 rc=0; shift
+  "$@" > "target/cross/$name.log" 2>&1 || rc=$?
+  echo "$rc" > "target/cross/$name.rc"
+}
+(
+  bg_build aarch64 env CROSS_NICE=10 scripts/cross.sh aarch64-unknown-linux-musl
+  bg_build x86-musl env CROSS_NICE=10 scripts/cross.sh x86_64-unknown-linux-musl
+  bg_build windows env CROSS_NICE=10 scripts/cross.sh x86_64-pc-windows-gnu
+) &
+chain_pid=$!
+# a stage that fails ends the command: the builds still running in the background end with it
+kill_tree() { local c; for c in $(pgrep -P "$1"); do kill_tree "$c"; done; kill "$1" 2>/dev/null || true; }
+end_chain() { local rc=$?; if kill -0 "$chain_pid" 2>/dev/null; then kill_tree "$chain_pid"; fi; exit "$rc"; }
+trap end_chain EXIT
+
 wait_build() {
   local name=$1
   while [ ! -f "target/cross/$name.rc" ]; do
@@ -119,6 +117,26 @@ wait_build() {
     tail -n 40 "target/cross/$name.log"; echo "the $name build failed (target/cross/$name.log)" >&2; exit 1
   fi
   grep -E "built in|Finished" "target/cross/$name.log" || true
+}
+
+# run_jobs FN...: the functions side by side, at most $(nproc) at a time (the background builds still running count
+# as one), each with errexit, its output kept in target/jobs/FN.log and printed whole once it ends; fails when one
+# failed, after all have ended, naming them
+run_jobs() {
+  local fn failed=() pids=()
+  mkdir -p target/jobs
+  for fn in "$@"; do
+    while [ "$(jobs -rp | wc -l)" -ge "$(nproc)" ]; do wait -n 2>/dev/null || true; done
+    rm -f "target/jobs/$fn.rc"
+    ( set +e; ( set -e; "$fn" ) > "target/jobs/$fn.log" 2>&1; echo $? > "target/jobs/$fn.rc" ) &
+    pids+=("$!")
+  done
+  wait "${pids[@]}" 2>/dev/null || true
+  for fn in "$@"; do
+    echo "--- $fn"; cat "target/jobs/$fn.log"
+    [ "$(cat "target/jobs/$fn.rc" 2>/dev/null)" = 0 ] || failed+=("$fn (exit $(cat "target/jobs/$fn.rc" 2>/dev/null || echo '?'))")
+  done
+  if [ ${#failed[@]} -gt 0 ]; then echo "failed: ${failed[*]}" >&2; return 1; fi
 }
 
 # every parity run also writes its JUnit report (target/parity/*.xml) for CI systems to read; an earlier
@@ -312,54 +330,57 @@ stage "providers: onnxruntime-web in chromium, the page's ?engine=ort-web (docs/
 timeout 900 node runtime/web/tests/ortweb.mjs --site target/web-static --out target/browser-ortweb \
   --parity bundle/ --parity bundles/diffsheg/ --broken bundles/broken/:expert_hands
 
-stage "x86-64 levels: the native binary under qemu-x86_64 -cpu Haswell (AVX2+FMA) and Nehalem (SSE4.2), ort and tract"
-# every x86 kernel path tract and ONNX Runtime dispatch to, on the tiny bundles (docs/targets.md); no build: the
-# release binary above, CPUID changed by qemu. The native level (x86-64-v4 on an AVX-512 host, v3 on an AVX2-only
-# one; the parity reports' `target.cpu`) is the parity stages above, on real hardware and with every check: qemu runs
-# only the other levels
+stage "targets under emulation, side by side: the x86-64 levels (qemu-x86_64 -cpu Haswell / Nehalem), the aarch64 parity matrix (docs/targets.md) and the aarch64 release archive proven from the archive alone"
+# Each job below is one emulated process on one core (no build: the release binary above, the aarch64 build of the
+# background chain), so they run as a pool of $(nproc) at a time (run_jobs): on the 2-core VM the stages took 160 s
+# and 308 s one after another (2026-12-07).
+#
+# The x86-64 levels: every x86 kernel path tract and ONNX Runtime dispatch to, on the tiny bundles; CPUID changed by
+# qemu. The native level (x86-64-v4 on an AVX-512 host, v3 on an AVX2-only one; the parity reports' `target.cpu`) is
+# the parity stages above, on real hardware and with every check: qemu runs only the other levels.
 native_level=x86-64-v2
 grep -qw avx2 /proc/cpuinfo && grep -qw fma /proc/cpuinfo && native_level=x86-64-v3
 grep -qw avx512f /proc/cpuinfo && native_level=x86-64-v4
 levels=()
 for l in x86-64-v3 x86-64-v2; do [ "$l" = "$native_level" ] || levels+=("$l"); done
 echo "this host's level: $native_level (the parity stages above); under qemu: ${levels[*]}"
-for b in tiny diffsheg-tiny; do
-  scripts/targets.sh --bundle "target/test-bundles/$b" --out "target/targets/$b" "${levels[@]}"
-done
-# must fail on the SSE-only path too: one expert_hands weight x 1.02, named
-"$LIVEGESTURE_PY" parity-tests/tools/break_bundle.py target/test-bundles/tiny target/targets/broken-tiny-x86 \
-  --graph expert_hands --perturb-weight --delta 0.02 --relative
-if scripts/targets.sh --bundle target/targets/broken-tiny-x86 --out target/targets/broken-x86 --checks graph \
-    x86-64-v2 > target/targets/broken-x86.txt 2>&1; then
-  cat target/targets/broken-x86.txt; echo "targets.sh x86-64-v2 passed a bundle with a perturbed weight" >&2; exit 1
-fi
-grep -q "^FAIL graph expert_hands" target/targets/broken-x86/x86-64-v2.txt || {
-  cat target/targets/broken-x86.txt; echo "targets.sh on x86-64-v2 did not name expert_hands" >&2; exit 1; }
-
-stage "targets: the parity matrix (docs/targets.md) and the aarch64 release archive proven from the archive alone"
-wait_build aarch64
-# the binaries the background builds made: no cargo here (it would wait for the lock the Windows build holds)
-export CROSS_NO_BUILD=1
-# tiny bundles on aarch64 (qemu-aarch64). The x86-64 targets (the native level, v3/v2 under qemu-x86_64 -cpu) are
-# not in this stage yet: not yet run with --target-name (docs/targets.md)
-for b in tiny diffsheg-tiny; do
-  scripts/targets.sh --bundle "target/test-bundles/$b" --out "target/targets/$b" aarch64-musl
-done
-# must fail: one weight perturbed by 0.02 (relative), named by the report on each target
-"$LIVEGESTURE_PY" parity-tests/tools/break_bundle.py target/test-bundles/tiny target/targets/broken-tiny \
-  --graph expert_hands --perturb-weight --delta 0.02 --relative
-if scripts/targets.sh --bundle target/targets/broken-tiny --out target/targets/broken --checks graph \
-    aarch64-musl > target/targets/broken.txt 2>&1; then
-  cat target/targets/broken.txt; echo "targets.sh passed a bundle with a perturbed weight" >&2; exit 1
-fi
-for t in aarch64-musl; do
-  grep -q "^FAIL graph expert_hands" "target/targets/broken/$t.txt" || {
-    cat target/targets/broken.txt; echo "targets.sh on $t did not name expert_hands" >&2; exit 1; }
-done
+x86_tiny() { scripts/targets.sh --bundle target/test-bundles/tiny --out target/targets/tiny "${levels[@]}"; }
+x86_diffsheg() {
+  scripts/targets.sh --bundle target/test-bundles/diffsheg-tiny --out target/targets/diffsheg-tiny "${levels[@]}"
+}
+x86_broken() {   # must fail on the SSE-only path too: one expert_hands weight x 1.02, named
+  "$LIVEGESTURE_PY" parity-tests/tools/break_bundle.py target/test-bundles/tiny target/targets/broken-tiny-x86 \
+    --graph expert_hands --perturb-weight --delta 0.02 --relative
+  if scripts/targets.sh --bundle target/targets/broken-tiny-x86 --out target/targets/broken-x86 --checks graph \
+      x86-64-v2 > target/targets/broken-x86.txt 2>&1; then
+    cat target/targets/broken-x86.txt; echo "targets.sh x86-64-v2 passed a bundle with a perturbed weight" >&2; return 1
+  fi
+  grep -q "^FAIL graph expert_hands" target/targets/broken-x86/x86-64-v2.txt || {
+    cat target/targets/broken-x86.txt; echo "targets.sh on x86-64-v2 did not name expert_hands" >&2; return 1; }
+  echo "x86-64-v2: the perturbed expert_hands fails, named"
+}
+# aarch64 (qemu-aarch64), the static build. The x86-64 targets are not in this matrix yet: not yet run with
+# --target-name (docs/targets.md)
+a64_tiny() { scripts/targets.sh --bundle target/test-bundles/tiny --out target/targets/tiny aarch64-musl; }
+a64_diffsheg() {
+  scripts/targets.sh --bundle target/test-bundles/diffsheg-tiny --out target/targets/diffsheg-tiny aarch64-musl
+}
+a64_broken() {   # must fail: one weight perturbed by 0.02 (relative), named by the report
+  "$LIVEGESTURE_PY" parity-tests/tools/break_bundle.py target/test-bundles/tiny target/targets/broken-tiny \
+    --graph expert_hands --perturb-weight --delta 0.02 --relative
+  if scripts/targets.sh --bundle target/targets/broken-tiny --out target/targets/broken --checks graph \
+      aarch64-musl > target/targets/broken.txt 2>&1; then
+    cat target/targets/broken.txt; echo "targets.sh passed a bundle with a perturbed weight" >&2; return 1
+  fi
+  grep -q "^FAIL graph expert_hands" target/targets/broken/aarch64-musl.txt || {
+    cat target/targets/broken.txt; echo "targets.sh on aarch64-musl did not name expert_hands" >&2; return 1; }
+  echo "aarch64-musl: the perturbed expert_hands fails, named"
+}
 # NEON-only aarch64 (`qemu-aarch64 -cpu cortex-a72`: no SVE, as on Graviton 2 or a Raspberry Pi 4): the same static
-# build must take tract's arm64simd kernels there and pass on the tiny bundle (63-87 s under qemu, loaded 2-core VM)
-scripts/targets.sh --bundle target/test-bundles/tiny --out target/targets/tiny aarch64-musl-neon
-"$LIVEGESTURE_PY" - target/targets/tiny/aarch64-musl-neon.json <<'PY'
+# build must take tract's arm64simd kernels there and pass on the tiny bundle (63-98 s under qemu, loaded 2-core VM)
+a64_neon() {
+  scripts/targets.sh --bundle target/test-bundles/tiny --out target/targets/tiny aarch64-musl-neon
+  "$LIVEGESTURE_PY" - target/targets/tiny/aarch64-musl-neon.json <<'PY'
 import json, sys
 cpu = json.load(open(sys.argv[1]))["target"]["cpu"]
 if cpu["tract_rung"] != "neon" or any("sve" in t for t in cpu["tract_mmm_tiers"]):
@@ -368,9 +389,16 @@ if cpu["tract_rung"] != "neon" or any("sve" in t for t in cpu["tract_mmm_tiers"]
 picks = cpu.get("tract_f32_mmm_picks") or {}
 if not picks or not all(str(k).startswith("arm64simd_") for k in picks.values()):
     sys.exit(f"aarch64-musl-neon: tract's f32 matmul picks {picks} are not all arm64simd kernels")
+print("aarch64-musl-neon: tract took the NEON-only arm64simd kernels")
 PY
+}
 # the release archive for aarch64 Linux (static), proven from the archive alone under qemu-aarch64
-scripts/release.sh --prove aarch64-unknown-linux-musl
+a64_prove() { scripts/release.sh --prove aarch64-unknown-linux-musl; }
+wait_build aarch64
+# the binaries the background builds made: no cargo here (it would wait for the lock the Windows build holds)
+export CROSS_NO_BUILD=1
+mkdir -p target/targets
+run_jobs x86_tiny a64_tiny a64_neon a64_prove a64_broken x86_broken a64_diffsheg x86_diffsheg
 
 stage "release: the x86-64 musl (static) archive, proven from the archive alone (docs/install.md)"
 wait_build x86-musl
