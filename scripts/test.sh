@@ -78,7 +78,7 @@ cargo build --release --workspace --all-targets
 # share the two cores), each compiled once (profile dist) and waited for at the stage that needs it (wait_build).
 # What the targets need (Debian packages, rustup targets) is installed first, in the foreground, so that no apt-get
 # or rustup of theirs runs beside another stage's. (Started before the Python tests instead, which run on one core,
-# the whole command was no shorter on the 2-core EPYC: 3961 s against 3922 s, the Python tests 302 s instead of
+# the whole command was no shorter on the 2-core EPYC: 3961 s against 3922 s, the Python tests 225 s instead of
 # 206 s and the workspace build 773 s instead of 648 s beside them; docs/experiments.md.)
 #   aarch64   scripts/cross.sh aarch64-unknown-linux-musl: static, tract (the targets matrix and its archive)
 #   x86-musl  scripts/cross.sh x86_64-unknown-linux-musl: static, tract (stage "release")
