@@ -348,34 +348,28 @@ x86_tiny() { scripts/targets.sh --bundle target/test-bundles/tiny --out target/t
 x86_diffsheg() {
   scripts/targets.sh --bundle target/test-bundles/diffsheg-tiny --out target/targets/diffsheg-tiny "${levels[@]}"
 }
-x86_broken() {   # must fail on the SSE-only path too: one expert_hands weight x 1.02, named
-  "$LIVEGESTURE_PY" parity-tests/tools/break_bundle.py target/test-bundles/tiny target/targets/broken-tiny-x86 \
+# must fail on TARGET: the tiny bundle with one expert_hands weight x 1.02 (relative), a graph check that fails
+# naming expert_hands; the broken copy and the report under target/targets/broken-tiny[-SUFFIX], broken[-SUFFIX]
+must_fail_on() {
+  local t=$1 sfx=${2:+-$2}
+  "$LIVEGESTURE_PY" parity-tests/tools/break_bundle.py target/test-bundles/tiny "target/targets/broken-tiny$sfx" \
     --graph expert_hands --perturb-weight --delta 0.02 --relative
-  if scripts/targets.sh --bundle target/targets/broken-tiny-x86 --out target/targets/broken-x86 --checks graph \
-      x86-64-v2 > target/targets/broken-x86.txt 2>&1; then
-    cat target/targets/broken-x86.txt; echo "targets.sh x86-64-v2 passed a bundle with a perturbed weight" >&2; return 1
+  if scripts/targets.sh --bundle "target/targets/broken-tiny$sfx" --out "target/targets/broken$sfx" --checks graph \
+      "$t" > "target/targets/broken$sfx.txt" 2>&1; then
+    cat "target/targets/broken$sfx.txt"; echo "targets.sh on $t passed a bundle with a perturbed weight" >&2; return 1
   fi
-  grep -q "^FAIL graph expert_hands" target/targets/broken-x86/x86-64-v2.txt || {
-    cat target/targets/broken-x86.txt; echo "targets.sh on x86-64-v2 did not name expert_hands" >&2; return 1; }
-  echo "x86-64-v2: the perturbed expert_hands fails, named"
+  grep -q "^FAIL graph expert_hands" "target/targets/broken$sfx/$t.txt" || {
+    cat "target/targets/broken$sfx.txt"; echo "targets.sh on $t did not name expert_hands" >&2; return 1; }
+  echo "$t: the perturbed expert_hands fails, named"
 }
+x86_broken() { must_fail_on x86-64-v2 x86; }   # the SSE-only path too
 # aarch64 (qemu-aarch64), the static build. The x86-64 targets are not in this matrix yet: not yet run with
 # --target-name (docs/targets.md)
 a64_tiny() { scripts/targets.sh --bundle target/test-bundles/tiny --out target/targets/tiny aarch64-musl; }
 a64_diffsheg() {
   scripts/targets.sh --bundle target/test-bundles/diffsheg-tiny --out target/targets/diffsheg-tiny aarch64-musl
 }
-a64_broken() {   # must fail: one weight perturbed by 0.02 (relative), named by the report
-  "$LIVEGESTURE_PY" parity-tests/tools/break_bundle.py target/test-bundles/tiny target/targets/broken-tiny \
-    --graph expert_hands --perturb-weight --delta 0.02 --relative
-  if scripts/targets.sh --bundle target/targets/broken-tiny --out target/targets/broken --checks graph \
-      aarch64-musl > target/targets/broken.txt 2>&1; then
-    cat target/targets/broken.txt; echo "targets.sh passed a bundle with a perturbed weight" >&2; return 1
-  fi
-  grep -q "^FAIL graph expert_hands" target/targets/broken/aarch64-musl.txt || {
-    cat target/targets/broken.txt; echo "targets.sh on aarch64-musl did not name expert_hands" >&2; return 1; }
-  echo "aarch64-musl: the perturbed expert_hands fails, named"
-}
+a64_broken() { must_fail_on aarch64-musl; }   # target/targets/broken-tiny, as docs/targets.md's commands use
 # NEON-only aarch64 (`qemu-aarch64 -cpu cortex-a72`: no SVE, as on Graviton 2 or a Raspberry Pi 4): the same static
 # build must take tract's arm64simd kernels there and pass on the tiny bundle (63-98 s under qemu, loaded 2-core VM)
 a64_neon() {
