@@ -51,24 +51,49 @@ cargo fmt --all -- --check
 # itself on Linux), so maturin finds pyo3 and the module already built instead of compiling them again
 export PYO3_CONFIG_FILE="$PWD/bindings/python/pyo3-config.txt"
 
-stage "python tests"
+# Background work (the exports below, the cross builds after the workspace build): a stage that fails ends the
+# command, and what still runs in the background ends with it
+bg_pids=()
+kill_tree() { local c; for c in $(pgrep -P "$1"); do kill_tree "$c"; done; kill "$1" 2>/dev/null || true; }
+end_bg() {
+  local rc=$? p
+  for p in "${bg_pids[@]}"; do if kill -0 "$p" 2>/dev/null; then kill_tree "$p"; fi; done
+  exit "$rc"
+}
+trap end_bg EXIT
+
+# The three tiny exports (one Python process each, one after another) run beside the Python tests: both are
+# single-threaded Python (torch at one thread), so one core stood idle while they ran one after the other (vmstat
+# every 10 s: 45-50 % idle CPU for the first 316 s of a fresh clone on the 2-core EPYC). Their output is printed
+# whole after the Python tests (target/jobs/exports.log).
+exports() {
+  stage "export the tiny config (random weights) -> target/test-bundles/tiny"
+  mkdir -p target/test-bundles
+  "$LIVEGESTURE_PY" export/export.py --config tiny --random-seed 3 --out target/test-bundles/tiny
+  stage "export the tiny config with the ring forms (docs/bundle.md#ring-caches) -> target/test-bundles/tiny-ring"
+  # the same weights; each backend runs its ring form; a 300-token reference rollout (parity-tests/src/lib.rs)
+  "$LIVEGESTURE_PY" export/export.py --config tiny --random-seed 3 --forms canonical,fused,attention,ring \
+    --backend-forms ort=fused_ring,tract=attention_ring --rollout-tokens 300 --out target/test-bundles/tiny-ring
+  stage "export the DiffSHEG tiny config (random weights) -> target/test-bundles/diffsheg-tiny"
+  "$LIVEGESTURE_PY" export/export.py --family diffsheg --config tiny --random-seed 0 \
+    --out target/test-bundles/diffsheg-tiny
+}
+mkdir -p target/jobs
+( set -e; exports ) > target/jobs/exports.log 2>&1 &
+exports_pid=$!
+bg_pids+=("$exports_pid")
+
+stage "python tests (the tiny exports beside them: their output follows)"
 "$LIVEGESTURE_PY" -m pytest -q python/tests
 
-stage "export the tiny config (random weights) -> target/test-bundles/tiny"
-mkdir -p target/test-bundles
-"$LIVEGESTURE_PY" export/export.py --config tiny --random-seed 3 --out target/test-bundles/tiny
-# the Rust tests (runtime and parity suite) use this fresh export (parity-tests/src/lib.rs)
+stage "the tiny exports (run beside the Python tests)"
+exports_rc=0
+wait "$exports_pid" || exports_rc=$?
+cat target/jobs/exports.log
+[ "$exports_rc" = 0 ] || { echo "the tiny exports failed (exit $exports_rc; target/jobs/exports.log)" >&2; exit 1; }
+# the Rust tests (runtime and parity suite) use these fresh exports (parity-tests/src/lib.rs)
 export LIVEGESTURE_TEST_BUNDLE="$PWD/target/test-bundles/tiny"
-
-stage "export the tiny config with the ring forms (docs/bundle.md#ring-caches) -> target/test-bundles/tiny-ring"
-# the same weights; each backend runs its ring form; a 300-token reference rollout (52 s at load 7 on the 2-core VM;
-# parity-tests/src/lib.rs)
-"$LIVEGESTURE_PY" export/export.py --config tiny --random-seed 3 --forms canonical,fused,attention,ring \
-  --backend-forms ort=fused_ring,tract=attention_ring --rollout-tokens 300 --out target/test-bundles/tiny-ring
 export LIVEGESTURE_RING_TEST_BUNDLE="$PWD/target/test-bundles/tiny-ring"
-
-stage "export the DiffSHEG tiny config (random weights) -> target/test-bundles/diffsheg-tiny"
-"$LIVEGESTURE_PY" export/export.py --family diffsheg --config tiny --random-seed 0 --out target/test-bundles/diffsheg-tiny
 export LIVEGESTURE_DIFFSHEG_TINY_BUNDLE="$PWD/target/test-bundles/diffsheg-tiny"
 
 stage "rust build (release)"
@@ -102,10 +127,7 @@ bg_build() {
   bg_build windows env CROSS_NICE=10 scripts/cross.sh x86_64-pc-windows-gnu
 ) &
 chain_pid=$!
-# a stage that fails ends the command: the builds still running in the background end with it
-kill_tree() { local c; for c in $(pgrep -P "$1"); do kill_tree "$c"; done; kill "$1" 2>/dev/null || true; }
-end_chain() { local rc=$?; if kill -0 "$chain_pid" 2>/dev/null; then kill_tree "$chain_pid"; fi; exit "$rc"; }
-trap end_chain EXIT
+bg_pids+=("$chain_pid")
 
 wait_build() {
   local name=$1
