@@ -416,6 +416,13 @@ export CROSS_NO_BUILD=1
 mkdir -p target/targets
 run_jobs x86_tiny a64_tiny a64_neon a64_prove a64_broken x86_broken a64_diffsheg x86_diffsheg
 
+stage "release: the x86-64 glibc archive (ONNX Runtime in lib/) and C SDK, proven from the archive alone"
+# no compile: both take the workspace build above (target/release), so this stage runs before the two that wait for
+# the background builds (in the fresh clone of 099daf2 it ran last, with one core idle beside it); the archive's --backend ort finds lib/'s
+# library, tract is byte-identical to the native build; the SDK's example built from the extracted archive with
+# pkg-config and with CMake, shared and static (docs/install.md)
+scripts/release.sh --prove x86_64-unknown-linux-gnu c-sdk
+
 stage "release: the x86-64 musl (static) archive, proven from the archive alone (docs/install.md)"
 wait_build x86-musl
 # static (file, ldd); its generate output, with no --bundle, the same bytes as the native gnu build's tract output
@@ -425,11 +432,5 @@ stage "release: the Windows archive (.zip), proven from the archive alone under 
 wait_build windows
 # livegesture.exe under Debian's wine, no --bundle: ceil(duration x 30) frames, the native build's tokens
 scripts/release.sh --prove x86_64-pc-windows-gnu
-
-stage "release: the x86-64 glibc archive (ONNX Runtime in lib/) and C SDK, proven from the archive alone"
-# no compile: both take the workspace build above (target/release); the archive's --backend ort finds lib/'s
-# library, tract is byte-identical to the native build; the SDK's example built from the extracted archive with
-# pkg-config and with CMake, shared and static (docs/install.md)
-scripts/release.sh --prove x86_64-unknown-linux-gnu c-sdk
 
 stage "all tests passed"
