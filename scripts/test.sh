@@ -51,21 +51,30 @@ cargo fmt --all -- --check
 # itself on Linux), so maturin finds pyo3 and the module already built instead of compiling them again
 export PYO3_CONFIG_FILE="$PWD/bindings/python/pyo3-config.txt"
 
-# Background work (the exports below, the cross builds after the workspace build): a stage that fails ends the
-# command, and what still runs in the background ends with it
-bg_pids=()
-kill_tree() { local c; for c in $(pgrep -P "$1"); do kill_tree "$c"; done; kill "$1" 2>/dev/null || true; }
-end_bg() {
-  local rc=$? p
-  for p in "${bg_pids[@]}"; do if kill -0 "$p" 2>/dev/null; then kill_tree "$p"; fi; done
-  exit "$rc"
+# run_jobs FN...: the functions side by side, at most $(nproc) at a time (the background builds still running count
+# as one), each with errexit, its output kept in target/jobs/FN.log and printed whole once it ends; fails when one
+# failed, after all have ended, naming them
+run_jobs() {
+  local fn failed=() pids=()
+  mkdir -p target/jobs
+  for fn in "$@"; do
+    while [ "$(jobs -rp | wc -l)" -ge "$(nproc)" ]; do wait -n 2>/dev/null || true; done
+    rm -f "target/jobs/$fn.rc"
+    ( set +e; ( set -e; "$fn" ) > "target/jobs/$fn.log" 2>&1; echo $? > "target/jobs/$fn.rc" ) &
+    pids+=("$!")
+  done
+  wait "${pids[@]}" 2>/dev/null || true
+  for fn in "$@"; do
+    echo "--- $fn"; cat "target/jobs/$fn.log"
+    [ "$(cat "target/jobs/$fn.rc" 2>/dev/null)" = 0 ] || failed+=("$fn (exit $(cat "target/jobs/$fn.rc" 2>/dev/null || echo '?'))")
+  done
+  if [ ${#failed[@]} -gt 0 ]; then echo "failed: ${failed[*]}" >&2; return 1; fi
 }
-trap end_bg EXIT
 
-# The three tiny exports (one Python process each, one after another) run beside the Python tests: both are
-# single-threaded Python (torch at one thread), so one core stood idle while they ran one after the other (vmstat
-# every 10 s: 45-50 % idle CPU for the first 316 s of a fresh clone on the 2-core EPYC). Their output is printed
-# whole after the Python tests (target/jobs/exports.log).
+# The Python tests and the three tiny exports (one Python process each, one after another) run side by side
+# (run_jobs): both are single-threaded Python (torch at one thread), so one core stood idle while they ran one after
+# the other (vmstat every 10 s: 45-50 % idle CPU for the first 316 s of a fresh clone on the 2-core EPYC)
+python_tests() { "$LIVEGESTURE_PY" -m pytest -q python/tests; }
 exports() {
   stage "export the tiny config (random weights) -> target/test-bundles/tiny"
   mkdir -p target/test-bundles
@@ -78,19 +87,8 @@ exports() {
   "$LIVEGESTURE_PY" export/export.py --family diffsheg --config tiny --random-seed 0 \
     --out target/test-bundles/diffsheg-tiny
 }
-mkdir -p target/jobs
-( set -e; exports ) > target/jobs/exports.log 2>&1 &
-exports_pid=$!
-bg_pids+=("$exports_pid")
-
-stage "python tests (the tiny exports beside them: their output follows)"
-"$LIVEGESTURE_PY" -m pytest -q python/tests
-
-stage "the tiny exports (run beside the Python tests)"
-exports_rc=0
-wait "$exports_pid" || exports_rc=$?
-cat target/jobs/exports.log
-[ "$exports_rc" = 0 ] || { echo "the tiny exports failed (exit $exports_rc; target/jobs/exports.log)" >&2; exit 1; }
+stage "python tests and, beside them, the tiny exports (each one's output follows, whole)"
+run_jobs python_tests exports
 # the Rust tests (runtime and parity suite) use these fresh exports (parity-tests/src/lib.rs)
 export LIVEGESTURE_TEST_BUNDLE="$PWD/target/test-bundles/tiny"
 export LIVEGESTURE_RING_TEST_BUNDLE="$PWD/target/test-bundles/tiny-ring"
@@ -127,7 +125,10 @@ bg_build() {
   bg_build windows env CROSS_NICE=10 scripts/cross.sh x86_64-pc-windows-gnu
 ) &
 chain_pid=$!
-bg_pids+=("$chain_pid")
+# a stage that fails ends the command: the builds still running in the background end with it
+kill_tree() { local c; for c in $(pgrep -P "$1"); do kill_tree "$c"; done; kill "$1" 2>/dev/null || true; }
+end_chain() { local rc=$?; if kill -0 "$chain_pid" 2>/dev/null; then kill_tree "$chain_pid"; fi; exit "$rc"; }
+trap end_chain EXIT
 
 wait_build() {
   local name=$1
@@ -139,26 +140,6 @@ wait_build() {
     tail -n 40 "target/cross/$name.log"; echo "the $name build failed (target/cross/$name.log)" >&2; exit 1
   fi
   grep -E "built in|Finished" "target/cross/$name.log" || true
-}
-
-# run_jobs FN...: the functions side by side, at most $(nproc) at a time (the background builds still running count
-# as one), each with errexit, its output kept in target/jobs/FN.log and printed whole once it ends; fails when one
-# failed, after all have ended, naming them
-run_jobs() {
-  local fn failed=() pids=()
-  mkdir -p target/jobs
-  for fn in "$@"; do
-    while [ "$(jobs -rp | wc -l)" -ge "$(nproc)" ]; do wait -n 2>/dev/null || true; done
-    rm -f "target/jobs/$fn.rc"
-    ( set +e; ( set -e; "$fn" ) > "target/jobs/$fn.log" 2>&1; echo $? > "target/jobs/$fn.rc" ) &
-    pids+=("$!")
-  done
-  wait "${pids[@]}" 2>/dev/null || true
-  for fn in "$@"; do
-    echo "--- $fn"; cat "target/jobs/$fn.log"
-    [ "$(cat "target/jobs/$fn.rc" 2>/dev/null)" = 0 ] || failed+=("$fn (exit $(cat "target/jobs/$fn.rc" 2>/dev/null || echo '?'))")
-  done
-  if [ ${#failed[@]} -gt 0 ]; then echo "failed: ${failed[*]}" >&2; return 1; fi
 }
 
 # every parity run also writes its JUnit report (target/parity/*.xml) for CI systems to read; an earlier
@@ -418,9 +399,9 @@ run_jobs x86_tiny a64_tiny a64_neon a64_prove a64_broken x86_broken a64_diffsheg
 
 stage "release: the x86-64 glibc archive (ONNX Runtime in lib/) and C SDK, proven from the archive alone"
 # no compile: both take the workspace build above (target/release), so this stage runs before the two that wait for
-# the background builds (in the fresh clone of 099daf2 it ran last, with one core idle beside it); the archive's --backend ort finds lib/'s
-# library, tract is byte-identical to the native build; the SDK's example built from the extracted archive with
-# pkg-config and with CMake, shared and static (docs/install.md)
+# the background builds (run last, it had one core idle beside it); the archive's --backend ort finds lib/'s library,
+# tract is byte-identical to the native build; the SDK's example built from the extracted archive with pkg-config
+# and with CMake, shared and static (docs/install.md)
 scripts/release.sh --prove x86_64-unknown-linux-gnu c-sdk
 
 stage "release: the x86-64 musl (static) archive, proven from the archive alone (docs/install.md)"
